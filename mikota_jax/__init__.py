@@ -1,0 +1,42 @@
+"""mikota_jax: differentiable reduced-order modelling of linear vibration chains in JAX.
+
+Conventions: DOFs and damper positions are 1-based, as in Weber & Zastrau (2018); arrays are
+float64 (importing the package turns on ``jax_enable_x64``; turning it off again is an error);
+trajectories are (N, d) with rows at times and columns at the requested DOFs.
+"""
+
+import jax as _jax
+
+_jax.config.update("jax_enable_x64", True)
+
+from ._analytic import eigenfrequencies as eigenfrequencies
+from ._analytic import mode_shape as mode_shape
+from ._analytic import mode_shape_coefficients as mode_shape_coefficients
+from ._analytic import paper_mode_shape as paper_mode_shape
+from ._chain import SecondOrderSystem as SecondOrderSystem
+from ._chain import chain as chain
+from ._chain import mikota_chain as mikota_chain
+from ._dampers import GroundedDamper as GroundedDamper
+from ._dampers import RelativeDamper as RelativeDamper
+from ._exact import exact_solve as exact_solve
+from ._exact import modal_decomposition as modal_decomposition
+from ._excitation import LoadFunction as LoadFunction
+from ._excitation import Pulse as Pulse
+from ._excitation import pulse as pulse
+from ._excitation import unit_vector as unit_vector
+from ._galerkin import ReducedModel as ReducedModel
+from ._galerkin import galerkin as galerkin
+from ._integrate import Trajectory as Trajectory
+from ._integrate import simulate as simulate
+from ._metrics import phase_error as phase_error
+from ._metrics import pseudo_energy as pseudo_energy
+from ._metrics import relative_error as relative_error
+from ._pod import POD as POD
+from ._pod import energy_fraction as energy_fraction
+from ._pod import pod as pod
+from ._pod import rank_for_energy as rank_for_energy
+from ._run import run_scene as run_scene
+from ._scene import Scene as Scene
+from ._scene import load_scene as load_scene
+
+__version__ = "0.1.0"

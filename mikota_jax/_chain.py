@@ -1,0 +1,82 @@
+"""Second-order systems M x'' + D x' + K x = f, and fixed-free chains (eqs. 2.1-2.3, 3.1).
+
+Chain conventions: DOF i = 1..n (1-based) carries mass m_i and is tied to DOF i-1 by spring k_i; DOF 0
+is the fixed support, DOF n is free. So K = tridiag(-k_i, k_i + k_{i+1}, -k_{i+1}) with k_{n+1} = 0
+(eq. 2.2). Mikota's chain has m_i = m / i and k_i = (n - i + 1) k (eq. 2.3), eigenfrequencies
+l * sqrt(k / m) (eq. 2.4).
+"""
+
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from ._custom_types import ScalarLike, Vector
+from ._dampers import Dampers, GroundedDamper, RelativeDamper
+from ._errors import MARK, as_float, check
+from ._operators import Dense, Diagonal, Operator, SymmetricTridiagonal
+
+
+class SecondOrderSystem(eqx.Module):
+    """M x'' + D x' + K x = f with structured operators; ``damping is None`` when undamped."""
+
+    mass: Diagonal | Dense
+    stiffness: SymmetricTridiagonal | Dense
+    damping: Dampers | Dense | None = None
+
+    @property
+    def size(self) -> int:
+        return self.mass.size
+
+    def dense(self):
+        """(M, D, K) as dense matrices (D is None when undamped): for small systems and checks."""
+        damping = None if self.damping is None else self.damping.as_matrix()
+        return self.mass.as_matrix(), damping, self.stiffness.as_matrix()
+
+    def project(self, basis) -> "SecondOrderSystem":
+        """Galerkin projection basis^T (M, D, K) basis (eq. 3.4)."""
+        damping = None if self.damping is None else self.damping.project(basis)
+        return SecondOrderSystem(self.mass.project(basis), self.stiffness.project(basis), damping)
+
+
+def _damping(n: int, dampers) -> Dampers | None:
+    dampers = tuple(dampers)
+    for d in dampers:
+        if not isinstance(d, GroundedDamper | RelativeDamper):
+            raise ValueError(MARK + f"dampers must be GroundedDamper or RelativeDamper, got {d!r}.")
+    return Dampers(n, dampers) if dampers else None
+
+
+def chain(masses: Sequence[float] | Vector, springs: Sequence[float] | Vector,
+          dampers: Sequence[GroundedDamper | RelativeDamper] = ()) -> SecondOrderSystem:
+    """A fixed-free chain from positive masses m_1..m_n and springs k_1..k_n (k_1 to the ground)."""
+    masses = as_float(masses, "masses")
+    springs = as_float(springs, "springs")
+    if masses.ndim != 1 or masses.shape[0] < 1:
+        raise ValueError(MARK + f"masses must be a 1-d array of length n >= 1, got {masses.shape}.")
+    if springs.shape != masses.shape:
+        raise ValueError(MARK + f"springs must have the shape of masses {masses.shape}, "
+                         f"got {springs.shape}.")
+    masses = check(masses, ~(jnp.isfinite(masses) & (masses > 0)), "masses must be finite and > 0.")
+    springs = check(springs, ~(jnp.isfinite(springs) & (springs > 0)),
+                    "springs must be finite and > 0.")
+    n = masses.shape[0]
+    next_springs = jnp.concatenate([springs[1:], jnp.zeros(1)])  # k_{i+1}, with k_{n+1} = 0
+    stiffness = SymmetricTridiagonal(springs + next_springs, -springs[1:])
+    return SecondOrderSystem(Diagonal(masses), stiffness, _damping(n, dampers))
+
+
+def mikota_chain(n: int, m: ScalarLike = 1.0, k: ScalarLike = 1.0,
+                 dampers: Sequence[GroundedDamper | RelativeDamper] = ()) -> SecondOrderSystem:
+    """Mikota's chain: m_i = m / i, k_i = (n - i + 1) k for i = 1..n (eq. 2.3)."""
+    if isinstance(n, bool) or not isinstance(n, int | jnp.integer) or n < 1:
+        raise ValueError(MARK + f"n must be an integer >= 1, got {n!r}.")
+    n = int(n)
+    m = check(as_float(m, "m"), ~(jnp.isfinite(m) & (m > 0)), "m must be finite and > 0.")
+    k = check(as_float(k, "k"), ~(jnp.isfinite(k) & (k > 0)), "k must be finite and > 0.")
+    i = jnp.arange(1, n + 1, dtype=jnp.float64)
+    return chain(m / i, (n - i + 1) * k, dampers)
+
+
+def as_operator(x) -> Operator:
+    return x if isinstance(x, Diagonal | SymmetricTridiagonal | Dense) else Dense(x)

@@ -1,0 +1,117 @@
+"""Discrete dampers: grounded (absolute) at a DOF, and relative between two DOFs.
+
+Conventions: DOFs are 1-based as in the paper. A grounded damper's ``position`` is a real number in
+[1, n]: at a fractional position p = j + w (j = floor(p), 0 <= w < 1) its coefficient is split
+linearly, d*(1-w) grounded at DOF j and d*w grounded at DOF j+1. At integer positions this is exactly
+the paper's damper (Section 5); in between it is a different (two-damper) device, continuous in p
+with a kink at every integer, where the derivative taken by JAX is the right-sided one (and the
+left-sided one at p = n).
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._custom_types import Array, Basis, Float, Matrix, ScalarLike, Vector
+from ._errors import MARK, as_float, check
+from ._operators import Dense
+
+
+class GroundedDamper(eqx.Module):
+    """A damper from a DOF to the ground: ``position`` in [1, n] (1-based), ``coefficient`` >= 0."""
+
+    position: Float[Array, ""]
+    coefficient: Float[Array, ""]
+
+    def __init__(self, position: ScalarLike, coefficient: ScalarLike):
+        self.position = as_float(position, "position")
+        self.coefficient = as_float(coefficient, "coefficient")
+        if self.position.shape != () or self.coefficient.shape != ():
+            raise ValueError(MARK + "GroundedDamper position and coefficient must be scalars.")
+
+
+class RelativeDamper(eqx.Module):
+    """A damper between two DOFs ``dofs = (i, j)`` (1-based, i != j), ``coefficient`` >= 0."""
+
+    dofs: tuple[int, int] = eqx.field(static=True)
+    coefficient: Float[Array, ""]
+
+    def __init__(self, dofs: tuple[int, int], coefficient: ScalarLike):
+        dofs = tuple(int(i) for i in dofs)
+        if len(dofs) != 2 or dofs[0] == dofs[1]:
+            raise ValueError(MARK + f"RelativeDamper dofs must be two different DOFs, got {dofs}.")
+        self.dofs = dofs
+        self.coefficient = as_float(coefficient, "coefficient")
+        if self.coefficient.shape != ():
+            raise ValueError(MARK + "RelativeDamper coefficient must be a scalar.")
+
+
+def _split(position, n: int):
+    """0-based left index and weight of the right neighbour for a position in [1, n]."""
+    if n == 1:
+        return jnp.zeros((), int), jnp.zeros_like(position)
+    j = jnp.clip(jnp.floor(position), 1, n - 1)
+    return j.astype(int) - 1, position - j
+
+
+class Dampers(eqx.Module):
+    """The damping operator D of a set of dampers; applying it costs O(n + number of dampers)."""
+
+    size: int = eqx.field(static=True)
+    positions: Float[Array, " g"]
+    coefficients: Float[Array, " g"]
+    pairs: tuple[tuple[int, int], ...] = eqx.field(static=True)  # 0-based
+    pair_coefficients: Float[Array, " p"]
+
+    def __init__(self, n: int, dampers):
+        grounded = [d for d in dampers if isinstance(d, GroundedDamper)]
+        relative = [d for d in dampers if isinstance(d, RelativeDamper)]
+        if len(grounded) + len(relative) != len(dampers):
+            raise ValueError(MARK + "dampers must be GroundedDamper or RelativeDamper instances.")
+        self.size = n
+        positions = jnp.stack([d.position for d in grounded]) if grounded else jnp.zeros(0)
+        coefficients = jnp.stack([d.coefficient for d in grounded]) if grounded else jnp.zeros(0)
+        self.positions = check(
+            positions, ~((positions >= 1) & (positions <= n)),
+            f"damper position must lie in [1, {n}] (1-based DOFs of a chain with n = {n}).")
+        self.coefficients = check(
+            coefficients, ~(jnp.isfinite(coefficients) & (coefficients >= 0)),
+            "damper coefficient must be finite and >= 0.")
+        for d in relative:
+            if not all(1 <= i <= n for i in d.dofs):
+                raise ValueError(MARK + f"relative damper dofs {d.dofs} must lie in 1..{n}.")
+        self.pairs = tuple((d.dofs[0] - 1, d.dofs[1] - 1) for d in relative)
+        pair_coefficients = (jnp.stack([d.coefficient for d in relative]) if relative
+                             else jnp.zeros(0))
+        self.pair_coefficients = check(
+            pair_coefficients, ~(jnp.isfinite(pair_coefficients) & (pair_coefficients >= 0)),
+            "damper coefficient must be finite and >= 0.")
+
+    def _grounded_weights(self):
+        left, w = _split(self.positions, self.size)
+        right = jnp.minimum(left + 1, self.size - 1)
+        return left, right, self.coefficients * (1 - w), self.coefficients * w
+
+    def mv(self, v: Vector) -> Vector:
+        left, right, c_left, c_right = self._grounded_weights()
+        out = jnp.zeros_like(v).at[left].add(c_left * v[left]).at[right].add(c_right * v[right])
+        if self.pairs:
+            i, j = (jnp.asarray(a) for a in zip(*self.pairs))
+            f = self.pair_coefficients * (v[i] - v[j])
+            out = out.at[i].add(f).at[j].add(-f)
+        return out
+
+    def as_matrix(self) -> Matrix:
+        return jax.vmap(self.mv, in_axes=1, out_axes=1)(jnp.eye(self.size))
+
+    def project(self, basis: Basis) -> Dense:
+        """``basis^T D basis`` in O(dampers * r^2), without touching the other n - 2 rows."""
+        left, right, c_left, c_right = self._grounded_weights()
+        a, b = basis[left], basis[right]
+        out = (a.T * c_left) @ a + (b.T * c_right) @ b
+        if self.pairs:
+            i, j = (np.asarray(a) for a in zip(*self.pairs))
+            diff = basis[i] - basis[j]
+            out = out + (diff.T * self.pair_coefficients) @ diff
+        return Dense(out)

@@ -1,0 +1,65 @@
+"""Input validation: eager ``ValueError`` for concrete values, ``eqx.error_if`` for traced ones.
+
+Every message starts with ``MARK`` so that the public entry points can turn equinox's runtime error
+(raised when a traced check fails under ``jit``) back into the ``ValueError`` a user expects.
+"""
+
+import functools
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+MARK = "mikota_jax: "
+
+
+def check_x64() -> None:
+    """Refuse to run with float64 disabled: results would silently be float32."""
+    if not jax.config.read("jax_enable_x64"):
+        raise ValueError(
+            MARK + "jax_enable_x64 is off; mikota_jax computes in float64 only. "
+            "Re-enable it with jax.config.update('jax_enable_x64', True)."
+        )
+
+
+def as_float(x, name: str) -> jax.Array:
+    """Convert to a float64 array; float32/float16 input is an error, never a silent cast."""
+    check_x64()
+    dtype = getattr(x, "dtype", None)
+    if dtype is not None and jnp.issubdtype(dtype, jnp.floating) and dtype != jnp.float64:
+        raise ValueError(MARK + f"{name} must be float64, got {dtype}; pass float64 arrays.")
+    if dtype is not None and jnp.issubdtype(dtype, jnp.complexfloating):
+        raise ValueError(MARK + f"{name} must be real, got {dtype}.")
+    return jnp.asarray(x, dtype=jnp.float64)
+
+
+def is_traced(x) -> bool:
+    return isinstance(x, jax.core.Tracer)
+
+
+def check(x, bad, message: str):
+    """Return ``x``; fail with ``message`` where ``bad`` holds (eagerly or under jit)."""
+    if not is_traced(bad) and not any(is_traced(leaf) for leaf in jax.tree.leaves(x)):
+        if bool(np.any(np.asarray(bad))):
+            raise ValueError(MARK + message)
+        return x
+    return eqx.error_if(x, bad, MARK + message)
+
+
+def raises_value_error(fn):
+    """Re-raise a failed traced check of ours as ``ValueError`` (its message names the argument)."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except eqx.EquinoxRuntimeError as error:
+            text = str(error)
+            if MARK in text:
+                start = text.index(MARK)
+                line = text[start:].splitlines()[0]
+                raise ValueError(line) from None
+            raise
+
+    return wrapper

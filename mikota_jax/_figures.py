@@ -1,0 +1,111 @@
+"""Figures 2-9 of Weber & Zastrau (2018), drawn from our own results (same quantities and windows).
+
+Only matplotlib's non-interactive Agg backend is used, so figures render on a machine without a
+screen. Each function takes plain numpy arrays and writes one PNG.
+"""
+
+from pathlib import Path
+
+import numpy as np
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    _plt().close(fig)
+    return path
+
+
+def eigensolutions(path, eigenvalues, shapes) -> Path:
+    """Fig. 2: eigenvalues lambda_l = Omega_l^2 and mode shapes u_1..u_5 (i = 0 is the support)."""
+    plt = _plt()
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4))
+    l = np.arange(1, len(eigenvalues) + 1)
+    left.plot(l, eigenvalues, "o-")
+    left.set(xlabel="l", ylabel=r"$\lambda_l = \Omega_l^2$", title="eigenvalues (n = 10)")
+    i = np.arange(0, shapes.shape[1] + 1)
+    for k, shape in enumerate(shapes, start=1):
+        right.plot(i, np.concatenate([[0.0], shape]), "o-", label=f"$u_{k}$")
+    right.axhline(0, color="0.7", lw=0.8)
+    right.set(xlabel="DOF i", ylabel="mode shape (peak 1)", title="mode shapes")
+    right.legend()
+    return _save(fig, Path(path))
+
+
+def singular_values_and_modes(path, singular_values, modes, labels, title) -> Path:
+    """Figs. 3, 5, 7: singular values (log scale) and selected POMs over the DOF index."""
+    plt = _plt()
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4))
+    s = np.asarray(singular_values)
+    left.semilogy(np.arange(1, len(s) + 1), np.maximum(s, 1e-300), ".")
+    left.set(xlabel="k", ylabel=r"$\sigma_k$", title="singular values")
+    i = np.arange(1, modes.shape[0] + 1)
+    for label in labels:
+        right.plot(i, modes[:, label - 1], label=f"POM {label}")
+    right.set(xlabel="DOF i", ylabel=r"$\varphi_k$", title=title)
+    right.legend(fontsize=8)
+    return _save(fig, Path(path))
+
+
+def histories(path, ts, displacement, velocity=None, dofs=None, title="") -> Path:
+    """Figs. 4 and 6: displacement (and velocity) histories of the given DOFs."""
+    plt = _plt()
+    panels = 1 if velocity is None else 2
+    fig, axes = plt.subplots(panels, 1, figsize=(10, 3.2 * panels), squeeze=False)
+    labels = dofs if dofs is not None else range(1, displacement.shape[1] + 1)
+    for column, dof in enumerate(labels):
+        axes[0, 0].plot(ts, displacement[:, column], lw=0.8, label=f"DOF {dof}")
+        if velocity is not None:
+            axes[1, 0].plot(ts, velocity[:, column], lw=0.8, label=f"DOF {dof}")
+    axes[0, 0].set(xlabel="t", ylabel="displacement x_i", title=title)
+    axes[0, 0].legend(fontsize=7, ncol=5)
+    if velocity is not None:
+        axes[1, 0].set(xlabel="t", ylabel="velocity v_i")
+    return _save(fig, Path(path))
+
+
+def full_versus_reduced(path, ts, full_x, full_v, red_x, red_v, dof: int, rank: int) -> Path:
+    """Figs. 8-9: displacement and velocity of one DOF, full ("full") against reduced ("MOR")."""
+    plt = _plt()
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    for axis, full, red, name in ((top, full_x, red_x, "displacement"),
+                                  (bottom, full_v, red_v, "velocity")):
+        axis.plot(ts / np.pi, full, "k-", lw=2, label="full (n = 300)")
+        axis.plot(ts / np.pi, red, "r--", lw=1.5, label=f"MOR (n_red = {rank})")
+        axis.set(ylabel=f"{name} of DOF {dof}")
+        axis.legend(fontsize=8)
+    bottom.set(xlabel=r"$t / \pi$")
+    top.set_title(f"DOF {dof}, full and reduced (n_red = {rank})")
+    return _save(fig, Path(path))
+
+
+def scene_figures(result: dict, folder) -> list[Path]:
+    """The figures a scene asks for (``[output] figures = true``): histories and singular values."""
+    folder = Path(folder)
+    arrays = result["_arrays"]
+    ts, dofs = arrays["times"], list(arrays["dofs"])
+    full = arrays["full"]
+    pick = [full.dofs.index(d) for d in dofs]
+    written = [histories(folder / "displacement.png", ts, np.asarray(full.displacement)[:, pick],
+                         dofs=dofs, title=f"{result['name']}: full model")]
+    if "pod" in arrays:
+        reduced = arrays["reduced"]
+        pick_r = [reduced.dofs.index(d) for d in dofs]
+        written.append(histories(folder / "reduced_displacement.png", ts,
+                                 np.asarray(reduced.displacement)[:, pick_r], dofs=dofs,
+                                 title=f"{result['name']}: reduced model, r = {arrays['rank']}"))
+        decomposition = arrays["pod"]
+        written.append(singular_values_and_modes(
+            folder / "singular_values.png", np.asarray(decomposition.singular_values),
+            np.asarray(decomposition.modes), list(range(1, min(5, arrays["rank"]) + 1)),
+            "leading POMs"))
+    return written

@@ -1,0 +1,49 @@
+"""Galerkin reduction (eqs. 3.2-3.4): a reduced model is a smaller second-order system plus a basis.
+
+With an orthonormal basis Phi (n x r) of proper orthogonal modes, x ~ Phi q (eq. 3.2) and
+Phi^T M Phi q'' + Phi^T D Phi q' + Phi^T K Phi q = Phi^T f (eq. 3.4). The reduced initial state is
+q(0) = Phi^T x(0), q'(0) = Phi^T x'(0): the orthogonal projection, exact when x(0) lies in span Phi.
+"""
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from ._chain import SecondOrderSystem
+from ._custom_types import Basis, Vector
+from ._errors import MARK, check
+
+
+class ReducedModel(eqx.Module):
+    """The projected system (dense r x r operators) and the basis that lifts it back (eq. 3.2)."""
+
+    system: SecondOrderSystem
+    basis: Basis
+
+    @property
+    def size(self) -> int:
+        return self.basis.shape[0]
+
+    @property
+    def rank(self) -> int:
+        return self.basis.shape[1]
+
+    def reduce_state(self, x: Vector) -> Vector:
+        return self.basis.T @ x
+
+    def lift(self, q):
+        """x = Phi q (eq. 3.2); q may be (r,) or (..., r)."""
+        return q @ self.basis.T
+
+
+def galerkin(system: SecondOrderSystem, basis: Basis) -> ReducedModel:
+    """Project M, D, K onto ``basis`` (n x r, orthonormal columns), eq. (3.4)."""
+    if not isinstance(system, SecondOrderSystem):
+        raise ValueError(MARK + f"system must be a SecondOrderSystem, got {type(system).__name__}.")
+    basis = jnp.asarray(basis)
+    if basis.dtype != jnp.float64:
+        raise ValueError(MARK + f"basis must be float64, got {basis.dtype}.")
+    if basis.ndim != 2 or basis.shape[0] != system.size or not 1 <= basis.shape[1] <= system.size:
+        raise ValueError(MARK + f"basis must have shape (n, r) with n = {system.size} and "
+                         f"1 <= r <= n, got {basis.shape}.")
+    basis = check(basis, ~jnp.all(jnp.isfinite(basis)), "basis must be finite.")
+    return ReducedModel(system.project(basis), basis)

@@ -1,0 +1,55 @@
+"""Error measures between a full and a reduced (lifted) solution, and the pseudo-energy (eq. 3.7).
+
+Arrays are (N, n): rows are time instants, columns DOFs, as in ``Trajectory``.
+"""
+
+import jax.numpy as jnp
+
+from ._custom_types import Array, Float
+from ._errors import MARK
+
+AGGREGATES = ("max", "sum", "mean", "none")
+
+
+def _check_pair(a, b, name_a: str, name_b: str):
+    a, b = jnp.asarray(a), jnp.asarray(b)
+    if a.shape != b.shape:
+        raise ValueError(MARK + f"{name_a} and {name_b} must have the same shape, got {a.shape} and "
+                         f"{b.shape}.")
+    return a, b
+
+
+def phase_error(displacement, velocity, reduced_displacement, reduced_velocity,
+                aggregate: str = "max") -> Float[Array, "..."]:
+    """Delta E_phase of eq. (5.4) between a full and a reduced solution, each (N, n).
+
+    At every instant: sqrt( sum_i [(x_i - x_red,i)^2 + (v_i - v_red,i)^2] / sum_i (x_i^2 + v_i^2) ).
+    The paper does not say how instants are combined; ``aggregate`` chooses: ``"max"`` over time
+    (default), ``"mean"`` over time, ``"sum"`` (one ratio of sums over all instants, i.e. the
+    relative L2 error of the state over the run) or ``"none"`` (the (N,) history).
+    """
+    if aggregate not in AGGREGATES:
+        raise ValueError(MARK + f"aggregate must be one of {AGGREGATES}, got {aggregate!r}.")
+    x, xr = _check_pair(displacement, reduced_displacement, "displacement", "reduced_displacement")
+    v, vr = _check_pair(velocity, reduced_velocity, "velocity", "reduced_velocity")
+    x, v = _check_pair(x, v, "displacement", "velocity")
+    error = jnp.sum((x - xr) ** 2 + (v - vr) ** 2, axis=-1)
+    norm = jnp.sum(x**2 + v**2, axis=-1)
+    if aggregate == "sum":
+        return jnp.sqrt(jnp.sum(error) / jnp.sum(norm))
+    history = jnp.sqrt(error / norm)
+    if aggregate == "none":
+        return history
+    return jnp.max(history) if aggregate == "max" else jnp.mean(history)
+
+
+def relative_error(reference, approximation) -> Float[Array, ""]:
+    """Relative L2 (Frobenius) error ||approximation - reference|| / ||reference|| over time and DOFs."""
+    a, b = _check_pair(reference, approximation, "reference", "approximation")
+    return jnp.linalg.norm(b - a) / jnp.linalg.norm(a)
+
+
+def pseudo_energy(singular_values) -> Float[Array, ""]:
+    """E_pseudo = ||Q||_F^2 = sum_k sigma_k^2 (eq. 3.7)."""
+    s = jnp.asarray(singular_values)
+    return jnp.sum(s**2)

@@ -1,0 +1,83 @@
+"""Structured linear operators for mass, stiffness and damping.
+
+The full chain keeps its structure (a diagonal mass, a symmetric tridiagonal stiffness, a handful of
+dampers), so applying an operator costs O(n); a reduced model's operators are dense r x r. Every
+operator offers ``mv`` (matrix-vector product), ``as_matrix`` (dense, only on request) and
+``project(basis)`` (the Galerkin product ``basis^T A basis`` of eq. 3.4, returned dense).
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from ._custom_types import Array, Basis, Float, Matrix, Vector
+
+
+class Diagonal(eqx.Module):
+    """A diagonal matrix stored as its diagonal."""
+
+    diagonal: Vector
+
+    @property
+    def size(self) -> int:
+        return self.diagonal.shape[0]
+
+    def mv(self, x: Vector) -> Vector:
+        return self.diagonal * x
+
+    def solve(self, y: Vector) -> Vector:
+        return y / self.diagonal
+
+    def as_matrix(self) -> Matrix:
+        return jnp.diag(self.diagonal)
+
+    def project(self, basis: Basis) -> "Dense":
+        return Dense(basis.T @ (self.diagonal[:, None] * basis))
+
+
+class SymmetricTridiagonal(eqx.Module):
+    """A symmetric tridiagonal matrix: main diagonal (n,) and off-diagonal (n-1,)."""
+
+    diagonal: Vector
+    off_diagonal: Float[Array, " n-1"]
+
+    @property
+    def size(self) -> int:
+        return self.diagonal.shape[0]
+
+    def mv(self, x: Vector) -> Vector:
+        y = self.diagonal * x
+        if self.size == 1:
+            return y
+        upper = self.off_diagonal * x[1:]
+        lower = self.off_diagonal * x[:-1]
+        return y + jnp.pad(upper, (0, 1)) + jnp.pad(lower, (1, 0))
+
+    def as_matrix(self) -> Matrix:
+        return (jnp.diag(self.diagonal) + jnp.diag(self.off_diagonal, 1)
+                + jnp.diag(self.off_diagonal, -1))
+
+    def project(self, basis: Basis) -> "Dense":
+        return Dense(basis.T @ jax.vmap(self.mv, in_axes=1, out_axes=1)(basis))
+
+
+class Dense(eqx.Module):
+    """A dense matrix (a reduced model's operators, or a user's dense matrix)."""
+
+    matrix: Matrix
+
+    @property
+    def size(self) -> int:
+        return self.matrix.shape[0]
+
+    def mv(self, x: Vector) -> Vector:
+        return self.matrix @ x
+
+    def as_matrix(self) -> Matrix:
+        return self.matrix
+
+    def project(self, basis: Basis) -> "Dense":
+        return Dense(basis.T @ self.matrix @ basis)
+
+
+Operator = Diagonal | SymmetricTridiagonal | Dense

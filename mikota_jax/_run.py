@@ -1,0 +1,153 @@
+"""``run_scene``: compute exactly what a scene asks for, and write it as ``results.json``.
+
+Lazy by construction: velocities are integrated and saved only when an output reads them (the
+velocity itself, or the phase error of eq. 5.4); all DOFs are saved only when the reduction or a
+whole-chain metric needs them; POD and Galerkin run only with a ``[reduction]`` table. The paper's
+reduced initial state is the projection q(0) = Phi^T x(0), q'(0) = Phi^T x'(0).
+"""
+
+import json
+import os
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from ._exact import exact_solve
+from ._galerkin import galerkin
+from ._integrate import simulate
+from ._metrics import phase_error, relative_error
+from ._pod import pod
+from ._scene import Scene
+
+
+def _solve(model, scene: Scene, dofs, displacement: bool, velocity: bool):
+    kwargs = dict(dofs=dofs, displacement=displacement, velocity=velocity)
+    if scene.solver == "exact":
+        return exact_solve(model, scene.ts, scene.x0, scene.v0, scene.load, **kwargs)
+    return simulate(model, scene.ts, scene.x0, scene.v0, scene.load, solver=scene.solver,
+                    rtol=scene.rtol, atol=scene.atol, max_steps=scene.max_steps, **kwargs)
+
+
+def _columns(trajectory, quantity: str, dofs) -> dict[str, list[float]]:
+    values = np.asarray(getattr(trajectory, quantity))
+    index = {d: k for k, d in enumerate(trajectory.dofs)}
+    return {str(d): values[:, index[d]].tolist() for d in dofs}
+
+
+def _window(ts, window) -> np.ndarray:
+    t = np.asarray(ts)
+    tol = 1e-9 * max(1.0, float(np.max(np.abs(t))))
+    mask = (t >= window[0] - tol) & (t <= window[1] + tol)
+    if not mask.any():
+        raise ValueError(f"mikota_jax: [reduction] snapshots window {window} holds no time of "
+                         "the grid.")
+    return mask
+
+
+def run_scene(scene: Scene) -> dict:
+    """Run ``scene``; return a JSON-ready dict (``times``, ``full``, ``reduced``, metrics, ``meta``).
+
+    Only the requested DOFs (default all) and quantities appear. Arrays of the internal solves are
+    kept under the key ``"_arrays"`` (numpy, not written to JSON) for figures and further use.
+    """
+    if not isinstance(scene, Scene):
+        raise ValueError(f"mikota_jax: scene must be a Scene (see load_scene), got "
+                         f"{type(scene).__name__}.")
+    out = scene.output
+    quantities = set(out.quantities)
+    n = scene.size
+    dofs = out.dofs if out.dofs is not None else tuple(range(1, n + 1))
+    reduction = scene.reduction
+    wants_phase = "phase_error" in quantities or "relative_error" in quantities
+    wants_v = "velocity" in quantities or "phase_error" in quantities
+    snapshot_v = reduction is not None and reduction.quantity == "velocity"
+    need_all = reduction is not None  # snapshots (and whole-chain metrics) need every DOF
+    timings = {}
+    result: dict = {"name": scene.name, "times": np.asarray(scene.ts).tolist()}
+    arrays: dict = {"times": np.asarray(scene.ts), "dofs": dofs}
+
+    start = time.perf_counter()
+    full = _solve(scene.system, scene, None if need_all else dofs, True,
+                  wants_v or snapshot_v)
+    jax.block_until_ready(full)
+    timings["full_solve_s"] = time.perf_counter() - start
+    arrays["full"] = full
+    result["full"] = {q: _columns(full, q, dofs) for q in ("displacement", "velocity")
+                      if q in quantities}
+
+    if reduction is not None:
+        start = time.perf_counter()
+        mask = _window(scene.ts, reduction.window)
+        states = full.velocity if snapshot_v else full.displacement
+        snapshots = np.asarray(states)[mask].T  # (n, m), eq. (3.5)
+        decomposition = pod(snapshots, method=reduction.method)
+        if reduction.rank is not None:
+            rank = reduction.rank
+        else:
+            rank = decomposition.rank_for_energy(reduction.energy, reduction.criterion)
+        model = galerkin(scene.system, decomposition.basis(rank))
+        timings["reduction_s"] = time.perf_counter() - start
+        start = time.perf_counter()
+        reduced = _solve(model, scene, None if wants_phase else dofs, True, wants_v)
+        jax.block_until_ready(reduced)
+        timings["reduced_solve_s"] = time.perf_counter() - start
+        arrays.update(pod=decomposition, rank=rank, reduced=reduced, snapshots=int(mask.sum()))
+        result["reduced"] = {q: _columns(reduced, q, dofs) for q in ("displacement", "velocity")
+                             if q in quantities}
+        if "singular_values" in quantities:
+            result["singular_values"] = np.asarray(decomposition.singular_values).tolist()
+        if "rank" in quantities:
+            result["rank"] = rank
+        if "modes" in quantities:
+            result["modes"] = np.asarray(decomposition.basis(rank)).T.tolist()
+        if "phase_error" in quantities:
+            result["phase_error"] = float(phase_error(
+                full.displacement, full.velocity, reduced.displacement, reduced.velocity,
+                aggregate=out.phase_error))
+            result["phase_error_aggregate"] = out.phase_error
+        if "relative_error" in quantities:
+            result["relative_error"] = float(relative_error(full.displacement,
+                                                            reduced.displacement))
+    result["meta"] = _meta(scene, timings)
+    result["_arrays"] = arrays
+    return result
+
+
+def _meta(scene: Scene, timings: dict) -> dict:
+    import diffrax
+    import equinox
+
+    from . import __version__
+
+    solver = {"method": scene.solver}
+    if scene.solver != "exact":
+        solver.update(rtol=scene.rtol, atol=scene.atol, max_steps=scene.max_steps)
+    return {
+        "mikota_jax": __version__, "jax": jax.__version__, "diffrax": diffrax.__version__,
+        "equinox": equinox.__version__, "numpy": np.__version__, "python": platform.python_version(),
+        "backend": jax.default_backend(), "x64": bool(jax.config.read("jax_enable_x64")),
+        "solver": solver, "wall_times_s": timings,
+        "reduction": None if scene.reduction is None else {
+            "window": list(scene.reduction.window), "quantity": scene.reduction.quantity,
+            "energy": scene.reduction.energy, "rank": scene.reduction.rank,
+            "criterion": scene.reduction.criterion, "method": scene.reduction.method},
+    }
+
+
+def write_json(data: dict, path: Path) -> None:
+    """Write ``data`` atomically (a failed run leaves no partial file); drops ``_``-prefixed keys."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    clean = {k: v for k, v in data.items() if not k.startswith("_")}
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as handle:
+            json.dump(clean, handle, indent=1, allow_nan=False)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

@@ -1,0 +1,362 @@
+"""Scenes: a declarative description of one computation (chain, dampers, excitation, time grid,
+reduction, outputs), read from TOML or built in Python.
+
+A scene holds arrays as traced leaves (so ``jax.grad`` sees the physical values) and everything that
+changes a shape or the control flow (n, which outputs, the solver, the rank rule) as static data.
+DOFs are 1-based. ``load_scene`` validates every key: an unknown key, a wrong type or a value out of
+range raises one ``ValueError`` naming the key (``[table] key``) and the allowed values.
+"""
+
+import tomllib
+from collections.abc import Mapping
+from importlib import resources
+from pathlib import Path
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from ._analytic import mode_shape
+from ._chain import SecondOrderSystem, chain, mikota_chain
+from ._custom_types import Times, Vector
+from ._dampers import GroundedDamper, RelativeDamper
+from ._errors import MARK
+from ._excitation import Pulse, pulse
+from ._integrate import SOLVERS
+from ._metrics import AGGREGATES
+from ._pod import CRITERIA, METHODS
+
+QUANTITIES = ("displacement", "velocity", "singular_values", "rank", "phase_error", "modes",
+              "relative_error")
+PAPER_SCENES = ("section4_first_mode", "section4_impulse", "section5_damped")
+
+
+class Reduction(eqx.Module):
+    """How to reduce: snapshot window, snapshot quantity, and the rank rule (energy or rank)."""
+
+    window: tuple[float, float]
+    quantity: str = "displacement"
+    energy: float | None = None
+    rank: int | None = None
+    criterion: str = "squared"
+    method: str = "svd"
+
+
+class Output(eqx.Module):
+    """What to compute and report: 1-based DOFs (None: all), quantities, figures."""
+
+    dofs: tuple[int, ...] | None
+    quantities: tuple[str, ...]
+    phase_error: str = "max"
+    figures: bool = False
+
+
+class Scene(eqx.Module):
+    """One computation, declaratively: run it with ``run_scene``."""
+
+    system: SecondOrderSystem
+    ts: Times
+    x0: Vector | None
+    v0: Vector | None
+    load: Pulse | None
+    reduction: Reduction | None = eqx.field(static=True)
+    output: Output = eqx.field(static=True)
+    solver: str = eqx.field(static=True, default="exact")
+    rtol: float = eqx.field(static=True, default=1e-10)
+    atol: float = eqx.field(static=True, default=1e-12)
+    max_steps: int = eqx.field(static=True, default=100_000)
+    name: str = eqx.field(static=True, default="scene")
+
+    @property
+    def size(self) -> int:
+        return self.system.size
+
+
+# --------------------------------------------------------------------------- TOML validation
+
+def _fail(where: str, message: str):
+    raise ValueError(MARK + f"{where}: {message}")
+
+
+def _table(data: Mapping, key: str, allowed: set[str], required: bool = False) -> dict:
+    value = data.get(key)
+    if value is None:
+        if required:
+            _fail(f"[{key}]", "this table is required.")
+        return {}
+    if not isinstance(value, Mapping):
+        _fail(f"[{key}]", f"must be a table, got {type(value).__name__}.")
+    unknown = set(value) - allowed
+    if unknown:
+        _fail(f"[{key}]", f"unknown key(s) {sorted(unknown)}; allowed: {sorted(allowed)}.")
+    return dict(value)
+
+
+def _number(table: dict, where: str, key: str, *, default=None, low=None, high=None,
+            strict_low: bool = False, integer: bool = False):
+    if key not in table:
+        if default is None:
+            _fail(f"{where} {key}", "is required.")
+        return default
+    value = table[key]
+    kinds = (int,) if integer else (int, float)
+    if isinstance(value, bool) or not isinstance(value, kinds) or not np.isfinite(value):
+        _fail(f"{where} {key}", f"must be a finite {'integer' if integer else 'number'}, "
+              f"got {value!r}.")
+    if low is not None and (value <= low if strict_low else value < low):
+        _fail(f"{where} {key}", f"must be {'>' if strict_low else '>='} {low}, got {value!r}.")
+    if high is not None and value > high:
+        _fail(f"{where} {key}", f"must be <= {high}, got {value!r}.")
+    return value
+
+
+def _choice(table: dict, where: str, key: str, choices, default):
+    value = table.get(key, default)
+    if value not in choices:
+        _fail(f"{where} {key}", f"must be one of {list(choices)}, got {value!r}.")
+    return value
+
+
+def _positive_list(table: dict, where: str, key: str) -> list[float]:
+    value = table.get(key)
+    if (not isinstance(value, list) or not value
+            or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+            or not all(np.isfinite(v) and v > 0 for v in value)):
+        _fail(f"{where} {key}", f"must be a non-empty list of finite numbers > 0, got {value!r}.")
+    return [float(v) for v in value]
+
+
+def _chain_from(data) -> tuple[SecondOrderSystem, int]:
+    table = _table(data, "chain", {"type", "n", "m", "k", "masses", "springs"}, required=True)
+    kind = _choice(table, "[chain]", "type", ("mikota", "custom"), "mikota")
+    if kind == "mikota":
+        extra = set(table) & {"masses", "springs"}
+        if extra:
+            _fail("[chain]", f"{sorted(extra)} belong to type = \"custom\".")
+        n = _number(table, "[chain]", "n", low=1, integer=True)
+        m = _number(table, "[chain]", "m", default=1.0, low=0, strict_low=True)
+        k = _number(table, "[chain]", "k", default=1.0, low=0, strict_low=True)
+        return ("mikota", n, float(m), float(k)), n
+    extra = set(table) & {"n", "m", "k"}
+    if extra:
+        _fail("[chain]", f"{sorted(extra)} belong to type = \"mikota\".")
+    masses = _positive_list(table, "[chain]", "masses")
+    springs = _positive_list(table, "[chain]", "springs")
+    if len(springs) != len(masses):
+        _fail("[chain] springs", f"must have as many entries as masses ({len(masses)}), "
+              f"got {len(springs)}.")
+    return ("custom", masses, springs), len(masses)
+
+
+def _dampers_from(data, n: int) -> list:
+    entries = data.get("damper", [])
+    if isinstance(entries, Mapping):
+        entries = [entries]
+    if not isinstance(entries, list):
+        _fail("[[damper]]", "must be an array of tables.")
+    dampers = []
+    for number, entry in enumerate(entries, start=1):
+        where = f"[[damper]] #{number}"
+        if not isinstance(entry, Mapping):
+            _fail(where, "must be a table.")
+        unknown = set(entry) - {"type", "position", "dofs", "coefficient"}
+        if unknown:
+            _fail(where, f"unknown key(s) {sorted(unknown)}; allowed: "
+                  "['coefficient', 'dofs', 'position', 'type'].")
+        entry = dict(entry)
+        kind = _choice(entry, where, "type", ("grounded", "relative"), "grounded")
+        d = float(_number(entry, where, "coefficient", low=0))
+        if kind == "grounded":
+            if "dofs" in entry:
+                _fail(f"{where} dofs", "belongs to type = \"relative\"; use position.")
+            p = float(_number(entry, where, "position", low=1, high=n))
+            dampers.append(GroundedDamper(p, d))
+        else:
+            if "position" in entry:
+                _fail(f"{where} position", "belongs to type = \"grounded\"; use dofs = [i, j].")
+            dofs = entry.get("dofs")
+            if (not isinstance(dofs, list) or len(dofs) != 2
+                    or not all(isinstance(i, int) and not isinstance(i, bool) for i in dofs)
+                    or not all(1 <= i <= n for i in dofs) or dofs[0] == dofs[1]):
+                _fail(f"{where} dofs", f"must be two different integer DOFs in 1..{n}, "
+                      f"got {dofs!r}.")
+            dampers.append(RelativeDamper(tuple(dofs), d))
+    return dampers
+
+
+def _state_from(value, n: int, where: str) -> Vector | None:
+    if value is None or value == {} or value == []:
+        return None
+    if isinstance(value, str):
+        words = value.split()
+        if len(words) == 2 and words[0] == "mode" and words[1].isdigit():
+            mode = int(words[1])
+            if not 1 <= mode <= n:
+                _fail(where, f"mode number must lie in 1..{n}, got {mode}.")
+            return mode_shape(n, mode)
+        _fail(where, f"must be a table {{DOF = value}}, a list of {n} numbers or \"mode l\", "
+              f"got {value!r}.")
+    if isinstance(value, Mapping):
+        x = np.zeros(n)
+        for dof, v in value.items():
+            if not str(dof).isdigit() or not 1 <= int(dof) <= n:
+                _fail(where, f"DOF keys must be integers in 1..{n}, got {dof!r}.")
+            if isinstance(v, bool) or not isinstance(v, int | float) or not np.isfinite(v):
+                _fail(where, f"value at DOF {dof} must be a finite number, got {v!r}.")
+            x[int(dof) - 1] = v
+        return jnp.asarray(x)
+    if isinstance(value, list):
+        if len(value) != n or not all(isinstance(v, int | float) and not isinstance(v, bool)
+                                      and np.isfinite(v) for v in value):
+            _fail(where, f"a list must hold {n} finite numbers.")
+        return jnp.asarray(np.asarray(value, dtype=np.float64))
+    _fail(where, f"unsupported value {value!r}.")
+
+
+def _load_from(data, n: int) -> Pulse | None:
+    table = _table(data, "load", {"type", "dof", "amplitude", "duration", "start"})
+    if not table:
+        return None
+    _choice(table, "[load]", "type", ("pulse",), "pulse")
+    dof = _number(table, "[load]", "dof", low=1, high=n, integer=True)
+    amplitude = _number(table, "[load]", "amplitude", default=1.0)
+    duration = _number(table, "[load]", "duration", low=0, strict_low=True)
+    start = _number(table, "[load]", "start", default=0.0)
+    return pulse(n, dof, float(amplitude), float(duration), float(start))
+
+
+def _times_from(data) -> Times:
+    table = _table(data, "time", {"start", "end", "step"}, required=True)
+    start = float(_number(table, "[time]", "start", default=0.0))
+    end = float(_number(table, "[time]", "end"))
+    step = float(_number(table, "[time]", "step", low=0, strict_low=True))
+    if end <= start:
+        _fail("[time] end", f"must be greater than start = {start}, got {end}.")
+    count = (end - start) / step
+    if abs(count - round(count)) > 1e-9 * max(1.0, count):
+        _fail("[time] step", f"must divide end - start = {end - start} into whole steps.")
+    return start + step * jnp.arange(round(count) + 1, dtype=jnp.float64)
+
+
+def _reduction_from(data, ts, n: int) -> Reduction | None:
+    table = _table(data, "reduction", {"snapshots", "energy", "rank", "criterion", "quantity",
+                                       "method"})
+    if not table:
+        return None
+    window = table.get("snapshots", [float(ts[0]), float(ts[-1])])
+    if (not isinstance(window, list) or len(window) != 2
+            or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in window)
+            or not window[0] <= window[1]):
+        _fail("[reduction] snapshots", f"must be a time window [start, end] with start <= end, "
+              f"got {window!r}.")
+    if not float(ts[0]) - 1e-12 <= window[0] <= float(ts[-1]) + 1e-12 or window[1] > float(ts[-1]) + 1e-9:
+        _fail("[reduction] snapshots", f"must lie within the time grid [{float(ts[0])}, "
+              f"{float(ts[-1])}], got {window!r}.")
+    if ("energy" in table) == ("rank" in table):
+        _fail("[reduction]", "give exactly one of energy (a fraction in (0, 1]) or rank.")
+    energy = rank = None
+    if "energy" in table:
+        energy = float(_number(table, "[reduction]", "energy", low=0, high=1, strict_low=True))
+    else:
+        rank = _number(table, "[reduction]", "rank", low=1, high=n, integer=True)
+    return Reduction(
+        window=(float(window[0]), float(window[1])),
+        quantity=_choice(table, "[reduction]", "quantity", ("displacement", "velocity"),
+                         "displacement"),
+        energy=energy, rank=rank,
+        criterion=_choice(table, "[reduction]", "criterion", CRITERIA, "squared"),
+        method=_choice(table, "[reduction]", "method", METHODS, "svd"))
+
+
+def _output_from(data, n: int, reduced: bool) -> Output:
+    table = _table(data, "output", {"dofs", "quantities", "phase_error", "figures"})
+    dofs = table.get("dofs")
+    if dofs is not None:
+        if (not isinstance(dofs, list) or not dofs
+                or not all(isinstance(d, int) and not isinstance(d, bool) and 1 <= d <= n
+                           for d in dofs)):
+            _fail("[output] dofs", f"must be a non-empty list of integer DOFs in 1..{n}, "
+                  f"got {dofs!r}.")
+        dofs = tuple(dofs)
+    quantities = table.get("quantities", ["displacement"])
+    if not isinstance(quantities, list) or not all(q in QUANTITIES for q in quantities):
+        _fail("[output] quantities", f"must be a list drawn from {list(QUANTITIES)}, "
+              f"got {quantities!r}.")
+    needs_rom = {"singular_values", "rank", "phase_error", "modes", "relative_error"}
+    if not reduced and needs_rom & set(quantities):
+        _fail("[output] quantities", f"{sorted(needs_rom & set(quantities))} need a [reduction] "
+              "table.")
+    aggregate = _choice(table, "[output]", "phase_error", AGGREGATES[:3], "max")
+    figures = table.get("figures", False)
+    if not isinstance(figures, bool):
+        _fail("[output] figures", f"must be true or false, got {figures!r}.")
+    return Output(dofs, tuple(dict.fromkeys(quantities)), aggregate, figures)
+
+
+def _solver_from(data) -> dict:
+    table = _table(data, "solver", {"method", "rtol", "atol", "max_steps"})
+    method = _choice(table, "[solver]", "method", ("exact", *SOLVERS), "exact")
+    return dict(
+        solver=method,
+        rtol=float(_number(table, "[solver]", "rtol", default=1e-10, low=0, strict_low=True)),
+        atol=float(_number(table, "[solver]", "atol", default=1e-12, low=0, strict_low=True)),
+        max_steps=_number(table, "[solver]", "max_steps", default=100_000, low=1, integer=True))
+
+
+def scene_from_dict(data: Mapping, name: str = "scene") -> Scene:
+    """Build a ``Scene`` from the parsed TOML mapping (see ``load_scene`` for the keys)."""
+    allowed = {"name", "description", "chain", "damper", "initial", "load", "time", "solver",
+               "reduction", "output"}
+    unknown = set(data) - allowed
+    if unknown:
+        _fail("scene", f"unknown top-level key(s) {sorted(unknown)}; allowed: {sorted(allowed)}.")
+    name = data.get("name", name)
+    if not isinstance(name, str):
+        _fail("scene name", f"must be a string, got {name!r}.")
+    spec, n = _chain_from(data)
+    dampers = _dampers_from(data, n)
+    if spec[0] == "mikota":
+        system = mikota_chain(n, spec[2], spec[3], dampers=dampers)
+    else:
+        system = chain(jnp.asarray(spec[1]), jnp.asarray(spec[2]), dampers=dampers)
+    initial = _table(data, "initial", {"displacement", "velocity"})
+    x0 = _state_from(initial.get("displacement"), n, "[initial] displacement")
+    v0 = _state_from(initial.get("velocity"), n, "[initial] velocity")
+    load = _load_from(data, n)
+    ts = _times_from(data)
+    reduction = _reduction_from(data, ts, n)
+    output = _output_from(data, n, reduction is not None)
+    return Scene(system, ts, x0, v0, load, reduction, output, name=name, **_solver_from(data))
+
+
+def load_scene(source: str | Path | Mapping) -> Scene:
+    """Read a scene from a TOML file, a TOML string, a mapping, or a packaged paper scene name
+    (``section4_first_mode``, ``section4_impulse``, ``section5_damped``).
+
+    Tables: ``[chain]`` (type = "mikota" with n, m, k | "custom" with masses, springs),
+    ``[[damper]]`` (type = "grounded" with position in [1, n] | "relative" with dofs = [i, j];
+    coefficient >= 0), ``[initial]`` (displacement, velocity: {DOF = value}, a list, or "mode l"),
+    ``[load]`` (type = "pulse", dof, amplitude, duration, start), ``[time]`` (start, end, step),
+    ``[solver]`` (method = "exact" | "dopri8" | "tsit5" | "dopri5" | "kvaerno5", rtol, atol,
+    max_steps), ``[reduction]`` (snapshots = [t0, t1], energy or rank, criterion = "squared" |
+    "paper", quantity, method = "svd" | "snapshots"), ``[output]`` (dofs, quantities, phase_error =
+    "max" | "sum" | "mean", figures).
+    """
+    if isinstance(source, Mapping):
+        return scene_from_dict(source)
+    if isinstance(source, str) and source in PAPER_SCENES:
+        text = resources.files("mikota_jax").joinpath("scenes", f"{source}.toml").read_text()
+        return scene_from_dict(tomllib.loads(text), name=source)
+    path = Path(source)
+    if isinstance(source, str) and "\n" in source:
+        text, name = source, "scene"
+    else:
+        if not path.is_file():
+            raise ValueError(MARK + f"scene file {str(path)!r} does not exist (or name one of "
+                             f"{list(PAPER_SCENES)}).")
+        text, name = path.read_text(), path.stem
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as error:
+        raise ValueError(MARK + f"scene {name!r} is not valid TOML: {error}") from None
+    return scene_from_dict(data, name=name)
