@@ -33,7 +33,7 @@ def _check_nl(n: int, l: int) -> None:
 def eigenfrequencies(n: int, m: ScalarLike = 1.0, k: ScalarLike = 1.0) -> Vector:
     """Omega_l = l sqrt(k/m), l = 1..n (eq. 2.4), in rad per unit time."""
     _check_nl(n, 1)
-    return jnp.arange(1, n + 1) * jnp.sqrt(as_float(k, "k") / as_float(m, "m"))
+    return jnp.arange(1, n + 1, dtype=jnp.float64) * jnp.sqrt(as_float(k, "k") / as_float(m, "m"))
 
 
 @functools.lru_cache(maxsize=8)

@@ -109,9 +109,9 @@ class Dampers(eqx.Module):
         """``basis^T D basis`` in O(dampers * r^2), without touching the other n - 2 rows."""
         left, right, c_left, c_right = self._grounded_weights()
         a, b = basis[left], basis[right]
-        out = (a.T * c_left) @ a + (b.T * c_right) @ b
+        out = (a.T * c_left[None, :]) @ a + (b.T * c_right[None, :]) @ b
         if self.pairs:
             i, j = (np.asarray(a) for a in zip(*self.pairs))
             diff = basis[i] - basis[j]
-            out = out + (diff.T * self.pair_coefficients) @ diff
+            out = out + (diff.T * self.pair_coefficients[None, :]) @ diff
         return Dense(out)

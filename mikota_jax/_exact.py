@@ -86,7 +86,7 @@ def _exact(model, ts, x0, v0, load, *, dofs, displacement, velocity):
         z_star = jnp.concatenate([(modes.T @ load.direction) / omega, jnp.zeros(n)])
         jumps, signs = load.jump_times, jnp.array([1.0, -1.0])
         # step k covers (t_k, t_{k+1}]; a jump at or before ts[0] is in the initial load value.
-        jump_steps = jnp.searchsorted(ts, jumps, side="left") - 1
+        jump_steps = (jnp.searchsorted(ts, jumps, side="left") - 1).astype(jnp.int64)
         corrections = [s * (z_star - propagate(ts[jnp.clip(i + 1, 0, ts.shape[0] - 1)] - t)(z_star))
                        for s, i, t in zip(signs, jump_steps, jumps)]
 
@@ -111,7 +111,7 @@ def _exact(model, ts, x0, v0, load, *, dofs, displacement, velocity):
         z_next = advance(z, k)
         return z_next, output(z_next)
 
-    _, ys = jax.lax.scan(body, z0, jnp.arange(ts.shape[0] - 1))
+    _, ys = jax.lax.scan(body, z0, jnp.arange(ts.shape[0] - 1, dtype=jnp.int64))
     first = output(z0)
     ys = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first, ys)
     return Trajectory(ts, ys[0], ys[1], dofs, None)

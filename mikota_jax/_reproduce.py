@@ -71,7 +71,7 @@ def _section2(out: Path | None) -> list[Row]:
     rows = []
     for n in (10, 300):
         omega, modes = modal_decomposition(mikota_chain(n))
-        worst = float(jnp.max(jnp.abs(omega / jnp.arange(1, n + 1) - 1)))
+        worst = float(jnp.max(jnp.abs(omega / jnp.arange(1, n + 1, dtype=jnp.float64) - 1)))
         rows.append(holds("2", f"Omega_l = l*Omega, l = 1..{n} (max rel. deviation)", "exact",
                           worst, worst < 1e-10, "eigh of M^-1/2 K M^-1/2, float64"))
     n = 10

@@ -1,0 +1,25 @@
+"""Test configuration: float64, strict dtype promotion and no implicit rank promotion, so that a
+silent float32 downgrade or an accidental broadcast fails loudly in the tests."""
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+jax.config.update("jax_enable_x64", True)
+jax.config.update("jax_numpy_dtype_promotion", "strict")
+jax.config.update("jax_numpy_rank_promotion", "raise")
+
+
+def assert_close(actual, expected, rtol=1e-10, atol=0.0, what=""):
+    """The one tolerance helper: |actual - expected| <= atol + rtol |expected|, elementwise."""
+    actual, expected = np.asarray(actual, dtype=float), np.asarray(expected, dtype=float)
+    np.testing.assert_allclose(actual, expected, rtol=rtol, atol=atol, err_msg=what)
+
+
+@pytest.fixture(scope="session")
+def close():
+    return assert_close
