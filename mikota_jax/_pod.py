@@ -41,6 +41,12 @@ class POD(eqx.Module):
         if not 1 <= rank <= available:
             raise ValueError(MARK + f"rank must lie in 1..{available} (the number of modes), "
                              f"got {rank}.")
+        if not isinstance(self.singular_values, jax.core.Tracer):
+            numerical = self.numerical_rank()
+            if rank > numerical:
+                raise ValueError(MARK + f"rank = {rank} exceeds the numerical rank {numerical} of "
+                                 "the snapshots (the other singular values are rounding noise); "
+                                 f"choose rank <= {numerical}.")
         return self.modes[:, :rank]
 
     def energy_fraction(self, criterion: str = "squared") -> Float[Array, " k"]:

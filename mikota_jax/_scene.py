@@ -348,7 +348,7 @@ def load_scene(source: str | Path | Mapping) -> Scene:
         text = resources.files("mikota_jax").joinpath("scenes", f"{source}.toml").read_text()
         return scene_from_dict(tomllib.loads(text), name=source)
     path = Path(source)
-    if isinstance(source, str) and "\n" in source:
+    if isinstance(source, str) and ("\n" in source or "=" in source):  # TOML text, not a path
         text, name = source, "scene"
     else:
         if not path.is_file():

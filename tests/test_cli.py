@@ -1,0 +1,93 @@
+"""The command line: ``run`` writes results.json (and figures); bad input is one line, exit code 2."""
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from mikota_jax.__main__ import main
+
+SCENE = """
+[chain]
+type = "custom"
+masses = [1.0, 0.5, 0.5, 0.25, 0.2, 0.2]
+springs = [6.0, 5.0, 4.0, 3.0, 2.0, 1.0]
+
+[[damper]]
+type = "relative"
+dofs = [2, 5]
+coefficient = 0.3
+
+[initial]
+velocity = { 6 = 1.0 }
+
+[time]
+end = 3.0
+step = 0.1
+
+[reduction]
+snapshots = [0.0, 3.0]
+rank = 3
+
+[output]
+dofs = [1, 6]
+quantities = ["displacement", "rank", "singular_values", "phase_error"]
+figures = true
+"""
+
+
+def test_run_writes_the_requested_results_and_figures(tmp_path, capsys):
+    scene = tmp_path / "chain.toml"
+    scene.write_text(SCENE)
+    assert main(["run", str(scene), "--out", str(tmp_path / "out")]) == 0
+    result = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert len(result["times"]) == 31 and result["rank"] == 3
+    assert set(result["full"]) == {"displacement"} == set(result["reduced"])
+    assert set(result["full"]["displacement"]) == {"1", "6"}
+    assert len(result["singular_values"]) == 6
+    assert 0 < result["phase_error"] < 1
+    assert result["meta"]["x64"] is True and result["meta"]["solver"]["method"] == "exact"
+    for name in result["figures"]:
+        assert (tmp_path / "out" / name).read_bytes()[:4] == b"\x89PNG"
+    assert "results.json" in capsys.readouterr().out
+
+
+def test_bad_input_is_one_line_on_stderr_with_exit_code_2(tmp_path, capsys):
+    scene = tmp_path / "bad.toml"
+    scene.write_text(SCENE.replace("coefficient = 0.3", "coefficient = -0.3"))
+    assert main(["run", str(scene), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "coefficient" in err and ">= 0" in err
+    assert not (tmp_path / "out" / "results.json").exists()
+
+
+def test_a_failing_run_writes_no_partial_results(tmp_path, capsys):
+    scene = tmp_path / "rank.toml"
+    scene.write_text(SCENE.replace('velocity = { 6 = 1.0 }', '').replace(
+        "[reduction]", "[reduction]\nquantity = \"velocity\"").replace(
+        "[[damper]]\ntype = \"relative\"\ndofs = [2, 5]\ncoefficient = 0.3\n", ""))
+    # Zero initial state: every snapshot is zero, so no rank is available.
+    assert main(["run", str(scene), "--out", str(tmp_path / "out")]) == 2
+    assert "rank" in capsys.readouterr().err
+    assert not (tmp_path / "out" / "results.json").exists()
+
+
+def test_the_module_entry_point_prints_no_traceback(tmp_path):
+    scene = tmp_path / "bad.toml"
+    scene.write_text(SCENE.replace("[time]", "[time]\nfinish = 3.0"))
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+    done = subprocess.run([sys.executable, "-m", "mikota_jax", "run", str(scene), "--out",
+                           str(tmp_path / "out")], capture_output=True, text=True, env=env,
+                          timeout=300)
+    assert done.returncode == 2
+    assert "Traceback" not in done.stderr and "[time]" in done.stderr and "finish" in done.stderr
+    assert done.stderr.strip().count("\n") == 0
+
+
+@pytest.mark.parametrize("argv", [["run"], ["frobnicate"]])
+def test_usage_errors_exit_with_code_2(argv):
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2

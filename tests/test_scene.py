@@ -1,0 +1,151 @@
+"""Scenes: TOML validation (one clear error per bad key), and run_scene computing only what is asked."""
+
+import json
+
+import numpy as np
+import pytest
+
+import mikota_jax as mj
+from mikota_jax._run import write_json
+
+SMALL = """
+[chain]
+type = "mikota"
+n = 12
+
+[[damper]]
+type = "grounded"
+position = 4.5
+coefficient = 0.5
+
+[initial]
+displacement = { 3 = 1.0 }
+
+[time]
+end = 4.0
+step = 0.05
+"""
+
+
+def scene_text(**tables: str) -> str:
+    return SMALL + "\n".join(f"\n[{name}]\n{body}" for name, body in tables.items())
+
+
+def test_paper_scenes_load_with_the_papers_parameters():
+    s5 = mj.load_scene("section5_damped")
+    assert s5.size == 300 and s5.ts.shape == (2001,) and float(s5.ts[-1]) == pytest.approx(20.0)
+    np.testing.assert_allclose(np.asarray(s5.system.mass.diagonal)[[0, 6, 299]],
+                               [1.0, 1 / 7, 1 / 300])
+    assert float(s5.system.damping.positions[0]) == 7.0
+    assert float(s5.x0[2]) == 1.0 and float(np.abs(s5.x0).sum()) == 1.0
+    assert s5.reduction.window == (0.0, 10.0) and s5.reduction.criterion == "paper"
+    impulse = mj.load_scene("section4_impulse")
+    assert float(impulse.load.duration) == 0.05 and impulse.system.damping is None
+    first = mj.load_scene("section4_first_mode")
+    np.testing.assert_allclose(np.asarray(first.x0), np.arange(1, 11) / 10, rtol=1e-15)
+
+
+def test_a_fractional_damper_and_a_relative_damper_are_parsed(tmp_path):
+    text = SMALL + '\n[[damper]]\ntype = "relative"\ndofs = [2, 9]\ncoefficient = 0.25\n'
+    scene = mj.load_scene(text)
+    d = np.asarray(scene.system.damping.as_matrix())
+    assert d[3, 3] == pytest.approx(0.25) and d[4, 4] == pytest.approx(0.25)
+    assert d[1, 8] == pytest.approx(-0.25) and d[8, 8] == pytest.approx(0.25)
+
+
+def test_an_undamped_scene_builds_no_damping_matrix():
+    text = SMALL.replace('[[damper]]\ntype = "grounded"\nposition = 4.5\ncoefficient = 0.5\n', "")
+    assert mj.load_scene(text).system.damping is None
+
+
+@pytest.mark.parametrize("text, match", [
+    (SMALL + "\n[chain2]\n", r"unknown top-level key"),
+    (SMALL.replace("n = 12", "n = 12\nstiffness = 2"), r"\[chain\].*unknown key.*stiffness"),
+    (SMALL.replace("n = 12", "n = 0"), r"\[chain\] n.*>= 1"),
+    (SMALL.replace("n = 12", 'n = "twelve"'), r"\[chain\] n.*integer"),
+    (SMALL.replace('type = "mikota"', 'type = "spring"'), r"\[chain\] type.*one of"),
+    (SMALL.replace("position = 4.5", "position = 13"), r"position.*<= 12"),
+    (SMALL.replace("position = 4.5", "position = 0.5"), r"position.*>= 1"),
+    (SMALL.replace("coefficient = 0.5", "coefficient = -1.0"), r"coefficient.*>= 0"),
+    (SMALL.replace("displacement = { 3 = 1.0 }", "displacement = { 13 = 1.0 }"),
+     r"\[initial\] displacement.*1\.\.12"),
+    (SMALL.replace("displacement = { 3 = 1.0 }", 'displacement = "mode 13"'), r"mode.*1\.\.12"),
+    (SMALL.replace("end = 4.0", "end = -1.0"), r"\[time\] end.*greater than start"),
+    (SMALL.replace("step = 0.05", "step = 0.0"), r"\[time\] step.*> 0"),
+    (SMALL.replace("step = 0.05", "step = 0.03"), r"\[time\] step.*whole steps"),
+    (scene_text(reduction="energy = 1.5"), r"\[reduction\] energy.*<= 1"),
+    (scene_text(reduction="energy = 0.9\nrank = 3"), r"exactly one of energy"),
+    (scene_text(reduction="rank = 13"), r"\[reduction\] rank.*<= 12"),
+    (scene_text(reduction="rank = 2", output='quantities = ["speed"]'), r"\[output\] quantities"),
+    (scene_text(output='quantities = ["rank"]'), r"need a \[reduction\]"),
+    (scene_text(solver='method = "euler"'), r"\[solver\] method.*one of"),
+    (scene_text(load='type = "pulse"\ndof = 1\nduration = 0.0'), r"\[load\] duration.*> 0"),
+    ("this is = not toml [", r"not valid TOML"),
+])
+def test_bad_scene_input_names_the_key(text, match):
+    with pytest.raises(ValueError, match=match):
+        mj.load_scene(text)
+
+
+def test_a_missing_scene_file_is_a_clear_error(tmp_path):
+    with pytest.raises(ValueError, match="does not exist"):
+        mj.load_scene(tmp_path / "nope.toml")
+
+
+def test_a_scene_without_reduction_or_velocity_computes_neither():
+    scene = mj.load_scene(scene_text(output="dofs = [2, 5]"))
+    result = mj.run_scene(scene)
+    full = result["_arrays"]["full"]
+    assert full.velocity is None and full.dofs == (2, 5)
+    assert set(result["full"]) == {"displacement"} and "reduced" not in result
+    assert "singular_values" not in result and "pod" not in result["_arrays"]
+    reference = mj.exact_solve(scene.system, scene.ts, scene.x0, dofs=[2, 5])
+    np.testing.assert_allclose(result["full"]["displacement"]["5"],
+                               np.asarray(reference.displacement)[:, 1], rtol=0, atol=1e-14)
+
+
+def test_a_reduced_scene_reports_rank_singular_values_and_phase_error():
+    scene = mj.load_scene(scene_text(
+        reduction="snapshots = [0.0, 2.0]\nenergy = 0.999",
+        output='dofs = [12]\nquantities = ["displacement", "velocity", "rank", '
+               '"singular_values", "phase_error", "relative_error"]\nphase_error = "sum"'))
+    result = mj.run_scene(scene)
+    arrays = result["_arrays"]
+    assert arrays["snapshots"] == 41  # t = 0, 0.05, ..., 2.0
+    s = np.asarray(result["singular_values"])
+    assert result["rank"] == mj.rank_for_energy(s, 0.999) and 1 <= result["rank"] < 12
+    full, reduced = arrays["full"], arrays["reduced"]
+    expected = mj.phase_error(full.displacement, full.velocity, reduced.displacement,
+                              reduced.velocity, aggregate="sum")
+    assert result["phase_error"] == pytest.approx(float(expected), rel=1e-12)
+    assert 0 < result["phase_error"] < 0.2
+    assert set(result["full"]) == set(result["reduced"]) == {"displacement", "velocity"}
+    assert list(result["reduced"]["velocity"]) == ["12"]
+
+
+def test_a_diffrax_scene_matches_the_exact_scene():
+    exact = mj.run_scene(mj.load_scene(scene_text(output="dofs = [1, 12]")))
+    dopri = mj.run_scene(mj.load_scene(scene_text(
+        output="dofs = [1, 12]", solver='method = "dopri8"\nrtol = 1e-11\natol = 1e-13')))
+    for dof in ("1", "12"):
+        np.testing.assert_allclose(dopri["full"]["displacement"][dof],
+                                   exact["full"]["displacement"][dof], rtol=0, atol=1e-8)
+    assert dopri["meta"]["solver"] == {"method": "dopri8", "rtol": 1e-11, "atol": 1e-13,
+                                       "max_steps": 100_000}
+
+
+def test_a_rank_above_the_numerical_rank_of_the_snapshots_is_refused():
+    undamped = SMALL.replace('[[damper]]\ntype = "grounded"\nposition = 4.5\ncoefficient = 0.5\n', "")
+    text = undamped.replace("displacement = { 3 = 1.0 }", 'displacement = "mode 2"')
+    scene = mj.load_scene(text + "\n[reduction]\nrank = 3\n")
+    with pytest.raises(ValueError, match=r"rank = 3 exceeds the numerical rank 1"):
+        mj.run_scene(scene)
+
+
+def test_results_json_is_written_whole_or_not_at_all(tmp_path):
+    path = tmp_path / "out" / "results.json"
+    write_json({"a": [1.0, 2.0], "_arrays": object()}, path)
+    assert json.loads(path.read_text()) == {"a": [1.0, 2.0]}
+    with pytest.raises(ValueError):
+        write_json({"a": float("nan")}, tmp_path / "bad.json")
+    assert not (tmp_path / "bad.json").exists() and not list(tmp_path.glob("*.tmp"))
