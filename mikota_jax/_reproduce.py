@@ -12,12 +12,14 @@ numbers carry no integration error. The paper's own solver (MATLAB) is unknown.
 """
 
 import math
+import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
+from tqdm import tqdm
 
 from . import _figures as figures
 from ._analytic import mode_shape, paper_mode_shape
@@ -253,9 +255,19 @@ def reproduce(out: str | Path | None = None, verbose: bool = True) -> dict:
     folder = None if out is None else Path(out)
     if folder is not None:
         folder.mkdir(parents=True, exist_ok=True)
-    rows = _section2(folder) + _section4_first_mode(folder) + _section4_impulse(folder)
-    section5, extra = _section5(folder)
-    rows += section5
+    stages = [("Section 2: eigensolutions", _section2),
+              ("Section 4: first-mode excitation", _section4_first_mode),
+              ("Section 4: impulse", _section4_impulse),
+              ("Section 5: damped chain, n = 300", _section5)]
+    rows, extra = [], {}
+    with tqdm(stages, desc="reproduce", unit="section", disable=not verbose,
+              file=sys.stderr) as bar:
+        for label, stage in bar:
+            bar.set_postfix_str(label)
+            found = stage(folder)
+            if isinstance(found, tuple):
+                found, extra = found
+            rows += found
     report = {"rows": [asdict(r) for r in rows], "section5": extra,
               "missed": sum(r.status == MISSED for r in rows),
               "wall_time_s": time.perf_counter() - start}
