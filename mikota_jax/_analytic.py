@@ -20,20 +20,23 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._custom_types import ScalarLike, Vector
-from ._errors import MARK, as_float
+from ._errors import MARK, as_float, check
 
 
 def _check_nl(n: int, l: int) -> None:
-    if not isinstance(n, int) or n < 1:
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         raise ValueError(MARK + f"n must be an integer >= 1, got {n!r}.")
-    if not isinstance(l, int) or not 1 <= l <= n:
+    if isinstance(l, bool) or not isinstance(l, int) or not 1 <= l <= n:
         raise ValueError(MARK + f"mode number l must be an integer in 1..{n}, got {l!r}.")
 
 
 def eigenfrequencies(n: int, m: ScalarLike = 1.0, k: ScalarLike = 1.0) -> Vector:
     """Omega_l = l sqrt(k/m), l = 1..n (eq. 2.4), in rad per unit time."""
     _check_nl(n, 1)
-    return jnp.arange(1, n + 1, dtype=jnp.float64) * jnp.sqrt(as_float(k, "k") / as_float(m, "m"))
+    m, k = as_float(m, "m"), as_float(k, "k")
+    m = check(m, ~(jnp.isfinite(m) & (m > 0)), "m must be finite and > 0.")
+    k = check(k, ~(jnp.isfinite(k) & (k > 0)), "k must be finite and > 0.")
+    return jnp.arange(1, n + 1, dtype=jnp.float64) * jnp.sqrt(k / m)
 
 
 @functools.lru_cache(maxsize=8)

@@ -1,9 +1,9 @@
 """Second-order systems M x'' + D x' + K x = f, and fixed-free chains (eqs. 2.1-2.3, 3.1).
 
-Chain conventions: DOF i = 1..n (1-based) carries mass m_i and is tied to DOF i-1 by spring k_i; DOF 0
-is the fixed support, DOF n is free. So K = tridiag(-k_i, k_i + k_{i+1}, -k_{i+1}) with k_{n+1} = 0
-(eq. 2.2). Mikota's chain has m_i = m / i and k_i = (n - i + 1) k (eq. 2.3), eigenfrequencies
-l * sqrt(k / m) (eq. 2.4).
+Chain conventions: DOF i = 1..n (1-based) carries mass m_i and is tied to DOF i-1 by spring k_i;
+DOF 0 is the fixed support, DOF n is free. So K = tridiag(-k_i, k_i + k_{i+1}, -k_{i+1}) with
+k_{n+1} = 0 (eq. 2.2). Mikota's chain has m_i = m / i and k_i = (n - i + 1) k (eq. 2.3),
+eigenfrequencies l * sqrt(k / m) (eq. 2.4).
 """
 
 from collections.abc import Sequence

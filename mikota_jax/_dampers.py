@@ -2,10 +2,10 @@
 
 Conventions: DOFs are 1-based as in the paper. A grounded damper's ``position`` is a real number in
 [1, n]: at a fractional position p = j + w (j = floor(p), 0 <= w < 1) its coefficient is split
-linearly, d*(1-w) grounded at DOF j and d*w grounded at DOF j+1. At integer positions this is exactly
-the paper's damper (Section 5); in between it is a different (two-damper) device, continuous in p
-with a kink at every integer, where the derivative taken by JAX is the right-sided one (and the
-left-sided one at p = n).
+linearly, d*(1-w) grounded at DOF j and d*w grounded at DOF j+1. At integer positions this is
+exactly the paper's damper (Section 5); in between it is a different (two-damper) device,
+continuous in p with a kink at every integer, where the derivative taken by JAX is the right-sided
+one (and the left-sided one at p = n).
 """
 
 import equinox as eqx
@@ -50,7 +50,7 @@ class RelativeDamper(eqx.Module):
 def _split(position, n: int):
     """0-based left index and weight of the right neighbour for a position in [1, n]."""
     if n == 1:
-        return jnp.zeros((), int), jnp.zeros_like(position)
+        return jnp.zeros(position.shape, int), jnp.zeros_like(position)
     j = jnp.clip(jnp.floor(position), 1, n - 1)
     return j.astype(int) - 1, position - j
 

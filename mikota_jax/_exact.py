@@ -1,13 +1,14 @@
 """``exact_solve``: the exact solution of a linear time-invariant system on a time grid.
 
 Method: the generalized eigenproblem K u = omega^2 M u (M = L L^T, eigh of L^-1 K L^-T) gives
-M-orthonormal modes U. In scaled modal coordinates z = (Omega eta, eta'), x = U eta, the system reads
-z' = A z + b with A = [[0, Omega], [-Omega, -U^T D U]] (skew plus a negative semi-definite block,
-so ||exp(A t)|| <= 1 and the propagator is nearly orthogonal: no loss of accuracy with n, unlike expm
-of the physical state matrix). One step is z_{k+1} = P z_k + (I - P) z*_k with P = exp(A h) and
-z* = (Omega^-1 U^T f, 0) the static equilibrium of the load on the step: exact for loads that are
-constant between jumps. A jump at t_b inside (t_k, t_{k+1}] adds (I - exp(A (t_{k+1} - t_b)))
-(z*_after - z*_before). Undamped systems skip expm: P is a rotation by omega_l h in each mode.
+M-orthonormal modes U. In scaled modal coordinates z = (Omega eta, eta'), x = U eta, the system
+reads z' = A z + b with A = [[0, Omega], [-Omega, -U^T D U]] (skew plus a negative semi-definite
+block, so ||exp(A t)|| <= 1 and the propagator is nearly orthogonal: no loss of accuracy with n,
+unlike expm of the physical state matrix). One step is z_{k+1} = P z_k + (I - P) z*_k with P =
+exp(A h) and z* = (Omega^-1 U^T f, 0) the static equilibrium of the load on the step: exact for
+loads that are constant between jumps. A jump at t_b inside (t_k, t_{k+1}] adds (I - exp(A (t_{k+1}
+- t_b))) (z*_after - z*_before). Undamped systems skip expm: P is a rotation by omega_l h in each
+mode.
 """
 
 from collections.abc import Sequence
@@ -138,7 +139,8 @@ def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = 
     if ts.shape[0] > 2 and getattr(system, "damping", None) is not None:
         gaps = jnp.diff(ts)
         ts = check(ts, jnp.max(jnp.abs(gaps - gaps[0])) > 1e-9 * jnp.abs(gaps[0]),
-                   "ts must be a uniform grid for exact_solve of a damped system; use simulate for other grids.")
+                   "ts must be a uniform grid for exact_solve of a damped system; use simulate "
+                   "for other grids.")
     n = model.size if isinstance(model, ReducedModel) else getattr(model, "size", 1)
     return _exact(model, ts, x0, v0, load, dofs=check_dofs(dofs, n), displacement=displacement,
                   velocity=velocity)

@@ -89,4 +89,5 @@ def as_load(load, n: int) -> Load | None:
         return load
     if callable(load):
         return LoadFunction(load)
-    raise ValueError(MARK + f"load must be a Pulse, a LoadFunction or a callable f(t), got {load!r}.")
+    raise ValueError(MARK + "load must be a Pulse, a LoadFunction or a callable f(t), "
+                     f"got {load!r}.")

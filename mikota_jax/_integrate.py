@@ -31,7 +31,7 @@ SOLVERS = {
 
 
 class Trajectory(eqx.Module):
-    """Saved outputs: rows are times, columns the requested DOFs; a quantity not asked for is None."""
+    """Saved outputs (rows: times, columns: requested DOFs); unrequested quantities are None."""
 
     ts: Times
     displacement: Float[Array, "N d"] | None

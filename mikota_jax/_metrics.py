@@ -14,8 +14,8 @@ AGGREGATES = ("max", "sum", "mean", "none")
 def _check_pair(a, b, name_a: str, name_b: str):
     a, b = jnp.asarray(a), jnp.asarray(b)
     if a.shape != b.shape:
-        raise ValueError(MARK + f"{name_a} and {name_b} must have the same shape, got {a.shape} and "
-                         f"{b.shape}.")
+        raise ValueError(MARK + f"{name_a} and {name_b} must have the same shape, got "
+                         f"{a.shape} and {b.shape}.")
     return a, b
 
 
@@ -44,7 +44,7 @@ def phase_error(displacement, velocity, reduced_displacement, reduced_velocity,
 
 
 def relative_error(reference, approximation) -> Float[Array, ""]:
-    """Relative L2 (Frobenius) error ||approximation - reference|| / ||reference|| over time and DOFs."""
+    """Relative L2 (Frobenius) error ||approx - reference|| / ||reference|| over times and DOFs."""
     a, b = _check_pair(reference, approximation, "reference", "approximation")
     return jnp.linalg.norm(b - a) / jnp.linalg.norm(a)
 

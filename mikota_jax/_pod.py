@@ -28,7 +28,7 @@ METHODS = ("svd", "snapshots")
 
 
 class POD(eqx.Module):
-    """Singular values (all of them, descending) and proper orthogonal modes of a snapshot matrix."""
+    """All singular values (descending) and proper orthogonal modes of a snapshot matrix."""
 
     singular_values: Float[Array, " k"]
     modes: Float[Array, "n k"]

@@ -49,7 +49,7 @@ def _window(ts, window) -> np.ndarray:
 
 
 def run_scene(scene: Scene) -> dict:
-    """Run ``scene``; return a JSON-ready dict (``times``, ``full``, ``reduced``, metrics, ``meta``).
+    """Run ``scene``; return a JSON-ready dict: ``times``, ``full``, ``reduced``, metrics, ``meta``.
 
     Only the requested DOFs (default all) and quantities appear. Arrays of the internal solves are
     kept under the key ``"_arrays"`` (numpy, not written to JSON) for figures and further use.
@@ -128,7 +128,8 @@ def _meta(scene: Scene, timings: dict) -> dict:
         solver.update(rtol=scene.rtol, atol=scene.atol, max_steps=scene.max_steps)
     return {
         "mikota_jax": __version__, "jax": jax.__version__, "diffrax": diffrax.__version__,
-        "equinox": equinox.__version__, "numpy": np.__version__, "python": platform.python_version(),
+        "equinox": equinox.__version__, "numpy": np.__version__,
+        "python": platform.python_version(),
         "backend": jax.default_backend(), "x64": bool(jax.config.read("jax_enable_x64")),
         "solver": solver, "wall_times_s": timings,
         "reduction": None if scene.reduction is None else {
@@ -139,7 +140,7 @@ def _meta(scene: Scene, timings: dict) -> dict:
 
 
 def write_json(data: dict, path: Path) -> None:
-    """Write ``data`` atomically (a failed run leaves no partial file); drops ``_``-prefixed keys."""
+    """Write ``data`` atomically (a failed run leaves no partial file), without ``_`` keys."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     clean = {k: v for k, v in data.items() if not k.startswith("_")}

@@ -249,7 +249,8 @@ def _reduction_from(data, ts, n: int) -> Reduction | None:
             or not window[0] <= window[1]):
         _fail("[reduction] snapshots", f"must be a time window [start, end] with start <= end, "
               f"got {window!r}.")
-    if not float(ts[0]) - 1e-12 <= window[0] <= float(ts[-1]) + 1e-12 or window[1] > float(ts[-1]) + 1e-9:
+    first, last = float(ts[0]), float(ts[-1])
+    if not first - 1e-12 <= window[0] <= last + 1e-12 or window[1] > last + 1e-9:
         _fail("[reduction] snapshots", f"must lie within the time grid [{float(ts[0])}, "
               f"{float(ts[-1])}], got {window!r}.")
     if ("energy" in table) == ("rank" in table):

@@ -1,4 +1,4 @@
-"""The command line: ``run`` writes results.json (and figures); bad input is one line, exit code 2."""
+"""The command line: ``run`` writes results.json and figures; bad input: one line, exit code 2."""
 
 import json
 import os

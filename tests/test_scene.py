@@ -1,4 +1,4 @@
-"""Scenes: TOML validation (one clear error per bad key), and run_scene computing only what is asked."""
+"""Scenes: TOML validation (one clear error per bad key); run_scene computes only what is asked."""
 
 import json
 
@@ -135,7 +135,8 @@ def test_a_diffrax_scene_matches_the_exact_scene():
 
 
 def test_a_rank_above_the_numerical_rank_of_the_snapshots_is_refused():
-    undamped = SMALL.replace('[[damper]]\ntype = "grounded"\nposition = 4.5\ncoefficient = 0.5\n', "")
+    damper = '[[damper]]\ntype = "grounded"\nposition = 4.5\ncoefficient = 0.5\n'
+    undamped = SMALL.replace(damper, "")
     text = undamped.replace("displacement = { 3 = 1.0 }", 'displacement = "mode 2"')
     scene = mj.load_scene(text + "\n[reduction]\nrank = 3\n")
     with pytest.raises(ValueError, match=r"rank = 3 exceeds the numerical rank 1"):
