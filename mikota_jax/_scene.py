@@ -47,7 +47,7 @@ class Output(eqx.Module):
 
     dofs: tuple[int, ...] | None
     quantities: tuple[str, ...]
-    phase_error: str = "max"
+    phase_error: str = "sum"
     figures: bool = False
 
 
@@ -287,7 +287,7 @@ def _output_from(data, n: int, reduced: bool) -> Output:
     if not reduced and needs_rom & set(quantities):
         _fail("[output] quantities", f"{sorted(needs_rom & set(quantities))} need a [reduction] "
               "table.")
-    aggregate = _choice(table, "[output]", "phase_error", AGGREGATES[:3], "max")
+    aggregate = _choice(table, "[output]", "phase_error", AGGREGATES[:3], "sum")
     figures = table.get("figures", False)
     if not isinstance(figures, bool):
         _fail("[output] figures", f"must be true or false, got {figures!r}.")
@@ -341,7 +341,7 @@ def load_scene(source: str | Path | Mapping) -> Scene:
     ``[solver]`` (method = "exact" | "dopri8" | "tsit5" | "dopri5" | "kvaerno5", rtol, atol,
     max_steps), ``[reduction]`` (snapshots = [t0, t1], energy or rank, criterion = "squared" |
     "paper", quantity, method = "svd" | "snapshots"), ``[output]`` (dofs, quantities, phase_error =
-    "max" | "sum" | "mean", figures).
+    "sum" | "max" | "mean", figures).
     """
     if isinstance(source, Mapping):
         return scene_from_dict(source)
