@@ -5,7 +5,6 @@ partial ``results.json``.
 """
 
 import argparse
-import os
 import sys
 from pathlib import Path
 
@@ -22,10 +21,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # LAPACK threads busy-wait on small CPUs
     args = _parser().parse_args(argv)
-    import mikota_jax  # noqa: F401  (after the environment is set)
-
     try:
         if args.command == "reproduce":
             from ._reproduce import reproduce
