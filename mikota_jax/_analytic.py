@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._custom_types import ScalarLike, Vector
-from ._errors import MARK, as_float, check
+from ._errors import MARK, positive_scalar
 
 
 def _check_nl(n: int, l: int) -> None:
@@ -33,9 +33,7 @@ def _check_nl(n: int, l: int) -> None:
 def eigenfrequencies(n: int, m: ScalarLike = 1.0, k: ScalarLike = 1.0) -> Vector:
     """Omega_l = l sqrt(k/m), l = 1..n (eq. 2.4), in rad per unit time."""
     _check_nl(n, 1)
-    m, k = as_float(m, "m"), as_float(k, "k")
-    m = check(m, ~(jnp.isfinite(m) & (m > 0)), "m must be finite and > 0.")
-    k = check(k, ~(jnp.isfinite(k) & (k > 0)), "k must be finite and > 0.")
+    m, k = positive_scalar(m, "m"), positive_scalar(k, "k")
     return jnp.arange(1, n + 1, dtype=jnp.float64) * jnp.sqrt(k / m)
 
 

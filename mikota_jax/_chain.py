@@ -13,7 +13,7 @@ import jax.numpy as jnp
 
 from ._custom_types import ScalarLike, Vector
 from ._dampers import Dampers, GroundedDamper, RelativeDamper
-from ._errors import MARK, as_float, check
+from ._errors import MARK, as_float, check, positive_scalar
 from ._operators import Dense, Diagonal, Operator, SymmetricTridiagonal
 
 
@@ -72,8 +72,7 @@ def mikota_chain(n: int, m: ScalarLike = 1.0, k: ScalarLike = 1.0,
     if isinstance(n, bool) or not isinstance(n, int | jnp.integer) or n < 1:
         raise ValueError(MARK + f"n must be an integer >= 1, got {n!r}.")
     n = int(n)
-    m = check(as_float(m, "m"), ~(jnp.isfinite(m) & (m > 0)), "m must be finite and > 0.")
-    k = check(as_float(k, "k"), ~(jnp.isfinite(k) & (k > 0)), "k must be finite and > 0.")
+    m, k = positive_scalar(m, "m"), positive_scalar(k, "k")
     i = jnp.arange(1, n + 1, dtype=jnp.float64)
     return chain(m / i, (n - i + 1) * k, dampers)
 

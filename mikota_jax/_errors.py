@@ -47,6 +47,12 @@ def check(x, bad, message: str):
     return eqx.error_if(x, bad, MARK + message)
 
 
+def positive_scalar(x, name: str):
+    """``x`` as float64, checked finite and > 0 (eagerly, or under jit via ``eqx.error_if``)."""
+    x = as_float(x, name)
+    return check(x, ~(jnp.isfinite(x) & (x > 0)), f"{name} must be finite and > 0.")
+
+
 def raises_value_error(fn):
     """Re-raise a failed traced check of ours as ``ValueError`` (its message names the argument)."""
 

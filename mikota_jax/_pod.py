@@ -59,14 +59,15 @@ class POD(eqx.Module):
 
     def numerical_rank(self) -> int:
         """Number of singular values above max(n, m) * eps * sigma_1 (the rest is rounding)."""
-        s = np.asarray(self.singular_values)
-        if s.size == 0 or s[0] == 0:
-            return 0
-        return int(np.sum(s > _rounding_level(self) * s[0]))
+        return numerical_rank(self.singular_values, max(self.modes.shape))
 
 
-def _rounding_level(result: POD) -> float:
-    return max(result.modes.shape) * np.finfo(np.float64).eps * 4
+def numerical_rank(singular_values, size: int) -> int:
+    """Count singular values above 4 size eps sigma_1 (size = max(n, m)); the rest is rounding."""
+    s = np.asarray(singular_values)
+    if s.size == 0 or s[0] == 0:
+        return 0
+    return int(np.sum(s > 4 * size * np.finfo(np.float64).eps * s[0]))
 
 
 def _fix_signs(modes):
@@ -137,8 +138,7 @@ def rank_for_energy(singular_values, energy: float, criterion: str = "squared") 
         raise ValueError(MARK + "singular values must be finite and not all zero.")
     if energy == 1:
         # e = 1 exactly: every mode that carries energy above rounding, never more than exist.
-        s = np.asarray(singular_values)
-        return max(1, int(np.sum(s > max(len(s), 1) * np.finfo(np.float64).eps * s[0])))
+        return max(1, numerical_rank(singular_values, len(fraction)))
     # A fraction within rounding of the target counts as reaching it (cumsum error ~ k eps).
     slack = 4 * fraction.size * np.finfo(np.float64).eps
     return int(np.argmax(fraction >= energy - slack)) + 1
