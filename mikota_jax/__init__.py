@@ -13,6 +13,7 @@ from ._analytic import eigenfrequencies as eigenfrequencies
 from ._analytic import mode_shape as mode_shape
 from ._analytic import mode_shape_coefficients as mode_shape_coefficients
 from ._analytic import paper_mode_shape as paper_mode_shape
+from ._cache import enable_compilation_cache as enable_compilation_cache
 from ._chain import SecondOrderSystem as SecondOrderSystem
 from ._chain import chain as chain
 from ._chain import mikota_chain as mikota_chain

@@ -1,10 +1,13 @@
 """Command line: ``python -m mikota_jax reproduce [--out DIR]`` and ``run SCENE.toml --out DIR``.
 
 Bad input ends with one line on stderr and exit code 2 (no traceback); a run that fails writes no
-partial ``results.json``.
+partial ``results.json``. Compiled executables are kept in JAX's persistent compilation cache
+(``~/.cache/mikota_jax/xla``, or ``$MIKOTA_JAX_CACHE_DIR``), so a second run skips most of the
+compilation; ``MIKOTA_JAX_CACHE=0`` turns that off.
 """
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -22,6 +25,10 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
+    if os.environ.get("MIKOTA_JAX_CACHE", "1") != "0":
+        from ._cache import enable_compilation_cache
+
+        enable_compilation_cache()
     try:
         if args.command == "reproduce":
             from ._reproduce import reproduce

@@ -93,6 +93,20 @@ class Dampers(eqx.Module):
         right = jnp.minimum(left + 1, self.size - 1)
         return left, right, self.coefficients * (1 - w), self.coefficients * w
 
+    def grounded_diagonal(self) -> Vector:
+        """The grounded dampers' part of D, which is diagonal: built once, applied as a product."""
+        left, right, c_left, c_right = self._grounded_weights()
+        return jnp.zeros(self.size).at[left].add(c_left).at[right].add(c_right)
+
+    def mv_relative(self, v: Vector) -> Vector:
+        """The relative dampers' part of D v (zero when there are none)."""
+        out = jnp.zeros_like(v)
+        if self.pairs:
+            i, j = (jnp.asarray(a) for a in zip(*self.pairs))
+            f = self.pair_coefficients * (v[i] - v[j])
+            out = out.at[i].add(f).at[j].add(-f)
+        return out
+
     def mv(self, v: Vector) -> Vector:
         left, right, c_left, c_right = self._grounded_weights()
         out = jnp.zeros_like(v).at[left].add(c_left * v[left]).at[right].add(c_right * v[right])

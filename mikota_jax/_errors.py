@@ -47,6 +47,24 @@ def check(x, bad, message: str):
     return eqx.error_if(x, bad, MARK + message)
 
 
+def raise_failures(out, failures, messages):
+    """Return ``out``, failing with the message of the first flag in ``failures`` that holds.
+
+    Compiled solvers return their failure flags instead of raising inside: with concrete flags the
+    error is a plain ``ValueError`` raised here, so the compiled executable holds no host callback
+    (and JAX's persistent compilation cache can store it); with traced flags (the caller's own
+    ``jit`` or ``vmap``) each becomes an ``eqx.error_if``.
+    """
+    if not any(is_traced(f) for f in failures):
+        for flag, message in zip(failures, messages):
+            if bool(np.any(np.asarray(flag))):
+                raise ValueError(MARK + message)
+        return out
+    for flag, message in zip(failures, messages):
+        out = eqx.error_if(out, flag, MARK + message)
+    return out
+
+
 def positive_scalar(x, name: str):
     """``x`` as float64, checked finite and > 0 (eagerly, or under jit via ``eqx.error_if``)."""
     x = as_float(x, name)

@@ -19,15 +19,25 @@ import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 
 from ._custom_types import Times, Vector
-from ._errors import MARK, check, check_x64, raises_value_error
+from ._errors import MARK, check, check_x64, raise_failures, raises_value_error
 from ._excitation import LoadFunction, Pulse
 from ._galerkin import ReducedModel
-from ._integrate import Trajectory, check_dofs, check_times, unpack
+from ._integrate import Trajectory, check_dofs, check_problem, check_times, unpack
 from ._operators import Diagonal
 
 
 def modal_decomposition(system):
     """(omega, U) with U^T M U = I and U^T K U = diag(omega^2), omega ascending."""
+    omega2, modes = _modal(system)
+    omega2 = check(omega2, omega2 <= 0, NOT_DEFINITE)
+    return jnp.sqrt(omega2), modes
+
+
+NOT_DEFINITE = "stiffness must be positive definite (a fixed-free chain with positive springs is)."
+
+
+def _modal(system):
+    """(omega^2, U), unchecked."""
     if isinstance(system.mass, Diagonal):
         scale = 1 / jnp.sqrt(system.mass.diagonal)
         symmetric = scale[:, None] * system.stiffness.as_matrix() * scale[None, :]
@@ -39,9 +49,7 @@ def modal_decomposition(system):
         symmetric = jsl.solve_triangular(lower, inv_k.T, lower=True)
         omega2, vectors = jnp.linalg.eigh((symmetric + symmetric.T) / 2)
         modes = jsl.solve_triangular(lower.T, vectors, lower=False)
-    omega2 = check(omega2, omega2 <= 0, "stiffness must be positive definite (a fixed-free chain "
-                   "with positive springs is).")
-    return jnp.sqrt(omega2), modes
+    return omega2, modes
 
 
 def _propagator(omega, damping_modal):
@@ -64,7 +72,9 @@ def _propagator(omega, damping_modal):
 @eqx.filter_jit
 def _exact(model, ts, x0, v0, load, *, dofs, displacement, velocity):
     system, basis, y0x, y0v, load = unpack(model, x0, v0, load)
-    omega, modes = modal_decomposition(system)
+    omega2, modes = _modal(system)
+    not_definite = jnp.any(omega2 <= 0)
+    omega = jnp.sqrt(jnp.where(omega2 > 0, omega2, 1.0))  # no NaN below; flagged instead
     mass = system.mass.as_matrix() if not isinstance(system.mass, Diagonal) else None
     project = (lambda y: modes.T @ (mass @ y)) if mass is not None else (
         lambda y: modes.T @ (system.mass.diagonal * y))
@@ -115,7 +125,7 @@ def _exact(model, ts, x0, v0, load, *, dofs, displacement, velocity):
     _, ys = jax.lax.scan(body, z0, jnp.arange(ts.shape[0] - 1, dtype=jnp.int64))
     first = output(z0)
     ys = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first, ys)
-    return Trajectory(ts, ys[0], ys[1], dofs, None)
+    return Trajectory(ts, ys[0], ys[1], dofs, None), (not_definite,)
 
 
 @raises_value_error
@@ -141,6 +151,7 @@ def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = 
         ts = check(ts, jnp.max(jnp.abs(gaps - gaps[0])) > 1e-9 * jnp.abs(gaps[0]),
                    "ts must be a uniform grid for exact_solve of a damped system; use simulate "
                    "for other grids.")
-    n = model.size if isinstance(model, ReducedModel) else getattr(model, "size", 1)
-    return _exact(model, ts, x0, v0, load, dofs=check_dofs(dofs, n), displacement=displacement,
-                  velocity=velocity)
+    x0, v0, load = check_problem(model, x0, v0, load)
+    trajectory, failures = _exact(model, ts, x0, v0, load, dofs=check_dofs(dofs, model.size),
+                                  displacement=displacement, velocity=velocity)
+    return raise_failures(trajectory, failures, (NOT_DEFINITE,))

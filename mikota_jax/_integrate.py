@@ -1,8 +1,9 @@
 """``simulate``: one diffrax integrator for full and reduced second-order systems.
 
-The state is the pytree (x, v); the right-hand side is (v, M^-1 (f(t) - D v - K x)) with every
-operator applied in its structure (O(n) for a chain, no M^-1 K formed). A reduced model's dense
-r x r mass is factored once (Cholesky) per solve. Only what the caller asks for is saved: the
+The state is one flat vector y = (x, v); the right-hand side is (v, M^-1 (f(t) - D v - K x)) with
+every operator applied in its structure (O(n) for a chain, no M^-1 K formed, grounded dampers as
+one diagonal). A reduced model's dense r x r mass is factored once (Cholesky) per solve and
+M^-1 [K, D] formed once. Only what the caller asks for is saved: the
 requested 1-based DOFs (lifted through the basis for a reduced model), displacement and/or velocity.
 """
 
@@ -17,7 +18,8 @@ import numpy as np
 
 from ._chain import SecondOrderSystem
 from ._custom_types import Array, Float, Times, Vector
-from ._errors import MARK, as_float, check, check_x64, raises_value_error
+from ._dampers import Dampers
+from ._errors import MARK, as_float, check, check_x64, raise_failures, raises_value_error
 from ._excitation import Pulse, as_load
 from ._galerkin import ReducedModel
 from ._operators import Diagonal
@@ -66,43 +68,69 @@ def initial_vector(x, n: int, name: str) -> Vector:
     return check(x, ~jnp.all(jnp.isfinite(x)), f"{name} must be finite.")
 
 
-def unpack(model, x0, v0, load):
-    """(system, basis or None, reduced x0, reduced v0, reduced load) for a full or reduced model."""
-    if isinstance(model, ReducedModel):
-        n, basis = model.size, model.basis
-    elif isinstance(model, SecondOrderSystem):
-        n, basis = model.size, None
-    else:
+def check_problem(model, x0, v0, load):
+    """Validate (model, x0, v0, load) before any compiled solve: (x0, v0, load), all of size n."""
+    if not isinstance(model, ReducedModel | SecondOrderSystem):
         raise ValueError(MARK + "model must be a SecondOrderSystem or a ReducedModel, got "
                          f"{type(model).__name__}.")
-    x0, v0 = initial_vector(x0, n, "x0"), initial_vector(v0, n, "v0")
-    load = as_load(load, n)
+    n = model.size
+    return initial_vector(x0, n, "x0"), initial_vector(v0, n, "v0"), as_load(load, n)
+
+
+def unpack(model, x0, v0, load):
+    """(system, basis or None, reduced x0, reduced v0, reduced load) for a checked problem."""
+    basis = model.basis if isinstance(model, ReducedModel) else None
     if basis is None:
         return model, None, x0, v0, load
     load = None if load is None else load.project(basis)
     return model.system, basis, basis.T @ x0, basis.T @ v0, load
 
 
-def acceleration(system: SecondOrderSystem):
-    """a(t, x, v) = M^-1 (f - D v - K x), using the structure of each operator."""
-    if isinstance(system.mass, Diagonal):
-        solve = system.mass.solve
-    else:
-        factor = jsl.cho_factor(system.mass.as_matrix())
-        solve = lambda y: jsl.cho_solve(factor, y)  # noqa: E731
+def acceleration(system: SecondOrderSystem, load):
+    """a(t, x, v) = M^-1 (f(t) - D v - K x), with everything that does not change prepared once.
 
-    def accel(x, v, f):
-        force = -system.stiffness.mv(x)
-        if system.damping is not None:
-            force = force - system.damping.mv(v)
-        if f is not None:
-            force = force + f
-        return solve(force)
+    A diagonal mass is inverted elementwise, a chain's grounded dampers collapse to one diagonal
+    vector and K stays a tridiagonal stencil: O(n) per call. A reduced model's dense r x r mass is
+    factored once and M^-1 [K, D] formed once, so each call is one (r x 2r) product.
+    """
+    if isinstance(system.mass, Diagonal):
+        inverse_mass = 1.0 / system.mass.diagonal
+        damping = system.damping
+        if isinstance(damping, Dampers):
+            grounded = damping.grounded_diagonal()
+            relative = damping.mv_relative if damping.pairs else None
+            damp = lambda v: grounded * v if relative is None else grounded * v + relative(v)  # noqa: E731
+        elif damping is not None:
+            damp = damping.mv
+        else:
+            damp = None
+
+        def accel(t, x, v):
+            force = -system.stiffness.mv(x)
+            if damp is not None:
+                force = force - damp(v)
+            if load is not None:
+                force = force + load(t)
+            return inverse_mass * force
+
+        return accel
+
+    factor = jsl.cho_factor(system.mass.as_matrix())
+    blocks = [system.stiffness.as_matrix()]
+    if system.damping is not None:
+        blocks.append(system.damping.as_matrix())
+    # -M^-1 [K, D]: one product with (x, v) per call.
+    operator = -jsl.cho_solve(factor, jnp.concatenate(blocks, axis=1))
+    def accel(t, x, v):
+        a = operator @ (jnp.concatenate([x, v]) if system.damping is not None else x)
+        if load is not None:
+            a = a + jsl.cho_solve(factor, load(t))
+        return a
 
     return accel
 
 
-def _save_fn(basis, dofs_index, displacement: bool, velocity: bool):
+def _save_fn(n: int, basis, dofs_index, displacement: bool, velocity: bool):
     rows = None if basis is None else basis[dofs_index]
 
     def pick(z):
@@ -111,21 +139,21 @@ def _save_fn(basis, dofs_index, displacement: bool, velocity: bool):
         return z if dofs_index is None else z[dofs_index]
 
     def save(t, y, args):
-        x, v = y
-        return (pick(x) if displacement else None, pick(v) if velocity else None)
+        return (pick(y[:n]) if displacement else None, pick(y[n:]) if velocity else None)
 
     return save
 
 
 @eqx.filter_jit
 def _simulate(model, ts, x0, v0, load, rtol, atol, *, solver, dofs, displacement, velocity,
-              max_steps, throw, progress):
+              max_steps, progress, adjoint):
     system, basis, y0x, y0v, load = unpack(model, x0, v0, load)
-    accel = acceleration(system)
+    accel = acceleration(system, load)
+    m = system.size  # the state is one flat vector (x, v): fewer, larger kernels per stage
 
     def field(t, y, args):
-        x, v = y
-        return v, accel(x, v, None if load is None else load(t))
+        x, v = y[:m], y[m:]
+        return jnp.concatenate([v, accel(t, x, v)])
 
     controller = diffrax.PIDController(rtol=rtol, atol=atol)
     if isinstance(load, Pulse):
@@ -134,26 +162,31 @@ def _simulate(model, ts, x0, v0, load, rtol, atol, *, solver, dofs, displacement
     index = None if dofs == tuple(range(1, n + 1)) else jnp.asarray(dofs) - 1
     if index is None and basis is not None:
         index = jnp.arange(n)
-    saveat = diffrax.SaveAt(ts=ts, fn=_save_fn(basis, index, displacement, velocity))
+    saveat = diffrax.SaveAt(ts=ts, fn=_save_fn(m, basis, index, displacement, velocity))
     meter = diffrax.TqdmProgressMeter() if progress else diffrax.NoProgressMeter()
+    y0 = jnp.concatenate([y0x, y0v])
     sol = diffrax.diffeqsolve(
-        diffrax.ODETerm(field), solver, ts[0], ts[-1], None, (y0x, y0v), saveat=saveat,
-        stepsize_controller=controller, max_steps=max_steps, throw=False, progress_meter=meter)
+        diffrax.ODETerm(field), solver, ts[0], ts[-1], None, y0, saveat=saveat,
+        stepsize_controller=controller, max_steps=max_steps, throw=False, progress_meter=meter,
+        adjoint=adjoint)
     out = sol.ys
-    if throw:
-        out = eqx.error_if(
-            out, sol.result == diffrax.RESULTS.max_steps_reached,
-            MARK + f"simulate stopped: max_steps = {max_steps} reached before ts[-1]. Increase "
-            "max_steps, loosen rtol/atol, or for a stiff case (large n, strong damper) use "
-            "solver='kvaerno5' or the exact solver.")
-        out = eqx.error_if(
-            out, sol.result != diffrax.RESULTS.successful,
-            MARK + "simulate failed inside diffrax (step size collapsed or the implicit solve "
-            "diverged); check the inputs for non-finite values, or try another solver.")
-        finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(a)) for a in jax.tree.leaves(out)]))
-        out = eqx.error_if(out, ~finite, MARK + "simulate produced non-finite states; check the "
-                           "inputs and tolerances, or use a stiff solver.")
-    return Trajectory(ts, out[0], out[1], dofs, sol.stats["num_steps"])
+    max_steps_reached = sol.result == diffrax.RESULTS.max_steps_reached
+    failed = (sol.result != diffrax.RESULTS.successful) & ~max_steps_reached
+    finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(a)) for a in jax.tree.leaves(out)]))
+    failures = (max_steps_reached, failed, ~finite)
+    return Trajectory(ts, out[0], out[1], dofs, sol.stats["num_steps"]), failures
+
+
+def _failure_messages(max_steps: int) -> tuple[str, ...]:
+    return (
+        f"simulate stopped: max_steps = {max_steps} reached before ts[-1]. Increase max_steps, "
+        "loosen rtol/atol, or for a stiff case (large n, strong damper) use solver='kvaerno5' or "
+        "the exact solver.",
+        "simulate failed inside diffrax (step size collapsed or the implicit solve diverged); "
+        "check the inputs for non-finite values, or try another solver.",
+        "simulate produced non-finite states; check the inputs and tolerances, or use a stiff "
+        "solver.",
+    )
 
 
 @raises_value_error
@@ -162,12 +195,16 @@ def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | No
              displacement: bool = True, velocity: bool = False,
              solver: str | diffrax.AbstractSolver = "dopri8", rtol: float = 1e-8,
              atol: float = 1e-10, max_steps: int = 100_000, throw: bool = True,
-             progress: bool = False) -> Trajectory:
+             progress: bool = False,
+             adjoint: diffrax.AbstractAdjoint | None = None) -> Trajectory:
     """Integrate M x'' + D x' + K x = f(t) with diffrax from x(ts[0]) = x0, x'(ts[0]) = v0.
 
     ``model`` is a full system or a ``ReducedModel`` (initial state and load given in full
     coordinates, projected by the basis; outputs lifted back, eq. 3.2). ``dofs`` are 1-based
-    (default: all). Tolerances are traced: changing them does not recompile.
+    (default: all). Tolerances are traced: changing them does not recompile. ``adjoint`` is how
+    derivatives pass through the solve (diffrax's; default ``RecursiveCheckpointAdjoint``, for
+    reverse mode); use ``diffrax.ForwardMode()`` under ``jax.jvp``/``jax.jacfwd``, which is the
+    cheaper choice for a few parameters.
     """
     check_x64()
     if isinstance(solver, str):
@@ -183,7 +220,15 @@ def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | No
     rtol, atol = as_float(rtol, "rtol"), as_float(atol, "atol")
     rtol = check(rtol, ~(rtol > 0), "rtol must be > 0.")
     atol = check(atol, ~(atol > 0), "atol must be > 0.")
-    n = model.size if isinstance(model, SecondOrderSystem | ReducedModel) else 0
-    return _simulate(model, ts, x0, v0, load, rtol, atol, solver=solver,
-                     dofs=check_dofs(dofs, max(n, 1)), displacement=displacement,
-                     velocity=velocity, max_steps=max_steps, throw=throw, progress=progress)
+    if adjoint is None:
+        adjoint = diffrax.RecursiveCheckpointAdjoint()
+    elif not isinstance(adjoint, diffrax.AbstractAdjoint):
+        raise ValueError(MARK + f"adjoint must be a diffrax adjoint, got {adjoint!r}.")
+    x0, v0, load = check_problem(model, x0, v0, load)
+    trajectory, failures = _simulate(
+        model, ts, x0, v0, load, rtol, atol, solver=solver, dofs=check_dofs(dofs, model.size),
+        displacement=displacement, velocity=velocity, max_steps=max_steps, progress=progress,
+        adjoint=adjoint)
+    if throw:
+        trajectory = raise_failures(trajectory, failures, _failure_messages(max_steps))
+    return trajectory

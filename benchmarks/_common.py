@@ -1,0 +1,184 @@
+"""What every benchmark script shares: thread setup, compile/run timing, metadata, JSON, tables.
+
+Import this module before jax or numpy (it sets ``OPENBLAS_NUM_THREADS=1`` unless already set, so
+that LAPACK calls do not busy-wait on a loaded machine). The conventions, probdiffeq's way:
+
+* compile time apart from run time: ``Compiled`` wraps a function in ``jax.jit`` and compiles it
+  ahead of time (``lower(...).compile()``), timing trace + lower + XLA compile;
+* run time: the median of repeated calls, each ended by ``jax.block_until_ready``;
+* every comparison in one process, one JSON per script under ``benchmarks/results/`` with the
+  environment metadata, plus a PNG; ``--quick`` runs write ``NAME_quick.json`` / ``.png`` beside
+  (never over) the full results.
+"""
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse
+import datetime
+import json
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+import mikota_jax as mj
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+class Compiled:
+    """``jax.jit(fn)`` compiled ahead of time for the example arguments; calls block until ready.
+
+    ``trace_s`` is trace + lower, ``xla_s`` the XLA compile, ``compile_s`` their sum.
+    """
+
+    def __init__(self, fn, *example_args):
+        jitted = jax.jit(fn)
+        start = time.perf_counter()
+        lowered = jitted.lower(*example_args)
+        middle = time.perf_counter()
+        self.executable = lowered.compile()
+        end = time.perf_counter()
+        self.trace_s, self.xla_s = middle - start, end - middle
+        self.compile_s = end - start
+
+    def __call__(self, *args):
+        return jax.block_until_ready(self.executable(*args))
+
+
+def timed(fn, *args, repeats: int):
+    """(result of the last call, median seconds, all seconds) over ``repeats`` calls of ``fn``.
+
+    ``fn`` must block until its result is ready (a ``Compiled``, or plain numpy/scipy code).
+    """
+    times, result = [], None
+    for _ in range(repeats):
+        start = time.perf_counter()
+        result = jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - start)
+    return result, statistics.median(times), times
+
+
+def parse_args(doc: str, argv=None, **extra) -> argparse.Namespace:
+    """``--quick`` (a minute or less) plus ``extra`` flags (name -> add_argument kwargs)."""
+    parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="a smoke run of a minute or less")
+    for flag, kwargs in extra.items():
+        parser.add_argument("--" + flag.replace("_", "-"), **kwargs)
+    return parser.parse_args(argv)
+
+
+def metadata() -> dict:
+    """Versions, backend, device, CPU count and the x64 flag: stored with every result."""
+    import diffrax
+    import equinox
+    import jaxlib
+
+    try:
+        import scipy
+
+        scipy_version = scipy.__version__
+    except ImportError:  # scipy is only a comparison baseline
+        scipy_version = None
+    device = jax.devices()[0]
+    return {
+        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "mikota_jax": mj.__version__, "jax": jax.__version__, "jaxlib": jaxlib.__version__,
+        "diffrax": diffrax.__version__, "equinox": equinox.__version__,
+        "numpy": np.__version__, "scipy": scipy_version,
+        "python": platform.python_version(), "platform": platform.platform(),
+        "processor": platform.processor() or platform.machine(),
+        "backend": jax.default_backend(),
+        "device": getattr(device, "device_kind", None) or str(device),
+        "device_count": jax.device_count(),
+        "cpu_count": os.cpu_count(), "x64": bool(jax.config.read("jax_enable_x64")),
+        "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS"),
+        "argv": sys.argv[1:],
+    }
+
+
+def result_stem(name: str, quick: bool) -> Path:
+    """``results/NAME`` (or ``results/NAME_quick``): add ``.json`` / ``.png``."""
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    return RESULTS / (f"{name}_quick" if quick else name)
+
+
+def write_json(name: str, quick: bool, data: dict) -> Path:
+    """Write ``data`` (with metadata added) atomically to ``results/NAME[_quick].json``."""
+    path = result_stem(name, quick).with_suffix(".json")
+    payload = {"benchmark": name, "quick": quick, "metadata": metadata(), **data}
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(payload, indent=1, allow_nan=False, default=_plain) + "\n")
+    tmp.replace(path)
+    return path
+
+
+def _plain(value):
+    if isinstance(value, np.generic | jax.Array | np.ndarray):
+        return np.asarray(value).tolist()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def print_table(rows: list[dict], columns: list[tuple[str, str, str]]) -> None:
+    """Print ``rows`` as a table; ``columns`` are (key, header, format spec) with None as '-'."""
+    widths = [max(len(header), 10) for _, header, _ in columns]
+    cells = [[("-" if r.get(key) is None else format(r[key], spec)) for key, _, spec in columns]
+             for r in rows]
+    for line in cells:
+        widths = [max(w, len(c)) for w, c in zip(widths, line)]
+    header = "  ".join(h.rjust(w) if i else h.ljust(w)
+                       for i, ((_, h, _), w) in enumerate(zip(columns, widths)))
+    print("\n" + header + "\n" + "-" * len(header))
+    for line in cells:
+        print("  ".join(c.rjust(w) if i else c.ljust(w)
+                        for i, (c, w) in enumerate(zip(line, widths))))
+
+
+def figure(**kwargs):
+    """A matplotlib (fig, axes) on the Agg backend (no display needed)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt.subplots(**kwargs)
+
+
+def save_figure(fig, name: str, quick: bool) -> Path:
+    import matplotlib.pyplot as plt
+
+    path = result_stem(name, quick).with_suffix(".png")
+    fig.tight_layout()
+    fig.savefig(path, dpi=150)
+    plt.close(fig)
+    return path
+
+
+def subtitle(meta: dict | None = None) -> str:
+    meta = meta or metadata()
+    return (f"{meta['backend']} / {meta['device']}, {meta['cpu_count']} CPUs, jax {meta['jax']}, "
+            f"x64 {meta['x64']}")
+
+
+def fit_exponent(sizes, costs) -> float | None:
+    """Least-squares slope of log(cost) on log(size): cost ~ size^slope (None below 2 points)."""
+    pairs = [(s, c) for s, c in zip(sizes, costs) if c is not None and c > 0]
+    if len(pairs) < 2:
+        return None
+    x, y = np.log([p[0] for p in pairs]), np.log([p[1] for p in pairs])
+    return float(np.polyfit(x, y, 1)[0])
+
+
+def max_error(displacement, reference) -> float:
+    """max |x_i(t_k) - x_i^ref(t_k)| over every DOF and time."""
+    return float(np.max(np.abs(np.asarray(displacement) - np.asarray(reference))))
+
+
+def elapsed(start: float) -> float:
+    return time.perf_counter() - start
