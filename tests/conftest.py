@@ -4,6 +4,9 @@ silent float32 downgrade or an accidental broadcast fails loudly in the tests.""
 import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+# The CLI turns on JAX's persistent compilation cache; in-process CLI tests must not change the
+# global config or write to ~/.cache (test_paper checks the cache in a child process instead).
+os.environ.setdefault("MIKOTA_JAX_CACHE", "0")
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402

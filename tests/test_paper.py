@@ -15,12 +15,14 @@ import pytest
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
     out = tmp_path_factory.mktemp("paper")
-    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+    cache = tmp_path_factory.mktemp("xla_cache")
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", MIKOTA_JAX_CACHE="1",
+               MIKOTA_JAX_CACHE_DIR=str(cache))
     done = subprocess.run([sys.executable, "-m", "mikota_jax", "reproduce", "--out", str(out)],
                           capture_output=True, text=True, env=env, timeout=600)
     data = json.loads((out / "reproduce.json").read_text())
     rows = {row["quantity"]: row for row in data["rows"]}
-    return done, out, data, rows
+    return done, out, data, rows, cache
 
 
 def row(rows, start):
@@ -29,13 +31,13 @@ def row(rows, start):
 
 
 def test_reproduce_exits_zero_and_prints_the_table(report):
-    done, _, data, _ = report
+    done, _, data, _, _ = report
     assert done.returncode == 0, done.stderr[-2000:]
     assert data["missed"] == 0 and "sigma_77 / sigma_max" in done.stdout
 
 
 def test_reproduce_writes_figures_2_to_9(report):
-    _, out, _, _ = report
+    _, out, _, _, _ = report
     names = sorted(p.name for p in out.glob("fig*.png"))
     assert [name.split("_")[0] for name in names] == [f"fig{k}" for k in range(2, 10)]
     assert all((out / name).read_bytes()[:4] == b"\x89PNG" for name in names)
@@ -83,3 +85,10 @@ def test_section_5_reduced_models_follow_the_full_one_as_in_figs_8_and_9(report)
         assert phase["status"] == "not reproduced" and "closest" in phase["reading"]
     assert row(rows, "Delta E_phase, n_red = 98")["value"] < row(rows, "Delta E_phase, n_red = 76")[
         "value"]
+
+
+def test_reproduce_stores_its_compiled_solves_in_the_persistent_cache(report):
+    # an executable holding a host callback (a raising check inside jit) is never stored
+    _, _, _, _, cache = report
+    entries = list(cache.iterdir())
+    assert len(entries) > 20, entries

@@ -3,7 +3,9 @@
 Small chains (n = 8) and few distinct shapes: every new shape or structure recompiles a solver.
 """
 
+import diffrax
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -231,6 +233,26 @@ def test_too_few_max_steps_raises_an_error_naming_max_steps(undamped):
         mj.simulate(undamped, TS, np.ones(N), max_steps=5)
 
 
+# under a user's jax.jit, equinox's runtime error arrives wrapped in jax's
+RUNTIME_ERRORS = (eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError)
+
+
+def test_too_few_max_steps_under_jit_fails_with_the_same_message(undamped):
+    solve = jax.jit(lambda x0: mj.simulate(undamped, TS, x0, max_steps=5).displacement)
+    with pytest.raises(RUNTIME_ERRORS, match="max_steps = 5 reached"):
+        jax.block_until_ready(solve(jnp.ones(N)))
+
+
+def test_a_non_finite_initial_state_is_refused_eagerly_and_under_jit(undamped):
+    x0 = np.ones(N)
+    x0[2] = np.nan
+    with pytest.raises(ValueError, match="x0 must be finite"):
+        mj.simulate(undamped, TS, x0)
+    solve = jax.jit(lambda x0: mj.simulate(undamped, TS, x0).displacement)
+    with pytest.raises(RUNTIME_ERRORS, match="x0 must be finite"):
+        jax.block_until_ready(solve(jnp.asarray(x0)))
+
+
 def test_throw_false_returns_the_partial_solution_instead(undamped):
     out = mj.simulate(undamped, TS, np.ones(N), max_steps=5, throw=False)
     assert int(out.num_steps) == 5
@@ -296,3 +318,29 @@ def test_a_pulse_of_the_wrong_size_is_rejected(undamped):
         mj.pulse(N, 1, duration=0.0)
     with pytest.raises(ValueError, match="dof must be an integer DOF in 1..8"):
         mj.pulse(N, 9)
+
+
+# --- derivatives through the solve ---------------------------------------------------------------
+
+
+def damped_tip_energy(coefficient, adjoint):
+    """Time-summed squared tip displacement of a chain with one damper of ``coefficient``."""
+    system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(3.4, coefficient)])
+    out = mj.simulate(system, TS, mj.unit_vector(N, 2), dofs=[N], rtol=1e-11, atol=1e-13,
+                      adjoint=adjoint)
+    return jnp.sum(out.displacement ** 2)
+
+
+@pytest.mark.parametrize("adjoint", [diffrax.ForwardMode(), diffrax.RecursiveCheckpointAdjoint(),
+                                     diffrax.DirectAdjoint()], ids=lambda a: type(a).__name__)
+def test_each_adjoint_gives_the_central_difference_derivative(adjoint, close):
+    c, h = 0.7, 1e-5
+    differentiate = jax.jacfwd if isinstance(adjoint, diffrax.ForwardMode) else jax.grad
+    derivative = differentiate(damped_tip_energy)(jnp.asarray(c), adjoint)
+    central = (damped_tip_energy(c + h, adjoint) - damped_tip_energy(c - h, adjoint)) / (2 * h)
+    close(derivative, central, rtol=1e-6)
+
+
+def test_an_adjoint_that_is_not_a_diffrax_adjoint_is_refused(undamped):
+    with pytest.raises(ValueError, match="adjoint must be a diffrax adjoint"):
+        mj.simulate(undamped, TS, np.ones(N), adjoint="forward")
