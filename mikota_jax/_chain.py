@@ -10,6 +10,7 @@ from collections.abc import Sequence
 
 import equinox as eqx
 import jax.numpy as jnp
+import jax.scipy.linalg as jsl
 
 from ._custom_types import ScalarLike, Vector
 from ._dampers import Dampers, GroundedDamper, RelativeDamper
@@ -75,6 +76,22 @@ def mikota_chain(n: int, m: ScalarLike = 1.0, k: ScalarLike = 1.0,
     m, k = positive_scalar(m, "m"), positive_scalar(k, "k")
     i = jnp.arange(1, n + 1, dtype=jnp.float64)
     return chain(m / i, (n - i + 1) * k, dampers)
+
+
+def generalized_modes(system: SecondOrderSystem):
+    """(omega^2, U): K U = M U diag(omega^2), U^T M U = I, ascending; omega^2 is not checked."""
+    if isinstance(system.mass, Diagonal):
+        scale = 1 / jnp.sqrt(system.mass.diagonal)
+        symmetric = scale[:, None] * system.stiffness.as_matrix() * scale[None, :]
+        omega2, vectors = jnp.linalg.eigh(symmetric)
+        modes = scale[:, None] * vectors
+    else:
+        lower = jnp.linalg.cholesky(system.mass.as_matrix())
+        inv_k = jsl.solve_triangular(lower, system.stiffness.as_matrix(), lower=True)
+        symmetric = jsl.solve_triangular(lower, inv_k.T, lower=True)
+        omega2, vectors = jnp.linalg.eigh((symmetric + symmetric.T) / 2)
+        modes = jsl.solve_triangular(lower.T, vectors, lower=False)
+    return omega2, modes
 
 
 def as_operator(x) -> Operator:

@@ -15,7 +15,7 @@ import numpy as np
 
 from ._custom_types import Array, Basis, Float, Matrix, ScalarLike, Vector
 from ._errors import MARK, as_float, check
-from ._operators import Dense
+from ._operators import LowRank
 
 
 class GroundedDamper(eqx.Module):
@@ -119,13 +119,12 @@ class Dampers(eqx.Module):
     def as_matrix(self) -> Matrix:
         return jax.vmap(self.mv, in_axes=1, out_axes=1)(jnp.eye(self.size))
 
-    def project(self, basis: Basis) -> Dense:
-        """``basis^T D basis`` in O(dampers * r^2), without touching the other n - 2 rows."""
+    def project(self, basis: Basis) -> LowRank:
+        """``basis^T D basis`` as B diag(w) B^T, B = the basis rows the dampers touch."""
         left, right, c_left, c_right = self._grounded_weights()
-        a, b = basis[left], basis[right]
-        out = (a.T * c_left[None, :]) @ a + (b.T * c_right[None, :]) @ b
+        columns, weights = [basis[left], basis[right]], [c_left, c_right]
         if self.pairs:
             i, j = (np.asarray(a) for a in zip(*self.pairs))
-            diff = basis[i] - basis[j]
-            out = out + (diff.T * self.pair_coefficients[None, :]) @ diff
-        return Dense(out)
+            columns.append(basis[i] - basis[j])
+            weights.append(self.pair_coefficients)
+        return LowRank(jnp.concatenate(columns).T, jnp.concatenate(weights))

@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 
+from ._chain import generalized_modes
 from ._custom_types import Times, Vector
 from ._errors import MARK, check, check_x64, raise_failures, raises_value_error
 from ._excitation import LoadFunction, Pulse
@@ -28,28 +29,12 @@ from ._operators import Diagonal
 
 def modal_decomposition(system):
     """(omega, U) with U^T M U = I and U^T K U = diag(omega^2), omega ascending."""
-    omega2, modes = _modal(system)
+    omega2, modes = generalized_modes(system)
     omega2 = check(omega2, omega2 <= 0, NOT_DEFINITE)
     return jnp.sqrt(omega2), modes
 
 
 NOT_DEFINITE = "stiffness must be positive definite (a fixed-free chain with positive springs is)."
-
-
-def _modal(system):
-    """(omega^2, U), unchecked."""
-    if isinstance(system.mass, Diagonal):
-        scale = 1 / jnp.sqrt(system.mass.diagonal)
-        symmetric = scale[:, None] * system.stiffness.as_matrix() * scale[None, :]
-        omega2, vectors = jnp.linalg.eigh(symmetric)
-        modes = scale[:, None] * vectors
-    else:
-        lower = jnp.linalg.cholesky(system.mass.as_matrix())
-        inv_k = jsl.solve_triangular(lower, system.stiffness.as_matrix(), lower=True)
-        symmetric = jsl.solve_triangular(lower, inv_k.T, lower=True)
-        omega2, vectors = jnp.linalg.eigh((symmetric + symmetric.T) / 2)
-        modes = jsl.solve_triangular(lower.T, vectors, lower=False)
-    return omega2, modes
 
 
 def _propagator(omega, damping_modal):
@@ -72,7 +57,7 @@ def _propagator(omega, damping_modal):
 @eqx.filter_jit
 def _exact(model, ts, x0, v0, load, *, dofs, displacement, velocity):
     system, basis, y0x, y0v, load = unpack(model, x0, v0, load)
-    omega2, modes = _modal(system)
+    omega2, modes = generalized_modes(system)
     not_definite = jnp.any(omega2 <= 0)
     omega = jnp.sqrt(jnp.where(omega2 > 0, omega2, 1.0))  # no NaN below; flagged instead
     mass = system.mass.as_matrix() if not isinstance(system.mass, Diagonal) else None

@@ -1,10 +1,11 @@
 """``simulate``: one diffrax integrator for full and reduced second-order systems.
 
 The state is one flat vector y = (x, v); the right-hand side is (v, M^-1 (f(t) - D v - K x)) with
-every operator applied in its structure (O(n) for a chain, no M^-1 K formed, grounded dampers as
-one diagonal). A reduced model's dense r x r mass is factored once (Cholesky) per solve and
-M^-1 [K, D] formed once. Only what the caller asks for is saved: the
-requested 1-based DOFs (lifted through the basis for a reduced model), displacement and/or velocity.
+every operator applied in its structure: O(n) for a chain (tridiagonal K, grounded dampers as one
+diagonal, no M^-1 K formed). A reduced model (dense r x r operators) is solved in its modal
+coordinates, where M = I, K is diagonal and the projected dampers are low rank, so a call costs
+O(r p) instead of a dense r x 2r product. Only what the caller asks for is saved: the requested
+1-based DOFs (lifted back for a reduced model), displacement and/or velocity.
 """
 
 from collections.abc import Sequence
@@ -13,10 +14,9 @@ import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import jax.scipy.linalg as jsl
 import numpy as np
 
-from ._chain import SecondOrderSystem
+from ._chain import SecondOrderSystem, generalized_modes
 from ._custom_types import Array, Float, Times, Vector
 from ._dampers import Dampers
 from ._errors import MARK, as_float, check, check_x64, raise_failures, raises_value_error
@@ -78,60 +78,60 @@ def check_problem(model, x0, v0, load):
 
 
 def unpack(model, x0, v0, load):
-    """(system, basis or None, reduced x0, reduced v0, reduced load) for a checked problem."""
+    """(system, lift or None, initial x, initial v, load) in the coordinates the solvers use.
+
+    A chain (diagonal mass) is solved as it is, in its O(n) structure (lift None). A system with a
+    dense mass -- a reduced model, or a user's dense matrices -- is solved in its M-orthonormal
+    modal coordinates eta: q = U eta with U^T M U = I, U^T K U = diag(omega^2), so M becomes I, K
+    a diagonal and projected dampers stay low rank; ``lift`` (basis U, or U) maps eta back to the
+    full DOFs. The initial state is projected (q0 = basis^T x0, eta0 = U^T M q0).
+    """
     basis = model.basis if isinstance(model, ReducedModel) else None
-    if basis is None:
-        return model, None, x0, v0, load
-    load = None if load is None else load.project(basis)
-    return model.system, basis, basis.T @ x0, basis.T @ v0, load
+    system = model.system if basis is not None else model
+    if isinstance(system.mass, Diagonal) and basis is None:
+        return system, None, x0, v0, load
+    if basis is not None:
+        x0, v0 = basis.T @ x0, basis.T @ v0
+    omega2, modes = generalized_modes(system)
+    mass = system.mass.as_matrix()
+    lift = modes if basis is None else basis @ modes
+    damping = None if system.damping is None else system.damping.project(modes)
+    modal = SecondOrderSystem(Diagonal(jnp.ones_like(omega2)), Diagonal(omega2), damping)
+    load = None if load is None else load.project(lift)
+    return modal, lift, modes.T @ (mass @ x0), modes.T @ (mass @ v0), load
 
 
 def acceleration(system: SecondOrderSystem, load):
-    """a(t, x, v) = M^-1 (f(t) - D v - K x), with everything that does not change prepared once.
+    """a(t, x, v) = M^-1 (f(t) - D v - K x) for a diagonal M; what does not change is prepared once.
 
-    A diagonal mass is inverted elementwise, a chain's grounded dampers collapse to one diagonal
-    vector and K stays a tridiagonal stencil: O(n) per call. A reduced model's dense r x r mass is
-    factored once and M^-1 [K, D] formed once, so each call is one (r x 2r) product.
+    The mass is inverted elementwise and a chain's grounded dampers collapse to one diagonal vector,
+    K stays a tridiagonal stencil (a chain) or a diagonal (modal coordinates): O(n) per call, plus
+    O(r p) for dampers projected onto r modes (p = DOFs they touch).
     """
-    if isinstance(system.mass, Diagonal):
-        inverse_mass = 1.0 / system.mass.diagonal
-        damping = system.damping
-        if isinstance(damping, Dampers):
-            grounded = damping.grounded_diagonal()
-            relative = damping.mv_relative if damping.pairs else None
-            damp = lambda v: grounded * v if relative is None else grounded * v + relative(v)  # noqa: E731
-        elif damping is not None:
-            damp = damping.mv
-        else:
-            damp = None
+    inverse_mass = 1.0 / system.mass.diagonal
+    damping = system.damping
+    if isinstance(damping, Dampers):
+        grounded = damping.grounded_diagonal()
+        relative = damping.mv_relative if damping.pairs else None
+        damp = lambda v: grounded * v if relative is None else grounded * v + relative(v)  # noqa: E731
+    elif damping is not None:
+        damp = damping.mv
+    else:
+        damp = None
 
-        def accel(t, x, v):
-            force = -system.stiffness.mv(x)
-            if damp is not None:
-                force = force - damp(v)
-            if load is not None:
-                force = force + load(t)
-            return inverse_mass * force
-
-        return accel
-
-    factor = jsl.cho_factor(system.mass.as_matrix())
-    blocks = [system.stiffness.as_matrix()]
-    if system.damping is not None:
-        blocks.append(system.damping.as_matrix())
-    # -M^-1 [K, D]: one product with (x, v) per call.
-    operator = -jsl.cho_solve(factor, jnp.concatenate(blocks, axis=1))
     def accel(t, x, v):
-        a = operator @ (jnp.concatenate([x, v]) if system.damping is not None else x)
+        force = -system.stiffness.mv(x)
+        if damp is not None:
+            force = force - damp(v)
         if load is not None:
-            a = a + jsl.cho_solve(factor, load(t))
-        return a
+            force = force + load(t)
+        return inverse_mass * force
 
     return accel
 
 
-def _save_fn(n: int, basis, dofs_index, displacement: bool, velocity: bool):
-    rows = None if basis is None else basis[dofs_index]
+def _save_fn(n: int, lift, dofs_index, displacement: bool, velocity: bool):
+    rows = None if lift is None else lift[dofs_index]
 
     def pick(z):
         if rows is not None:
@@ -147,7 +147,7 @@ def _save_fn(n: int, basis, dofs_index, displacement: bool, velocity: bool):
 @eqx.filter_jit
 def _simulate(model, ts, x0, v0, load, rtol, atol, *, solver, dofs, displacement, velocity,
               max_steps, progress, adjoint):
-    system, basis, y0x, y0v, load = unpack(model, x0, v0, load)
+    system, lift, y0x, y0v, load = unpack(model, x0, v0, load)
     accel = acceleration(system, load)
     m = system.size  # the state is one flat vector (x, v): fewer, larger kernels per stage
 
@@ -160,9 +160,9 @@ def _simulate(model, ts, x0, v0, load, rtol, atol, *, solver, dofs, displacement
         controller = diffrax.ClipStepSizeController(controller, jump_ts=load.jump_times)
     n = model.size
     index = None if dofs == tuple(range(1, n + 1)) else jnp.asarray(dofs) - 1
-    if index is None and basis is not None:
+    if index is None and lift is not None:
         index = jnp.arange(n)
-    saveat = diffrax.SaveAt(ts=ts, fn=_save_fn(m, basis, index, displacement, velocity))
+    saveat = diffrax.SaveAt(ts=ts, fn=_save_fn(m, lift, index, displacement, velocity))
     meter = diffrax.TqdmProgressMeter() if progress else diffrax.NoProgressMeter()
     y0 = jnp.concatenate([y0x, y0v])
     sol = diffrax.diffeqsolve(

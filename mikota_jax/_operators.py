@@ -80,4 +80,24 @@ class Dense(eqx.Module):
         return Dense(basis.T @ self.matrix @ basis)
 
 
-Operator = Diagonal | SymmetricTridiagonal | Dense
+class LowRank(eqx.Module):
+    """B diag(w) B^T: projected dampers, which touch only a few DOFs (p = the DOFs touched)."""
+
+    factor: Float[Array, "r p"]
+    weights: Float[Array, " p"]
+
+    @property
+    def size(self) -> int:
+        return self.factor.shape[0]
+
+    def mv(self, x: Vector) -> Vector:
+        return self.factor @ (self.weights * (self.factor.T @ x))
+
+    def as_matrix(self) -> Matrix:
+        return (self.factor * self.weights[None, :]) @ self.factor.T
+
+    def project(self, basis: Basis) -> "LowRank":
+        return LowRank(basis.T @ self.factor, self.weights)
+
+
+Operator = Diagonal | SymmetricTridiagonal | Dense | LowRank
