@@ -4,6 +4,7 @@ Every message starts with ``MARK`` so that the public entry points can turn equi
 (raised when a traced check fails under ``jit``) back into the ``ValueError`` a user expects.
 """
 
+import contextlib
 import functools
 
 import equinox as eqx
@@ -63,6 +64,29 @@ def raise_failures(out, failures, messages):
     for flag, message in zip(failures, messages):
         out = eqx.error_if(out, flag, MARK + message)
     return out
+
+
+@contextlib.contextmanager
+def callback_free_checks():
+    """Trace diffrax's own runtime checks as NaN-poisoning instead of host callbacks.
+
+    diffrax checks ``SaveAt(ts)`` with ``eqx.error_if``, which compiles to a host callback, and
+    JAX's persistent cache refuses executables holding one. Our solvers validate ``ts`` before
+    tracing and flag non-finite results themselves, so inside them equinox's ``"nan"`` mode loses
+    nothing: a failed check there yields NaN, which the non-finite flag reports. Only the module
+    default is switched, only while the solver is traced; with another equinox layout it is a no-op.
+    """
+    from equinox import _errors as equinox_errors
+
+    previous = getattr(equinox_errors, "EQX_ON_ERROR", None)
+    if previous != "raise":  # the user chose a mode (or the layout changed): leave it
+        yield
+        return
+    equinox_errors.EQX_ON_ERROR = "nan"
+    try:
+        yield
+    finally:
+        equinox_errors.EQX_ON_ERROR = previous
 
 
 def positive_scalar(x, name: str):

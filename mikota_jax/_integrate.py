@@ -19,7 +19,15 @@ import numpy as np
 from ._chain import SecondOrderSystem, generalized_modes
 from ._custom_types import Array, Float, Times, Vector
 from ._dampers import Dampers
-from ._errors import MARK, as_float, check, check_x64, raise_failures, raises_value_error
+from ._errors import (
+    MARK,
+    as_float,
+    callback_free_checks,
+    check,
+    check_x64,
+    raise_failures,
+    raises_value_error,
+)
 from ._excitation import Pulse, as_load
 from ._galerkin import ReducedModel
 from ._operators import Diagonal
@@ -225,10 +233,11 @@ def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | No
     elif not isinstance(adjoint, diffrax.AbstractAdjoint):
         raise ValueError(MARK + f"adjoint must be a diffrax adjoint, got {adjoint!r}.")
     x0, v0, load = check_problem(model, x0, v0, load)
-    trajectory, failures = _simulate(
-        model, ts, x0, v0, load, rtol, atol, solver=solver, dofs=check_dofs(dofs, model.size),
-        displacement=displacement, velocity=velocity, max_steps=max_steps, progress=progress,
-        adjoint=adjoint)
+    with callback_free_checks():  # so that the persistent compilation cache can store the solve
+        trajectory, failures = _simulate(
+            model, ts, x0, v0, load, rtol, atol, solver=solver, dofs=check_dofs(dofs, model.size),
+            displacement=displacement, velocity=velocity, max_steps=max_steps, progress=progress,
+            adjoint=adjoint)
     if throw:
         trajectory = raise_failures(trajectory, failures, _failure_messages(max_steps))
     return trajectory

@@ -7,6 +7,13 @@ a jit-compiled SVD, or for m >> n (or n >> m) from the eigendecomposition of the
 about 1e-8 sigma_1 are lost). Each POM's sign is fixed so that its entry of largest magnitude is
 positive.
 
+For large snapshot sets (n >= 10^4) ``method="randomized"`` computes only the leading k singular
+values and POMs with a randomized range finder (Halko, Martinsson & Tropp 2011, Algs. 4.4 and 5.1):
+a Gaussian sketch Q Omega with k + p columns, q rounds of re-orthonormalised subspace iteration,
+then the SVD of the small projected matrix. Its error in sigma_j shrinks roughly like
+(sigma_{k+p+1} / sigma_j)^(2q+1): accurate for the leading values of a decaying spectrum, less so
+near sigma_k when the spectrum is flat there; check against ``"svd"`` on a smaller problem.
+
 Two pseudo-energy criteria for choosing the rank r (eq. 3.7 and Section 5):
 
 * ``"squared"``: sum_{k<=r} sigma_k^2 >= e * sum_k sigma_k^2, the criterion as eq. (3.7) writes it;
@@ -17,6 +24,7 @@ Two pseudo-energy criteria for choosing the rank r (eq. 3.7 and Section 5):
 
 import equinox as eqx
 import jax
+import jax.lax as lax
 import jax.numpy as jnp
 import numpy as np
 
@@ -24,14 +32,24 @@ from ._custom_types import Array, Basis, Float, Snapshots
 from ._errors import MARK, as_float, check_x64
 
 CRITERIA = ("squared", "paper")
-METHODS = ("svd", "snapshots")
+METHODS = ("svd", "snapshots")  # the full PODs (all a scene file may name)
+ALL_METHODS = (*METHODS, "randomized")  # plus the truncated one, which needs a rank
 
 
 class POD(eqx.Module):
-    """All singular values (descending) and proper orthogonal modes of a snapshot matrix."""
+    """Singular values (descending) and proper orthogonal modes of a snapshot matrix.
+
+    ``total_energy`` is None when ``singular_values`` are all min(n, m) of them (``"svd"``,
+    ``"snapshots"``). A ``"randomized"`` POD holds only the leading k values and modes, so
+    ``basis(r)`` needs r <= k, ``numerical_rank()`` counts among those k only, and
+    ``total_energy`` = ||Q||_F^2 = sum of *all* sigma_k^2 supplies the denominator of the
+    ``"squared"`` energy fraction; the ``"paper"`` criterion needs sum of all sigma_k, which a
+    truncated POD does not know, so it is refused.
+    """
 
     singular_values: Float[Array, " k"]
     modes: Float[Array, "n k"]
+    total_energy: Float[Array, ""] | None = None
 
     def basis(self, rank: int) -> Basis:
         """Phi = [phi_1, ..., phi_r] (eq. 3.8), orthonormal columns."""
@@ -51,11 +69,29 @@ class POD(eqx.Module):
 
     def energy_fraction(self, criterion: str = "squared") -> Float[Array, " k"]:
         """Captured pseudo-energy fraction for r = 1, 2, ... under ``criterion`` (eq. 3.7)."""
-        return energy_fraction(self.singular_values, criterion)
+        if self.total_energy is None:
+            return energy_fraction(self.singular_values, criterion)
+        _check_truncated_criterion(criterion, len(self.singular_values))
+        return jnp.cumsum(self.singular_values**2) / self.total_energy
 
     def rank_for_energy(self, energy: float, criterion: str = "squared") -> int:
-        """Smallest r whose captured fraction is at least ``energy`` (0 < energy <= 1)."""
-        return rank_for_energy(self.singular_values, energy, criterion)
+        """Smallest r whose captured fraction is at least ``energy`` (0 < energy <= 1).
+
+        For a truncated (randomized) POD, "squared" only, and an error when the k leading modes
+        do not reach ``energy``.
+        """
+        if self.total_energy is None:
+            return rank_for_energy(self.singular_values, energy, criterion)
+        _check_energy(energy)
+        fraction = np.asarray(self.energy_fraction(criterion))
+        slack = 4 * max(self.modes.shape) * np.finfo(np.float64).eps
+        if not np.all(np.isfinite(fraction)) or fraction[-1] < energy - slack:
+            raise ValueError(MARK + f"the {fraction.size} computed modes capture a fraction "
+                             f"{fraction[-1]:.6g} of the energy, below energy = {energy!r}; "
+                             "compute more (a larger rank) or use method='svd'.")
+        if energy == 1:
+            return max(1, numerical_rank(self.singular_values, max(self.modes.shape)))
+        return int(np.argmax(fraction >= energy - slack)) + 1
 
     def numerical_rank(self) -> int:
         """Number of singular values above max(n, m) * eps * sigma_1 (the rest is rounding)."""
@@ -98,7 +134,43 @@ def _pod_snapshots(q):
     return s, _fix_signs(u)
 
 
-def pod(snapshots: Snapshots, *, method: str = "svd") -> POD:
+@jax.jit(static_argnames=("rank", "sketch", "power_iterations"))
+def _pod_randomized(q, key, *, rank, sketch, power_iterations):
+    # Halko et al. (2011) Alg. 4.4: range of (Q Q^T)^p Q Omega with a QR after every product
+    # (plain powers lose the small directions to rounding), then Alg. 5.1: SVD of B = U^T Q.
+    omega = jax.random.normal(key, (q.shape[1], sketch), dtype=jnp.float64)
+    range_basis = jnp.linalg.qr(q @ omega)[0]
+
+    def power_step(_, u):
+        return jnp.linalg.qr(q @ jnp.linalg.qr(q.T @ u)[0])[0]
+
+    range_basis = lax.fori_loop(0, power_iterations, power_step, range_basis)
+    w, s, _ = jnp.linalg.svd(range_basis.T @ q, full_matrices=False)
+    return s[:rank], _fix_signs(range_basis @ w[:, :rank]), jnp.sum(q * q)
+
+
+def _count(value, name: str, low: int, high: int | None = None) -> int:
+    """A Python integer in low..high (a shape: must be static, never traced)."""
+    allowed = f"{low}..{high}" if high is not None else f">= {low}"
+    if (isinstance(value, bool) or not isinstance(value, int | np.integer)
+            or value < low or (high is not None and value > high)):
+        raise ValueError(MARK + f"{name} must be an integer {allowed}, got {value!r}.")
+    return int(value)
+
+
+def _prng_key(key):
+    if key is None:
+        return jax.random.key(0)
+    dtype = getattr(key, "dtype", None)
+    if dtype is not None and jnp.issubdtype(dtype, jax.dtypes.prng_key) and key.shape == ():
+        return key
+    if dtype == jnp.uint32 and key.shape == (2,):  # a raw jax.random.PRNGKey
+        return key
+    raise ValueError(MARK + f"key must be a jax.random.key (or PRNGKey), got {key!r}.")
+
+
+def pod(snapshots: Snapshots, *, method: str = "svd", rank: int | None = None,
+        oversampling: int = 10, power_iterations: int = 2, key=None) -> POD:
     """POD of the (n, m) snapshot matrix Q = [x_1, ..., x_m] (eqs. 3.5-3.6).
 
     ``method="svd"`` (default) is the accurate thin SVD; ``"snapshots"`` uses the eigenvectors of
@@ -106,17 +178,35 @@ def pod(snapshots: Snapshots, *, method: str = "svd") -> POD:
     side. Returns all min(n, m) singular values and modes; choose the rank with
     ``POD.rank_for_energy`` or pass it to ``POD.basis``. Jit-compiled; may itself be jit-ed,
     vmap-ed and differentiated.
+
+    ``"randomized"`` returns only the leading ``rank`` values and modes (1 <= rank <= min(n, m),
+    required), from a Gaussian sketch of ``rank + oversampling`` columns (capped at min(n, m);
+    oversampling >= 0) refined by ``power_iterations`` >= 0 subspace iterations; ``key`` (a
+    ``jax.random.key``, default ``key(0)``) makes it deterministic. These three counts fix array
+    shapes: pass Python integers (static under ``jit``). See ``POD`` for what a truncated POD
+    can and cannot tell about the energy.
     """
     check_x64()
-    if method not in METHODS:
-        raise ValueError(MARK + f"method must be one of {METHODS}, got {method!r}.")
+    if method not in ALL_METHODS:
+        raise ValueError(MARK + f"method must be one of {ALL_METHODS}, got {method!r}.")
     q = as_float(snapshots, "snapshots")
     if q.ndim != 2 or min(q.shape) < 1:
         raise ValueError(MARK + f"snapshots must be a non-empty (n, m) matrix, got {q.shape}.")
     if not isinstance(q, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(q))):
         raise ValueError(MARK + "snapshots must be finite (the simulation produced NaN or inf).")
-    s, u = (_pod_svd if method == "svd" else _pod_snapshots)(q)
-    return POD(s, u)
+    if method != "randomized":
+        if rank is not None or key is not None:
+            raise ValueError(MARK + "rank and key apply to method='randomized' only; choose the "
+                             "rank of a full POD with POD.basis(rank).")
+        s, u = (_pod_svd if method == "svd" else _pod_snapshots)(q)
+        return POD(s, u)
+    smaller = min(q.shape)
+    rank = _count(rank, "rank (required for method='randomized')", 1, smaller)
+    oversampling = _count(oversampling, "oversampling", 0)
+    power_iterations = _count(power_iterations, "power_iterations", 0)
+    s, u, total = _pod_randomized(q, _prng_key(key), rank=rank, power_iterations=power_iterations,
+                                  sketch=min(rank + oversampling, smaller))
+    return POD(s, u, total)
 
 
 def energy_fraction(singular_values, criterion: str = "squared"):
@@ -129,10 +219,27 @@ def energy_fraction(singular_values, criterion: str = "squared"):
     return (jnp.cumsum(s) / jnp.sum(s)) ** 2
 
 
-def rank_for_energy(singular_values, energy: float, criterion: str = "squared") -> int:
-    """Smallest r with captured fraction >= ``energy`` (0 < energy <= 1); a concrete integer."""
+def _check_energy(energy) -> None:
     if isinstance(energy, bool) or not isinstance(energy, float | int) or not 0 < energy <= 1:
         raise ValueError(MARK + f"energy must be a number in (0, 1], got {energy!r}.")
+
+
+def _check_truncated_criterion(criterion: str, k: int) -> None:
+    if criterion not in CRITERIA:
+        raise ValueError(MARK + f"criterion must be one of {CRITERIA}, got {criterion!r}.")
+    if criterion != "squared":
+        raise ValueError(MARK + f"criterion {criterion!r} needs the sum of all singular values, "
+                         f"but this (randomized) POD holds only the leading {k}; use "
+                         "criterion='squared' (its total, ||Q||_F^2, is known) or method='svd'.")
+
+
+def rank_for_energy(singular_values, energy: float, criterion: str = "squared") -> int:
+    """Smallest r with captured fraction >= ``energy`` (0 < energy <= 1); a concrete integer.
+
+    ``singular_values`` are taken as all of them: for a truncated (randomized) POD use
+    ``POD.rank_for_energy``, which knows the total energy.
+    """
+    _check_energy(energy)
     fraction = np.asarray(energy_fraction(singular_values, criterion))
     if fraction.size == 0 or not np.all(np.isfinite(fraction)):
         raise ValueError(MARK + "singular values must be finite and not all zero.")
