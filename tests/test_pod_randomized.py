@@ -4,19 +4,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _helpers import orthonormal, sign_rule
 
 import mikota_jax as mj
-
-
-def orthonormal(rows, cols, seed):
-    q, _ = np.linalg.qr(np.random.default_rng(seed).standard_normal((rows, cols)))
-    return q
-
-
-def sign_rule(modes):
-    """The package's convention: each column's largest-magnitude entry is positive."""
-    index = np.argmax(np.abs(modes), axis=0)
-    return modes * np.sign(modes[index, np.arange(modes.shape[1])])[None, :]
 
 
 def known(n, m, s, seed=0):
