@@ -37,6 +37,28 @@ def modal_decomposition(system):
 NOT_DEFINITE = "stiffness must be positive definite (a fixed-free chain with positive springs is)."
 
 
+def scaled_modal(system):
+    """(omega, U, U^T D U or None, not_definite) of a system with M-orthonormal modes U.
+
+    In the scaled modal coordinates z = (Omega eta, eta'), x = U eta, the state matrix is
+    A = [[0, Omega], [-Omega, -U^T D U]] and the energy (x^T K x + x'^T M x') / 2 is |z|^2 / 2.
+    """
+    omega2, modes = generalized_modes(system)
+    not_definite = jnp.any(omega2 <= 0)
+    omega = jnp.sqrt(jnp.where(omega2 > 0, omega2, 1.0))  # no NaN below; flagged instead
+    damping_modal = None
+    if system.damping is not None:
+        damping_modal = modes.T @ jax.vmap(system.damping.mv, in_axes=1, out_axes=1)(modes)
+    return omega, modes, damping_modal, not_definite
+
+
+def state_matrix(omega, damping_modal):
+    """A = [[0, Omega], [-Omega, -D_modal]] of the scaled modal coordinates."""
+    n = omega.shape[0]
+    damping_modal = jnp.zeros((n, n)) if damping_modal is None else damping_modal
+    return jnp.block([[jnp.zeros((n, n)), jnp.diag(omega)], [-jnp.diag(omega), -damping_modal]])
+
+
 def _propagator(omega, damping_modal):
     """tau -> (z -> exp(A tau) z)."""
     n = omega.shape[0]
@@ -45,7 +67,7 @@ def _propagator(omega, damping_modal):
             c, s = jnp.cos(omega * tau), jnp.sin(omega * tau)
             return lambda z: jnp.concatenate([c * z[:n] + s * z[n:], -s * z[:n] + c * z[n:]])
         return apply
-    a = jnp.block([[jnp.zeros((n, n)), jnp.diag(omega)], [-jnp.diag(omega), -damping_modal]])
+    a = state_matrix(omega, damping_modal)
 
     def apply(tau):
         p = jsl.expm(a * tau)
@@ -54,19 +76,20 @@ def _propagator(omega, damping_modal):
     return apply
 
 
+def modal_projection(system, modes):
+    """y -> U^T M y: modal coordinates of a physical vector (U^T M U = I)."""
+    if isinstance(system.mass, Diagonal):
+        return lambda y: modes.T @ (system.mass.diagonal * y)
+    mass = system.mass.as_matrix()
+    return lambda y: modes.T @ (mass @ y)
+
+
 @eqx.filter_jit
 def _exact(model, ts, x0, v0, load, *, dofs, displacement, velocity):
     system, basis, y0x, y0v, load = unpack(model, x0, v0, load)
-    omega2, modes = generalized_modes(system)
-    not_definite = jnp.any(omega2 <= 0)
-    omega = jnp.sqrt(jnp.where(omega2 > 0, omega2, 1.0))  # no NaN below; flagged instead
-    mass = system.mass.as_matrix() if not isinstance(system.mass, Diagonal) else None
-    project = (lambda y: modes.T @ (mass @ y)) if mass is not None else (
-        lambda y: modes.T @ (system.mass.diagonal * y))
+    omega, modes, damping_modal, not_definite = scaled_modal(system)
+    project = modal_projection(system, modes)
     n = omega.shape[0]
-    damping_modal = None
-    if system.damping is not None:
-        damping_modal = modes.T @ jax.vmap(system.damping.mv, in_axes=1, out_axes=1)(modes)
     propagate = _propagator(omega, damping_modal)
     if damping_modal is not None:  # one expm for the whole (uniform) grid
         fixed = propagate(ts[1] - ts[0] if ts.shape[0] > 1 else jnp.zeros(()))

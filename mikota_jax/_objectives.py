@@ -1,0 +1,117 @@
+"""Damper objectives: pure functions of a system (full or reduced) that ``jax.grad`` passes through.
+
+Both work in the scaled modal coordinates z = (Omega eta, eta') of ``exact_solve``, x = U eta, where
+z' = A z with A = [[0, Omega], [-Omega, -U^T D U]] and the energy (x^T K x + x'^T M x') / 2 is
+exactly |z|^2 / 2. A reduced model is first taken to its own modal coordinates (r x r).
+
+* ``integrated_energy``: the integral over [0, T] of the energy of the free vibration from
+  (x0, v0), J = z0^T W z0 / 2 with W = int_0^T exp(A^T t) exp(A t) dt: no time grid, no
+  quadrature error.
+* ``total_average_energy``: trace X with A^T X + X A = -Z (the damping-optimisation criterion of
+  Veselic and Truhar), Z = I or the projector onto the ``lowest`` s modes (both the Omega eta and
+  the eta' component of each). X exists only if every mode is damped.
+
+Both integrals are built by doubling (Smith): W(2h) = W(h) + P^T W(h) P with P = exp(A h), from
+Van Loan's block exponential on a short first step, so that no exp(-A^T t) of a long horizon is
+ever formed. Cost: O(n^3) per doubling in the modal dimension (n for a chain, r for a ROM).
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import jax.scipy.linalg as jsl
+
+from ._custom_types import Array, Float, Vector
+from ._errors import MARK, as_float, check, check_x64, raise_failures, raises_value_error
+from ._exact import NOT_DEFINITE, modal_projection, scaled_modal, state_matrix
+from ._integrate import check_problem, unpack
+
+_DOUBLINGS_FINITE = 16  # first step T / 2^16: Van Loan's exponential stays well scaled
+_DOUBLINGS_INFINITE = 64  # horizon 2^64 / omega_max: every damped mode has long decayed
+NOT_DAMPED = ("total_average_energy: some mode is undamped (the Lyapunov solution does not exist); "
+              "place a damper where every mode moves, or restrict Z with lowest=s.")
+
+
+def _gramian_step(a, q, h):
+    """(int_0^h exp(A^T t) Q exp(A t) dt, exp(A h)) by Van Loan's block exponential."""
+    m = a.shape[0]
+    block = jnp.block([[-a.T, q], [jnp.zeros((m, m)), a]]) * h
+    e = jsl.expm(block)
+    f12, f22 = e[:m, m:], e[m:, m:]
+    return f22.T @ f12, f22
+
+
+def _doubled_gramian(a, q, h, doublings: int):
+    """int_0^(h 2^doublings) exp(A^T t) Q exp(A t) dt, and exp(A h 2^doublings)."""
+    w, p = _gramian_step(a, q, h)
+
+    def double(_, carry):
+        w, p = carry
+        return w + p.T @ w @ p, p @ p
+
+    return jax.lax.fori_loop(0, doublings, double, (w, p))
+
+
+def _modal_problem(model, x0, v0):
+    """(A, z0, omega) of a checked full or reduced model in scaled modal coordinates."""
+    system, _, y0x, y0v, _ = unpack(model, x0, v0, None)
+    omega, modes, damping_modal, not_definite = scaled_modal(system)
+    project = modal_projection(system, modes)
+    z0 = jnp.concatenate([omega * project(y0x), project(y0v)])
+    return state_matrix(omega, damping_modal), z0, omega, not_definite
+
+
+@eqx.filter_jit
+def _integrated_energy(model, horizon, x0, v0):
+    a, z0, _, not_definite = _modal_problem(model, x0, v0)
+    w, _ = _doubled_gramian(a, jnp.eye(a.shape[0]), horizon / 2**_DOUBLINGS_FINITE,
+                            _DOUBLINGS_FINITE)
+    w = (w + w.T) / 2
+    return z0 @ w @ z0 / 2, (not_definite,)
+
+
+@raises_value_error
+def integrated_energy(model, horizon: float, x0: Vector | None = None,
+                      v0: Vector | None = None) -> Float[Array, ""]:
+    """int_0^T (x^T K x + x'^T M x') / 2 dt of the free vibration from x(0) = x0, x'(0) = v0.
+
+    ``model`` is a ``SecondOrderSystem`` or a ``ReducedModel`` (x0, v0 in full coordinates,
+    projected). Exact (a matrix-exponential integral), differentiable in every physical value.
+    """
+    check_x64()
+    horizon = as_float(horizon, "horizon")
+    horizon = check(horizon, ~(jnp.isfinite(horizon) & (horizon > 0)), "horizon must be > 0.")
+    x0, v0, _ = check_problem(model, x0, v0, None)
+    value, failures = _integrated_energy(model, horizon, x0, v0)
+    return raise_failures(value, failures, (NOT_DEFINITE,))
+
+
+@eqx.filter_jit
+def _total_average_energy(model, *, lowest):
+    system, _, _, _, _ = unpack(model, jnp.zeros(model.size), jnp.zeros(model.size), None)
+    omega, _, damping_modal, not_definite = scaled_modal(system)
+    a = state_matrix(omega, damping_modal)
+    n = omega.shape[0]
+    select = jnp.ones(n) if lowest is None else (jnp.arange(n) < lowest).astype(omega.dtype)
+    z = jnp.diag(jnp.concatenate([select, select]))
+    x, p = _doubled_gramian(a, z, 1.0 / jnp.max(omega), _DOUBLINGS_INFINITE)
+    undamped = ~(jnp.max(jnp.abs(p)) < 1e-8) | ~jnp.all(jnp.isfinite(x))
+    return jnp.trace(x), (not_definite, undamped)
+
+
+@raises_value_error
+def total_average_energy(model, lowest: int | None = None) -> Float[Array, ""]:
+    """trace X, A^T X + X A = -Z in scaled modal coordinates (Veselic's total average energy).
+
+    ``lowest=None``: Z = I (every mode); ``lowest=s``: Z selects the s lowest eigenfrequencies.
+    Raises if some mode is undamped (then X does not exist).
+    """
+    check_x64()
+    check_problem(model, None, None, None)
+    modal_size = getattr(model, "rank", model.size)
+    if lowest is not None and (isinstance(lowest, bool) or not isinstance(lowest, int)
+                               or not 1 <= lowest <= modal_size):
+        raise ValueError(MARK + f"lowest must be None or an integer in 1..{modal_size}, "
+                         f"got {lowest!r}.")
+    value, failures = _total_average_energy(model, lowest=lowest)
+    return raise_failures(value, failures, (NOT_DEFINITE, NOT_DAMPED))

@@ -1,0 +1,93 @@
+"""Damper objectives against independent truths: quadrature of the physical matrix exponential,
+scipy's Lyapunov solver, energy conservation, central differences."""
+
+import jax
+import numpy as np
+import pytest
+import scipy.integrate as si
+import scipy.linalg as sl
+
+import mikota_jax as mj
+
+N, T = 8, 5.0
+X0 = np.zeros(N)
+X0[2] = 1.0
+V0 = np.linspace(0.0, 1.0, N)
+
+
+def damped(position=3.4, coefficient=0.7):
+    return mj.mikota_chain(N, dampers=[mj.GroundedDamper(position, coefficient)])
+
+
+def test_integrated_energy_equals_the_quadrature_of_the_physical_exponential(close):
+    system = damped()
+    m, d, k = (np.asarray(a) for a in system.dense())
+    a = np.block([[np.zeros((N, N)), np.eye(N)],
+                  [-np.linalg.solve(m, k), -np.linalg.solve(m, d)]])
+    y0 = np.concatenate([X0, V0])
+
+    def energy(t):
+        y = sl.expm(a * t) @ y0
+        return 0.5 * (y[:N] @ k @ y[:N] + y[N:] @ m @ y[N:])
+
+    reference, _ = si.quad(energy, 0.0, T, epsabs=1e-13, epsrel=1e-13, limit=200)
+    close(mj.integrated_energy(system, T, X0, V0), reference, rtol=1e-10)
+
+
+def test_an_undamped_chain_integrates_its_constant_energy(close):
+    system = mj.mikota_chain(N)
+    m, _, k = (np.asarray(a) for a in system.dense())
+    e0 = 0.5 * (X0 @ k @ X0 + V0 @ m @ V0)
+    close(mj.integrated_energy(system, T, X0, V0), e0 * T, rtol=1e-11)
+
+
+@pytest.mark.parametrize("lowest", [None, 3])
+def test_total_average_energy_equals_scipys_lyapunov_solution(lowest, close):
+    system = damped()
+    m, d, k = (np.asarray(a) for a in system.dense())
+    omega2, modes = sl.eigh(k, m)
+    omega = np.sqrt(omega2)
+    a = np.block([[np.zeros((N, N)), np.diag(omega)], [-np.diag(omega), -modes.T @ d @ modes]])
+    select = np.ones(N) if lowest is None else (np.arange(N) < lowest).astype(float)
+    x = sl.solve_continuous_lyapunov(a.T, -np.diag(np.concatenate([select, select])))
+    close(mj.total_average_energy(system, lowest=lowest), np.trace(x), rtol=1e-10)
+
+
+def test_objectives_of_a_full_rank_reduced_model_equal_the_full_model(close):
+    system = damped()
+    basis, _ = np.linalg.qr(np.random.default_rng(1).standard_normal((N, N)))
+    reduced = mj.galerkin(system, basis)
+    close(mj.integrated_energy(reduced, T, X0, V0), mj.integrated_energy(system, T, X0, V0),
+          rtol=1e-10)
+    close(mj.total_average_energy(reduced), mj.total_average_energy(system), rtol=1e-9)
+
+
+def test_gradients_in_damper_position_and_coefficient_match_central_differences(close):
+    def energy(p, c):
+        return mj.integrated_energy(damped(p, c), T, X0, V0)
+
+    def average(p, c):
+        return mj.total_average_energy(damped(p, c), lowest=4)
+
+    h = 1e-4  # the objectives are exact to ~1e-13 relative: smaller steps only add noise
+    for objective in (energy, average):
+        gradient = np.asarray(jax.grad(objective, argnums=(0, 1))(3.4, 0.7))
+        central = [(objective(3.4 + h, 0.7) - objective(3.4 - h, 0.7)) / (2 * h),
+                   (objective(3.4, 0.7 + h) - objective(3.4, 0.7 - h)) / (2 * h)]
+        close(gradient, central, rtol=0.0, atol=1e-6 * np.max(np.abs(gradient)))
+
+
+def test_an_undamped_chain_has_no_total_average_energy():
+    with pytest.raises(ValueError, match="some mode is undamped"):
+        mj.total_average_energy(mj.mikota_chain(N))
+
+
+@pytest.mark.parametrize("lowest", [0, N + 1, 2.5, True])
+def test_lowest_outside_1_to_n_is_refused(lowest):
+    with pytest.raises(ValueError, match=f"lowest must be None or an integer in 1..{N}"):
+        mj.total_average_energy(damped(), lowest=lowest)
+
+
+def test_a_non_positive_horizon_is_refused():
+    with pytest.raises(ValueError, match="horizon must be > 0"):
+        mj.integrated_energy(damped(), 0.0, X0)
