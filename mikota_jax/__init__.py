@@ -33,6 +33,7 @@ from ._metrics import phase_error as phase_error
 from ._metrics import pseudo_energy as pseudo_energy
 from ._metrics import relative_error as relative_error
 from ._objectives import integrated_energy as integrated_energy
+from ._objectives import smooth_peak as smooth_peak
 from ._objectives import total_average_energy as total_average_energy
 from ._pod import POD as POD
 from ._pod import energy_fraction as energy_fraction

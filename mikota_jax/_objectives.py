@@ -7,6 +7,8 @@ exactly |z|^2 / 2. A reduced model is first taken to its own modal coordinates (
 * ``integrated_energy``: the integral over [0, T] of the energy of the free vibration from
   (x0, v0), J = z0^T W z0 / 2 with W = int_0^T exp(A^T t) exp(A t) dt: no time grid, no
   quadrature error.
+* ``smooth_peak``: a differentiable stand-in for max_k |x(t_k)| of a saved response, the
+  order-p mean (mean_k x_k^p)^(1/p) for an even p, which lies in [N^(-1/p), 1] times the max.
 * ``total_average_energy``: trace X with A^T X + X A = -Z (the damping-optimisation criterion of
   Veselic and Truhar), Z = I or the projector onto the ``lowest`` s modes (both the Omega eta and
   the eta' component of each). X exists only if every mode is damped.
@@ -115,3 +117,21 @@ def total_average_energy(model, lowest: int | None = None) -> Float[Array, ""]:
                          f"got {lowest!r}.")
     value, failures = _total_average_energy(model, lowest=lowest)
     return raise_failures(value, failures, (NOT_DEFINITE, NOT_DAMPED))
+
+
+def smooth_peak(values, order: int = 16) -> Float[Array, ""]:
+    """(mean_k values_k^order)^(1/order): a smooth peak of |values|, in [N^(-1/order), 1] x max.
+
+    ``values`` is a saved response (e.g. ``simulate(..., dofs=[d]).displacement``); ``order`` an
+    even integer >= 2 (higher: closer to the max, less smooth). Scaled by the max, which carries
+    no derivative of its own, so large orders do not overflow.
+    """
+    if isinstance(order, bool) or not isinstance(order, int) or order < 2 or order % 2:
+        raise ValueError(MARK + f"order must be an even integer >= 2, got {order!r}.")
+    values = jnp.ravel(jnp.asarray(values))
+    if values.dtype != jnp.float64 or values.shape[0] < 1:
+        raise ValueError(MARK + "values must be a non-empty float64 array, got "
+                         f"{values.dtype} of shape {values.shape}.")
+    scale = jax.lax.stop_gradient(jnp.max(jnp.abs(values)))
+    scale = jnp.where(scale > 0, scale, 1.0)
+    return scale * jnp.mean((values / scale) ** order) ** (1.0 / order)

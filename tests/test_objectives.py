@@ -91,3 +91,28 @@ def test_lowest_outside_1_to_n_is_refused(lowest):
 def test_a_non_positive_horizon_is_refused():
     with pytest.raises(ValueError, match="horizon must be > 0"):
         mj.integrated_energy(damped(), 0.0, X0)
+
+
+@pytest.mark.parametrize("order", [2, 16, 64])
+def test_smooth_peak_lies_between_the_bounds_of_the_maximum(order):
+    values = np.sin(np.linspace(0.0, 7.0, 301)) * np.exp(-0.1 * np.linspace(0.0, 7.0, 301))
+    peak = float(mj.smooth_peak(values, order))
+    top = np.max(np.abs(values))
+    assert top * values.size ** (-1.0 / order) <= peak <= top
+
+
+def test_smooth_peak_of_a_simulated_response_has_the_central_difference_gradient(close):
+    ts = np.linspace(0.0, T, 201)
+
+    def peak(c):
+        out = mj.exact_solve(damped(3.4, c), ts, X0, V0, dofs=[N])
+        return mj.smooth_peak(out.displacement, 16)
+
+    h = 1e-5
+    close(jax.grad(peak)(0.7), (peak(0.7 + h) - peak(0.7 - h)) / (2 * h), rtol=1e-6)
+
+
+@pytest.mark.parametrize("order", [0, 3, 2.0, True])
+def test_smooth_peak_order_must_be_an_even_integer(order):
+    with pytest.raises(ValueError, match="order must be an even integer"):
+        mj.smooth_peak(np.ones(3), order)
