@@ -14,7 +14,7 @@ from ._errors import MARK, check
 
 
 class ReducedModel(eqx.Module):
-    """The projected system (dense r x r operators) and the basis that lifts it back (eq. 3.2)."""
+    """The projected system (dense r x r M and K, low-rank dampers) and its basis (eq. 3.2)."""
 
     system: SecondOrderSystem
     basis: Basis

@@ -1,9 +1,10 @@
 """Structured linear operators for mass, stiffness and damping.
 
 The full chain keeps its structure (a diagonal mass, a symmetric tridiagonal stiffness, a handful of
-dampers), so applying an operator costs O(n); a reduced model's operators are dense r x r. Every
-operator offers ``mv`` (matrix-vector product), ``as_matrix`` (dense, only on request) and
-``project(basis)`` (the Galerkin product ``basis^T A basis`` of eq. 3.4, returned dense).
+dampers), so applying an operator costs O(n); a reduced model's mass and stiffness are dense r x r
+and its dampers stay low rank (``LowRank``, r x p with p the DOFs they touch). Every operator
+offers ``mv`` (matrix-vector product), ``as_matrix`` (dense, only on request) and
+``project(basis)`` (the Galerkin product ``basis^T A basis`` of eq. 3.4).
 """
 
 import equinox as eqx
