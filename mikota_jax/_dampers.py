@@ -108,13 +108,7 @@ class Dampers(eqx.Module):
         return out
 
     def mv(self, v: Vector) -> Vector:
-        left, right, c_left, c_right = self._grounded_weights()
-        out = jnp.zeros_like(v).at[left].add(c_left * v[left]).at[right].add(c_right * v[right])
-        if self.pairs:
-            i, j = (jnp.asarray(a) for a in zip(*self.pairs))
-            f = self.pair_coefficients * (v[i] - v[j])
-            out = out.at[i].add(f).at[j].add(-f)
-        return out
+        return self.grounded_diagonal() * v + self.mv_relative(v)
 
     def as_matrix(self) -> Matrix:
         return jax.vmap(self.mv, in_axes=1, out_axes=1)(jnp.eye(self.size))
