@@ -35,6 +35,15 @@ from ._metrics import relative_error as relative_error
 from ._objectives import integrated_energy as integrated_energy
 from ._objectives import smooth_peak as smooth_peak
 from ._objectives import total_average_energy as total_average_energy
+from ._optimise import DamperProblem as DamperProblem
+from ._optimise import PlacementResult as PlacementResult
+from ._optimise import SweepResult as SweepResult
+from ._optimise import optimise_dampers as optimise_dampers
+from ._optimise import placement_objective as placement_objective
+from ._optimise import reduced_landscape as reduced_landscape
+from ._optimise import sweep_dampers as sweep_dampers
+from ._placement import optimise_scene as optimise_scene
+from ._placement import problem_from_scene as problem_from_scene
 from ._pod import POD as POD
 from ._pod import energy_fraction as energy_fraction
 from ._pod import pod as pod

@@ -1,4 +1,5 @@
-"""Command line: ``python -m mikota_jax reproduce [--out DIR]`` and ``run SCENE.toml --out DIR``.
+"""Command line: ``python -m mikota_jax reproduce [--out DIR]``, ``run SCENE.toml --out DIR`` and
+``optimise SCENE.toml [--out DIR]`` (damper placement: ``placement.json`` and ``placement.png``).
 
 Bad input ends with one line on stderr and exit code 2 (no traceback); a run that fails writes no
 partial ``results.json``. Compiled executables are kept in JAX's persistent compilation cache
@@ -20,6 +21,26 @@ def _parser() -> argparse.ArgumentParser:
     run = commands.add_parser("run", help="run a scene file and write results.json")
     run.add_argument("scene", help="a TOML scene file, or a packaged paper scene name")
     run.add_argument("--out", required=True, help="folder for results.json and figures")
+    opt = commands.add_parser("optimise", help="optimise the positions and coefficients of a "
+                              "scene's grounded dampers (gradients through the ROM, certified on "
+                              "the full model)")
+    opt.add_argument("scene", help="a TOML scene file, or a packaged paper scene name")
+    opt.add_argument("--out", default="placement_results", help="folder for JSON and plot")
+    opt.add_argument("--objective", default="energy", choices=["energy", "average_energy", "peak"])
+    opt.add_argument("--dof", type=int, help="DOF of the 'peak' objective (1-based)")
+    opt.add_argument("--lowest", type=int, help="'average_energy': only the s lowest modes")
+    opt.add_argument("--energy", type=float,
+                     help="pseudo-energy fraction of the first POD basis (default: the scene's)")
+    opt.add_argument("--starts", type=int, default=8, help="number of starts (default 8)")
+    opt.add_argument("--optimizer", default="adam", choices=["adam", "lbfgs"])
+    opt.add_argument("--iterations", type=int, default=80)
+    opt.add_argument("--tolerance", type=float, default=1e-4,
+                     help="largest ROM error accepted at the optimum (default 1e-4)")
+    opt.add_argument("--split", action="store_true",
+                     help="allow dampers between DOFs (split over the neighbours)")
+    opt.add_argument("--sweep", type=int, default=0, metavar="C",
+                     help="also sweep the full model over every DOF x C coefficients")
+    opt.add_argument("--no-progress", action="store_true", help="no progress bars")
     return parser
 
 
@@ -35,6 +56,19 @@ def main(argv=None) -> int:
 
             report = reproduce(args.out)
             return 1 if report["missed"] else 0
+        if args.command == "optimise":
+            from ._placement import optimise_scene
+
+            report = optimise_scene(
+                args.scene, args.out, objective=args.objective, dof=args.dof, lowest=args.lowest,
+                energy=args.energy, starts=args.starts, optimizer=args.optimizer,
+                iterations=args.iterations, split=args.split, tolerance=args.tolerance,
+                sweep=args.sweep, progress=not args.no_progress)
+            result = report["result"]
+            print(f"{result['status']}\noptimum: positions {result['positions']}, coefficients "
+                  f"{result['coefficients']}, objective (full model) {result['objective']:.10g}"
+                  f"\nwrote {Path(args.out) / 'placement.json'}")
+            return 0
         from ._figures import scene_figures
         from ._run import run_scene, write_json
         from ._scene import load_scene

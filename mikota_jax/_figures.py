@@ -109,3 +109,26 @@ def scene_figures(result: dict, folder) -> list[Path]:
             np.asarray(decomposition.modes), list(range(1, min(5, arrays["rank"]) + 1)),
             "leading POMs"))
     return written
+
+
+def placement_landscape(path, positions, coefficients, values, paths, optimum, title) -> Path:
+    """The objective over (damper position, coefficient), the optimiser's paths and the optimum.
+
+    ``values[i, j]`` at ``positions[i]``, ``coefficients[j]`` (log scale); ``paths``: a list of
+    (positions, coefficients) sequences, one per start; ``optimum``: (position, coefficient).
+    """
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(8, 5))
+    v = np.log10(np.asarray(values, dtype=float))
+    mesh = ax.pcolormesh(np.asarray(positions), np.asarray(coefficients), v.T, shading="nearest",
+                         cmap="viridis")
+    fig.colorbar(mesh, ax=ax, label=r"$\log_{10} J$")
+    for k, (p, c) in enumerate(paths):
+        ax.plot(p, c, "-", color="white", lw=0.9, alpha=0.8,
+                label="optimiser paths (relaxed)" if k == 0 else None)
+        ax.plot(p[:1], c[:1], "o", color="white", ms=3)
+    ax.plot([optimum[0]], [optimum[1]], "*", color="red", ms=14, label="certified optimum")
+    ax.set(xlabel="damper position (DOF)", ylabel="damper coefficient", yscale="log",
+           title=title)
+    ax.legend(loc="upper right", fontsize=8)
+    return _save(fig, Path(path))

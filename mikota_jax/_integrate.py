@@ -185,7 +185,7 @@ def _simulate(model, ts, x0, v0, load, rtol, atol, *, solver, dofs, displacement
     return Trajectory(ts, out[0], out[1], dofs, sol.stats["num_steps"]), failures
 
 
-def _failure_messages(max_steps: int) -> tuple[str, ...]:
+def solve_failure_messages(max_steps: int) -> tuple[str, ...]:
     return (
         f"simulate stopped: max_steps = {max_steps} reached before ts[-1]. Increase max_steps, "
         "loosen rtol/atol, or for a stiff case (large n, strong damper) use solver='kvaerno5' or "
@@ -241,5 +241,5 @@ def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | No
             displacement=displacement, velocity=velocity, max_steps=max_steps, progress=progress,
             adjoint=adjoint)
     if throw:
-        trajectory = raise_failures(trajectory, failures, _failure_messages(max_steps))
+        trajectory = raise_failures(trajectory, failures, solve_failure_messages(max_steps))
     return trajectory

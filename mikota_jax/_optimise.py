@@ -1,0 +1,914 @@
+"""Damper placement: optimise where grounded dampers sit and how strong they are.
+
+The design is (positions, coefficients) of the problem's grounded dampers; any relative dampers of
+the chain stay as they are. Gradients are taken through the reduced model with its POD basis held
+fixed (no derivative through the SVD), and the optimum is certified on the full model:
+
+1. *relaxed search*: several starts spread over the chain, optax (Adam or L-BFGS) on unconstrained
+   variables, position = 1 + (n - 1) sigmoid(u) in [1, n] and coefficient = c_ref exp(w) >= 0.
+   Between DOFs a damper is split linearly over its neighbours (``Dampers``): a different device,
+   which the relaxed search may prefer.
+2. *realisable polish* (unless ``split=True``): each damper is moved to the DOFs on either side of
+   its relaxed position, every combination gets its coefficients re-optimised (L-BFGS in log c),
+   and the best wins.
+3. *certification*: the full model's objective and coefficient gradient at the design are compared
+   with the reduced model's. If they disagree beyond ``tolerance``, the basis is enriched with
+   POD modes of a full simulation at that design (trust-region reduced-basis style) and the search
+   goes on from where it was.
+
+Objectives (``DamperProblem.objective``):
+
+* ``"energy"``: the integrated energy int_0^T (x^T K x + x'^T M x') / 2 dt of the problem's
+  excitation (exact for a reduced model's free vibration; Dopri8 with the energy as one more state
+  otherwise, and always for the full model, where it is 8x cheaper);
+* ``"average_energy"``: the total average energy (trace of the Lyapunov solution, ``lowest`` s
+  modes or all);
+* ``"peak"``: a smooth peak (order-p mean) of the displacement of one DOF on the time grid.
+"""
+
+import dataclasses
+import time
+from collections.abc import Sequence
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from ._chain import SecondOrderSystem, generalized_modes
+from ._dampers import Dampers, GroundedDamper, RelativeDamper
+from ._errors import MARK, callback_free_checks, check_x64
+from ._exact import state_matrix
+from ._excitation import as_load
+from ._galerkin import galerkin
+from ._integrate import _simulate, check_dofs, check_times, initial_vector
+from ._objectives import (
+    _DOUBLINGS_FINITE,
+    _DOUBLINGS_INFINITE,
+    _doubled_gramian,
+    _integrated_energy_ode,
+    _total_average_energy,
+    smooth_peak,
+)
+from ._pod import pod, rank_for_energy
+
+OBJECTIVES = ("energy", "average_energy", "peak")
+OPTIMIZERS = ("adam", "lbfgs")
+_W_BOUND = 40.0  # |log(c / c_ref)| <= 40: coefficients stay finite
+
+
+class DamperProblem(eqx.Module):
+    """What to optimise: a chain, the grounded dampers to place, the excitation and the objective.
+
+    ``system`` gives M and K (and relative dampers, kept fixed); its grounded dampers -- or
+    ``dampers``, when given -- are the design, and their positions and coefficients the start.
+    ``ts`` is the time grid: the horizon T = ts[-1] - ts[0] of ``"energy"``, the samples of
+    ``"peak"`` and of the snapshots. ``snapshots`` is the window (t0, t1) whose full-model
+    displacements build the POD basis, ``energy`` the pseudo-energy fraction that sets its rank
+    (``criterion`` as in ``rank_for_energy``) unless ``rank`` is given.
+    """
+
+    mass: object
+    stiffness: object
+    fixed: tuple[RelativeDamper, ...]
+    positions: jax.Array
+    coefficients: jax.Array
+    ts: jax.Array
+    x0: jax.Array
+    v0: jax.Array
+    load: object
+    objective: str = eqx.field(static=True)
+    lowest: int | None = eqx.field(static=True)
+    dof: int | None = eqx.field(static=True)
+    order: int = eqx.field(static=True)
+    snapshots: tuple[float, float] = eqx.field(static=True)
+    energy: float = eqx.field(static=True)
+    criterion: str = eqx.field(static=True)
+    rank: int | None = eqx.field(static=True)
+    rtol: float = eqx.field(static=True)
+    max_steps: int = eqx.field(static=True)
+
+    def __init__(self, system: SecondOrderSystem, ts, x0=None, v0=None, load=None, *,
+                 dampers: Sequence[GroundedDamper] | None = None, objective: str = "energy",
+                 lowest: int | None = None, dof: int | None = None, order: int = 16,
+                 snapshots: tuple[float, float] | None = None, energy: float = 0.9999,
+                 criterion: str = "paper", rank: int | None = None, rtol: float = 1e-8,
+                 max_steps: int = 100_000):
+        check_x64()
+        if not isinstance(system, SecondOrderSystem) or not isinstance(system.damping,
+                                                                         Dampers | None):
+            raise ValueError(MARK + "system must be a chain (mikota_chain or chain) with "
+                             "GroundedDamper/RelativeDamper dampers.")
+        n = system.size
+        self.mass, self.stiffness = system.mass, system.stiffness
+        damping = system.damping
+        if dampers is None:
+            if damping is None or damping.positions.shape[0] == 0:
+                raise ValueError(MARK + "dampers: the system has no grounded damper to place; "
+                                 "pass dampers=[GroundedDamper(position, coefficient), ...].")
+            positions, coefficients = damping.positions, damping.coefficients
+        else:
+            dampers = list(dampers)
+            if not dampers or not all(isinstance(d, GroundedDamper) for d in dampers):
+                raise ValueError(MARK + "dampers must be a non-empty list of GroundedDamper.")
+            positions = jnp.stack([d.position for d in dampers])
+            coefficients = jnp.stack([d.coefficient for d in dampers])
+        Dampers(n, [GroundedDamper(p, c) for p, c in zip(positions, coefficients)])  # checks
+        self.positions, self.coefficients = positions, coefficients
+        self.fixed = () if damping is None else tuple(
+            RelativeDamper((i + 1, j + 1), c)
+            for (i, j), c in zip(damping.pairs, damping.pair_coefficients))
+        self.ts = check_times(ts)
+        if self.ts.shape[0] < 2:
+            raise ValueError(MARK + "ts must hold at least two times (the horizon).")
+        self.x0 = initial_vector(x0, n, "x0")
+        self.v0 = initial_vector(v0, n, "v0")
+        self.load = as_load(load, n)
+        if objective not in OBJECTIVES:
+            raise ValueError(MARK + f"objective must be one of {list(OBJECTIVES)}, "
+                             f"got {objective!r}.")
+        if objective != "average_energy" and self.load is None and not (
+                bool(jnp.any(self.x0 != 0)) or bool(jnp.any(self.v0 != 0))):
+            raise ValueError(MARK + f"objective {objective!r} needs an excitation: x0, v0 or a "
+                             "load (the response is zero otherwise).")
+        self.objective = objective
+        if lowest is not None and (isinstance(lowest, bool) or not isinstance(lowest, int)
+                                   or not 1 <= lowest <= n):
+            raise ValueError(MARK + f"lowest must be None or an integer in 1..{n}, "
+                             f"got {lowest!r}.")
+        self.lowest = lowest
+        if objective == "peak":
+            if dof is None:
+                raise ValueError(MARK + "objective 'peak' needs dof (a 1-based DOF in 1..n).")
+            dof = check_dofs([dof], n)[0]
+        self.dof = dof
+        if isinstance(order, bool) or not isinstance(order, int) or order < 2 or order % 2:
+            raise ValueError(MARK + f"order must be an even integer >= 2, got {order!r}.")
+        self.order = order
+        t0, t1 = float(self.ts[0]), float(self.ts[-1])
+        window = (t0, t1) if snapshots is None else tuple(float(t) for t in snapshots)
+        if len(window) != 2 or not t0 <= window[0] < window[1] <= t1:
+            raise ValueError(MARK + f"snapshots must be a window (start, end) inside [{t0}, "
+                             f"{t1}] with start < end, got {snapshots!r}.")
+        self.snapshots = window
+        if not 0 < energy <= 1:
+            raise ValueError(MARK + f"energy must lie in (0, 1], got {energy!r}.")
+        self.energy, self.criterion = float(energy), criterion
+        if rank is not None and (isinstance(rank, bool) or not isinstance(rank, int)
+                                 or not 1 <= rank <= n):
+            raise ValueError(MARK + f"rank must be None or an integer in 1..{n}, got {rank!r}.")
+        self.rank = rank
+        if not 0 < rtol < 1:
+            raise ValueError(MARK + f"rtol must lie in (0, 1), got {rtol!r}.")
+        self.rtol = float(rtol)
+        if not isinstance(max_steps, int) or max_steps < 1:
+            raise ValueError(MARK + f"max_steps must be an integer >= 1, got {max_steps!r}.")
+        self.max_steps = max_steps
+
+    @property
+    def size(self) -> int:
+        return self.mass.size
+
+    @property
+    def num_dampers(self) -> int:
+        return self.positions.shape[0]
+
+    def system(self, positions, coefficients) -> SecondOrderSystem:
+        """The chain with grounded dampers at ``positions`` (in [1, n]) of ``coefficients``."""
+        grounded = [GroundedDamper(p, c) for p, c in zip(positions, coefficients)]
+        return SecondOrderSystem(self.mass, self.stiffness,
+                                 Dampers(self.size, [*grounded, *self.fixed]))
+
+
+class _ModalROM(eqx.Module):
+    """A reduced model in its modal coordinates, prepared once per basis.
+
+    Psi = Phi U with U^T (Phi^T M Phi) U = I and U^T (Phi^T K Phi) U = diag(omega^2): a design
+    only changes the dampers, Psi^T D Psi = B diag(w) B^T (B = rows of Psi), so each evaluation is
+    an r x r damping block and the energy's matrix exponentials -- no eigendecomposition.
+    """
+
+    omega: jax.Array
+    modes: jax.Array  # Psi, n x r
+    z0: jax.Array  # (Omega eta0, eta0')
+    not_definite: jax.Array
+
+
+def _modal_rom(problem: DamperProblem, basis) -> _ModalROM:
+    reduced = galerkin(SecondOrderSystem(problem.mass, problem.stiffness), basis).system
+    omega2, modes = generalized_modes(reduced)
+    not_definite = jnp.any(omega2 <= 0)
+    omega = jnp.sqrt(jnp.where(omega2 > 0, omega2, 1.0))
+    mass = reduced.mass.as_matrix()
+    project = lambda y: modes.T @ (mass @ (basis.T @ y))  # noqa: E731
+    z0 = jnp.concatenate([omega * project(problem.x0), project(problem.v0)])
+    return _ModalROM(omega, basis @ modes, z0, not_definite)
+
+
+def _modal_objective(problem: DamperProblem, rom: _ModalROM, positions, coefficients):
+    damping = problem.system(positions, coefficients).damping.project(rom.modes).as_matrix()
+    a = state_matrix(rom.omega, damping)
+    if problem.objective == "energy":
+        horizon = problem.ts[-1] - problem.ts[0]
+        w, _ = _doubled_gramian(a, jnp.eye(a.shape[0]), horizon / 2**_DOUBLINGS_FINITE,
+                                _DOUBLINGS_FINITE)
+        value = rom.z0 @ ((w + w.T) / 2) @ rom.z0 / 2
+        undamped = jnp.asarray(False)
+    else:
+        r = rom.omega.shape[0]
+        lowest = r if problem.lowest is None else min(problem.lowest, r)
+        select = (jnp.arange(r) < lowest).astype(a.dtype)
+        x, p = _doubled_gramian(a, jnp.diag(jnp.concatenate([select, select])),
+                                1.0 / jnp.max(rom.omega), _DOUBLINGS_INFINITE)
+        value = jnp.trace(x)
+        undamped = ~(jnp.max(jnp.abs(p)) < 1e-8)
+    return value, rom.not_definite | undamped | ~jnp.isfinite(value)
+
+
+def _reduced(problem: DamperProblem, basis):
+    """What the objective needs of a basis: a ``_ModalROM`` where it is exact, else the basis."""
+    if basis is None or problem.objective == "peak" or problem.load is not None:
+        return basis
+    return _modal_rom(problem, basis)
+
+
+def _evaluate(problem: DamperProblem, model, *, exact: bool):
+    """(objective value, failed) of a full or reduced model; ODE solves use forward mode."""
+    horizon = problem.ts[-1] - problem.ts[0]
+    if problem.objective == "average_energy":
+        value, flags = _total_average_energy(model, lowest=problem.lowest)
+    elif problem.objective == "energy":
+        value, flags = _integrated_energy_ode(
+            model, horizon, problem.x0, problem.v0, problem.load, problem.rtol,
+            problem.rtol * 1e-2, max_steps=problem.max_steps, adjoint=diffrax.ForwardMode())
+    else:
+        trajectory, flags = _simulate(
+            model, problem.ts, problem.x0, problem.v0, problem.load, problem.rtol,
+            problem.rtol * 1e-2, solver=diffrax.Dopri8(), dofs=(problem.dof,),
+            displacement=True, velocity=False, max_steps=problem.max_steps, progress=False,
+            adjoint=diffrax.ForwardMode())
+        value = smooth_peak(trajectory.displacement[:, 0], problem.order)
+    failed = jnp.any(jnp.stack([jnp.any(f) for f in flags])) | ~jnp.isfinite(value)
+    return value, failed
+
+
+def _objective_fn(problem: DamperProblem, reduced):
+    """(positions, coefficients) -> (value, failed): ``reduced`` from ``_reduced`` or None (full).
+
+    Reverse-mode differentiable. A ``_ModalROM`` is exact (matrix exponentials, reverse mode);
+    every diffrax solve is differentiated in forward mode, wrapped in a custom VJP (the design
+    has only 2 x dampers parameters, so forward mode is the cheap direction). The full model's
+    "energy" uses the ODE (8x cheaper than its exact integral at n = 300).
+    """
+    if isinstance(reduced, _ModalROM):
+        return lambda positions, coefficients: _modal_objective(problem, reduced, positions,
+                                                                coefficients)
+
+    def raw(positions, coefficients):
+        model = problem.system(positions, coefficients)
+        if reduced is not None:
+            model = galerkin(model, reduced)
+        return _evaluate(problem, model, exact=reduced is not None)
+
+    if problem.objective == "average_energy":
+        return raw
+
+    @jax.custom_vjp
+    def fn(positions, coefficients):
+        return raw(positions, coefficients)
+
+    def forward(positions, coefficients):
+        def value(p, c):
+            v, failed = raw(p, c)
+            return v, (v, failed)
+
+        (dp, dc), (v, failed) = jax.jacfwd(value, argnums=(0, 1), has_aux=True)(
+            positions, coefficients)
+        return (v, failed), (dp, dc)
+
+    def backward(residual, cotangent):
+        dp, dc = residual
+        return cotangent[0] * dp, cotangent[0] * dc
+
+    fn.defvjp(forward, backward)
+    return fn
+
+
+def _transform(n: int, c_ref, u, w):
+    """Unconstrained (u, w) -> positions in [1, n], coefficients c_ref exp(w) >= 0."""
+    positions = 1.0 + (n - 1) * jax.nn.sigmoid(u) if n > 1 else jnp.ones_like(u)
+    return positions, c_ref * jnp.exp(jnp.clip(w, -_W_BOUND, _W_BOUND))
+
+
+def _inverse(n: int, c_ref, positions, coefficients):
+    """Positions in [1, n] and coefficients >= 0 -> unconstrained (u, w) (clipped at the ends)."""
+    frac = np.clip((np.asarray(positions) - 1.0) / max(n - 1, 1), 1e-6, 1 - 1e-6)
+    ratio = np.maximum(np.asarray(coefficients) / np.asarray(c_ref), np.exp(-_W_BOUND))
+    return jnp.asarray(np.log(frac) - np.log1p(-frac)), jnp.asarray(np.log(ratio))
+
+
+def _optimizer(name: str, learning_rate):
+    if name == "adam":
+        return optax.adam(learning_rate)
+    # backtracking (Armijo) line search: optax's default zoom search did not return on this
+    # objective under vmap (measured with optax 0.2.x on CPU)
+    return optax.lbfgs(linesearch=optax.scale_by_backtracking_linesearch(
+        max_backtracking_steps=20, store_grad=True))
+
+
+def _loss(problem, reduced, c_ref, params, fixed, positions_fixed: bool):
+    """(objective, (positions, coefficients, failed)) at unconstrained params; NaN on failure."""
+    positions, coefficients = _transform(problem.size, c_ref, *params)
+    if positions_fixed:
+        positions = fixed
+    value, failed = _objective_fn(problem, reduced)(positions, coefficients)
+    return jnp.where(failed, jnp.nan, value), (positions, coefficients, failed)
+
+
+@eqx.filter_jit
+def _init_jit(params, learning_rate, *, optimizer: str):
+    return jax.vmap(_optimizer(optimizer, learning_rate).init)(params)
+
+
+@eqx.filter_jit
+def _step_jit(problem, basis, c_ref, params, state, fixed, alive, active, learning_rate, *,
+              optimizer: str, positions_fixed: bool):
+    """One optax step for every start, one after the other (``lax.map``: on a CPU, batched
+    matrix exponentials cost more than the same ones in turn); an inactive start is skipped, a
+    start whose objective fails stops where it is (``ok`` false)."""
+    opt = _optimizer(optimizer, learning_rate)
+    reduced = _reduced(problem, basis)
+
+    def skip(params, state, fixed, alive):
+        positions, coefficients = _transform(problem.size, c_ref, *params)
+        if positions_fixed:
+            positions = fixed
+        nan = jnp.asarray(jnp.nan, positions.dtype)
+        return params, state, (positions, coefficients, nan, nan, alive)
+
+    def one(params, state, fixed, alive):
+        loss = lambda q: _loss(problem, reduced, c_ref, q, fixed, positions_fixed)[0]  # noqa: E731
+        (value, (positions, coefficients, failed)), grad = jax.value_and_grad(
+            lambda q: _loss(problem, reduced, c_ref, q, fixed, positions_fixed), has_aux=True)(
+            params)
+        if positions_fixed:
+            grad = (jnp.zeros_like(grad[0]), grad[1])
+        ok = alive & ~failed & jnp.all(jnp.isfinite(jnp.concatenate(grad)))
+        grad = jax.tree.map(lambda g: jnp.where(ok, g, 0.0), grad)
+        with jax.numpy_dtype_promotion("standard"):  # optax mixes int32 counts and floats
+            if optimizer == "adam":
+                updates, new_state = opt.update(grad, state, params)
+            else:
+                updates, new_state = opt.update(grad, state, params, value=value, grad=grad,
+                                                value_fn=loss)
+            new_params = optax.apply_updates(params, updates)
+        keep = lambda a, b: jnp.where(ok, a, b)  # noqa: E731
+        new_params = jax.tree.map(keep, new_params, params)
+        new_state = jax.tree.map(keep, new_state, state)
+        # gradient in physical units: d/dp = d/du / (dp/du), d/dc = d/dw / c
+        u = params[0]
+        slope = (problem.size - 1) * jax.nn.sigmoid(u) * (1 - jax.nn.sigmoid(u))
+        physical = jnp.concatenate([jnp.where(positions_fixed, 0.0, grad[0] / slope),
+                                    grad[1] / coefficients])
+        return new_params, new_state, (positions, coefficients, value,
+                                       jnp.linalg.norm(physical), ok)
+
+    def each(args):
+        params, state, fixed, alive, active = args
+        return jax.lax.cond(active & alive, one, skip, params, state, fixed, alive)
+
+    return jax.lax.map(each, (params, state, fixed, alive, active))
+
+
+@dataclasses.dataclass
+class _Search:
+    """What one batched search did: final params, path, which starts are still alive."""
+
+    params: tuple
+    positions: np.ndarray  # (iterations, starts, g)
+    coefficients: np.ndarray
+    values: np.ndarray  # (iterations, starts)
+    gradient_norms: np.ndarray
+    alive: np.ndarray  # (starts,)
+
+
+def _search(problem, basis, c_ref, params, fixed, *, optimizer, iterations, learning_rate,
+            positions_fixed, tol, progress, label, race: bool = False) -> _Search:
+    """Iterate ``_step``; with ``race``, the worse half of the running starts stops after a
+    quarter and after half of the iterations (successive halving), so that most of the work goes
+    to the most promising starts."""
+    learning_rate = jnp.asarray(learning_rate, float)
+    state = _init(params, learning_rate, optimizer=optimizer)
+    starts = params[0].shape[0]
+    alive = jnp.ones(starts, bool)
+    active = np.ones(starts, bool)
+    cuts = {max(iterations // 4, 1), max(iterations // 2, 2)} if race and starts > 2 else set()
+    records = []
+    bar = _progress(progress, iterations, label)
+    for iteration in range(1, iterations + 1):
+        new_params, state, record = _step(problem, basis, c_ref, params, state, fixed, alive,
+                                          jnp.asarray(active), learning_rate,
+                                          optimizer=optimizer, positions_fixed=positions_fixed)
+        records.append([np.asarray(a) for a in record])
+        values, ok = records[-1][2], records[-1][4]
+        alive = alive & jnp.asarray(ok)
+        moved = max(float(jnp.max(jnp.abs(a - b))) for a, b in zip(new_params, params))
+        params = new_params
+        if bar is not None:
+            finite = values[np.isfinite(values)]
+            bar.update(1)
+            bar.set_postfix(best=f"{finite.min():.6g}" if finite.size else "-")
+        running = active & np.asarray(alive)
+        if iteration in cuts and running.sum() > 1:
+            ranked = np.argsort(np.where(running & np.isfinite(values), values, np.inf))
+            active = np.zeros(starts, bool)
+            active[ranked[: max(running.sum() // 2, 1)]] = True
+        if not (active & np.asarray(alive)).any() or moved < tol:
+            break
+    if bar is not None:
+        bar.close()
+    positions, coefficients, values, norms, _ = (np.stack(a) for a in zip(*records))
+    return _Search(params, positions, coefficients, values, norms, np.asarray(alive))
+
+
+def _callback_free(fn):
+    """Run a jitted function with equinox checks traced as NaN (no host callbacks).
+
+    Every design the optimiser builds is valid by construction; a host callback inside the
+    vmapped L-BFGS line search (a while loop) can deadlock XLA's CPU runtime.
+    """
+
+    def wrapper(*args, **kwargs):
+        with callback_free_checks():
+            return fn(*args, **kwargs)
+
+    return wrapper
+
+
+def _progress(progress: bool, total: int, label: str):
+    if not progress:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=label, leave=False)
+
+
+@eqx.filter_jit
+def _value_and_gradient_jit(problem, basis, positions, coefficients):
+    """(objective, d/dpositions, d/dcoefficients, failed) of the reduced (basis) or full model."""
+    (value, failed), (gp, gc) = jax.value_and_grad(
+        _objective_fn(problem, _reduced(problem, basis)), argnums=(0, 1), has_aux=True)(
+        positions, coefficients)
+    return value, gp, gc, failed
+
+
+@eqx.filter_jit
+def _snapshots_jit(problem, positions, coefficients, ts):
+    model = problem.system(positions, coefficients)
+    trajectory, flags = _simulate(
+        model, ts, problem.x0, problem.v0, problem.load, problem.rtol, problem.rtol * 1e-2,
+        solver=diffrax.Dopri8(), dofs=tuple(range(1, problem.size + 1)), displacement=True,
+        velocity=False, max_steps=problem.max_steps, progress=False,
+        adjoint=diffrax.RecursiveCheckpointAdjoint())
+    return trajectory.displacement, flags
+
+
+def _snapshot_modes(problem, positions, coefficients):
+    """POD modes of a full simulation at a design (the scene's window and rank rule)."""
+    ts = np.asarray(problem.ts)
+    ts = jnp.asarray(ts[ts <= problem.snapshots[1] + 1e-12])
+    displacement, flags = _snapshots(problem, positions, coefficients, ts)
+    if any(bool(f) for f in flags):
+        raise ValueError(MARK + "the full-model snapshot solve failed (max_steps reached or "
+                         "non-finite states) at the design "
+                         f"positions={np.asarray(positions)}, "
+                         f"coefficients={np.asarray(coefficients)}; increase max_steps.")
+    first = np.asarray(ts) >= problem.snapshots[0] - 1e-12
+    result = pod(displacement[jnp.asarray(first)].T)
+    if problem.rank is not None:
+        rank = min(problem.rank, result.numerical_rank())
+    else:
+        rank = rank_for_energy(result.singular_values, problem.energy, problem.criterion)
+    return result.basis(rank)
+
+
+def _enrich(basis, modes, tol: float = 1e-8):
+    """basis plus the part of ``modes`` outside its span (orthonormal, directions above tol)."""
+    residual = modes - basis @ (basis.T @ modes)
+    residual = residual - basis @ (basis.T @ residual)  # twice is enough (Kahan-Parlett)
+    u, s, _ = jnp.linalg.svd(residual, full_matrices=False)
+    keep = int(np.sum(np.asarray(s) > tol))
+    return jnp.concatenate([basis, u[:, :keep]], axis=1)
+
+
+def _default_starts(problem: DamperProblem, starts: int, seed: int):
+    """(S, g) positions: the problem's own design first, then spread over [1, n]."""
+    n, g = problem.size, problem.num_dampers
+    own = np.asarray(problem.positions)[None, :]
+    if starts == 1:
+        return own
+    if g == 1:
+        spread = 1.0 + (n - 1) * (np.arange(starts - 1) + 0.5)[:, None] / (starts - 1)
+    else:
+        rng = np.random.default_rng(seed)
+        spread = np.sort(rng.uniform(1.0, n, (starts - 1, g)), axis=1)
+    return np.concatenate([own, spread])
+
+
+@dataclasses.dataclass
+class PlacementResult:
+    """The optimised damper design, certified on the full model.
+
+    ``positions``/``coefficients``: the design (at DOFs unless ``split``); ``objective``: the full
+    model's objective there, ``objective_reduced`` the reduced model's, ``rom_error`` their
+    relative difference and ``gradient_error`` that of the logarithmic coefficient sensitivities
+    c dJ/dc / J (and dJ/dp / J for split designs). ``full_solves`` counts full-model solves
+    (snapshot simulations and certifications, each with its forward-mode tangents); ``history``
+    the path of every phase (relaxed search, polish) of every round.
+    """
+
+    positions: np.ndarray
+    coefficients: np.ndarray
+    objective: float
+    objective_reduced: float
+    rom_error: float
+    gradient_error: float
+    gradient: np.ndarray
+    certified: bool
+    status: str
+    rounds: int
+    full_solves: int
+    rank: int
+    relaxed_positions: np.ndarray
+    relaxed_coefficients: np.ndarray
+    relaxed_objective: float
+    initial_objective: float
+    history: list
+    seconds: float
+    seconds_full: float
+    messages: list
+    basis: np.ndarray | None = dataclasses.field(default=None, repr=False)  # final POD basis
+
+    def to_json(self) -> dict:
+        """A JSON-ready dict (arrays as lists, NaN as None), without the basis."""
+        return {f.name: _plain(getattr(self, f.name)) for f in dataclasses.fields(self)
+                if f.name != "basis"}
+
+
+def _plain(x):
+    """Arrays and numpy scalars as lists and floats; non-finite numbers as None (JSON null)."""
+    if isinstance(x, np.ndarray):
+        return _plain(x.tolist())
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float) and not np.isfinite(x):
+        return None
+    if isinstance(x, dict):
+        return {k: _plain(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_plain(v) for v in x]
+    return x
+
+
+def _phase_record(phase: str, round_: int, search: _Search) -> dict:
+    return dict(phase=phase, round=round_, positions=search.positions,
+                coefficients=search.coefficients, objective=search.values,
+                gradient_norm=search.gradient_norms)
+
+
+def _best(values, mask=None) -> int:
+    values = np.where(np.isfinite(values), values, np.inf)
+    if mask is not None:
+        values = np.where(mask, values, np.inf)
+    return int(np.argmin(values))
+
+
+def _candidates(positions: np.ndarray, n: int) -> np.ndarray:
+    """Every combination of the DOFs either side of each damper's relaxed position."""
+    options = [sorted({int(np.floor(p)), int(np.ceil(p))} & set(range(1, n + 1)))
+               for p in positions]
+    grid = np.meshgrid(*options, indexing="ij")
+    return np.stack([g.ravel() for g in grid], axis=1).astype(float)
+
+
+def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
+                     optimizer: str = "adam", iterations: int = 80,
+                     learning_rate: float = 0.1, split: bool = False, keep: int = 2,
+                     polish_iterations: int = 20, tolerance: float = 1e-4, max_rounds: int = 4,
+                     seed: int = 0, progress: bool = False) -> PlacementResult:
+    """Place the problem's grounded dampers: gradients through the ROM, certified on the full model.
+
+    ``starts``: the number of starts (the problem's design, then spread over the chain) or an
+    (S, g) array of start positions. ``optimizer``: "adam" (``learning_rate`` on the unconstrained
+    variables) or "lbfgs". ``split=True`` allows dampers between DOFs (split linearly over the
+    neighbours); otherwise the ``keep`` best relaxed designs are polished to DOFs. ``tolerance``:
+    the largest relative ROM error (objective and log-sensitivities) accepted at the optimum;
+    beyond it the basis is enriched and the search goes on, up to ``max_rounds`` rounds.
+    """
+    check_x64()
+    if not isinstance(problem, DamperProblem):
+        raise ValueError(MARK + f"problem must be a DamperProblem, got {type(problem).__name__}.")
+    if optimizer not in OPTIMIZERS:
+        raise ValueError(MARK + f"optimizer must be one of {list(OPTIMIZERS)}, got "
+                         f"{optimizer!r}.")
+    for name, value, low in (("iterations", iterations, 1), ("keep", keep, 1),
+                             ("polish_iterations", polish_iterations, 1),
+                             ("max_rounds", max_rounds, 1)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ValueError(MARK + f"{name} must be an integer >= {low}, got {value!r}.")
+    if not (np.isfinite(learning_rate) and learning_rate > 0):
+        raise ValueError(MARK + f"learning_rate must be > 0, got {learning_rate!r}.")
+    if not (np.isfinite(tolerance) and tolerance > 0):
+        raise ValueError(MARK + f"tolerance must be > 0, got {tolerance!r}.")
+    n, g = problem.size, problem.num_dampers
+    if isinstance(starts, int | np.integer) and not isinstance(starts, bool):
+        if starts < 1:
+            raise ValueError(MARK + f"starts must be >= 1, got {starts}.")
+        start_positions = _default_starts(problem, int(starts), seed)
+    else:
+        start_positions = np.asarray(starts, dtype=float)
+        if start_positions.ndim == 1 and g == 1:
+            start_positions = start_positions[:, None]
+        if (start_positions.ndim != 2 or start_positions.shape[1] != g
+                or not np.all((start_positions >= 1) & (start_positions <= n))):
+            raise ValueError(MARK + f"starts must be an int or an (S, {g}) array of positions "
+                             f"in [1, {n}], got shape {start_positions.shape}.")
+    clock = time.perf_counter()
+    coefficients0 = np.asarray(problem.coefficients)
+    c_ref = jnp.asarray(np.where(coefficients0 > 0, coefficients0, 1.0))
+    full_seconds, full_solves, messages, history = 0.0, 0, [], []
+
+    def full_timed(fn, *args):
+        nonlocal full_seconds, full_solves
+        t = time.perf_counter()
+        out = jax.block_until_ready(fn(*args))
+        full_seconds += time.perf_counter() - t
+        full_solves += 1
+        return out
+
+    basis = full_timed(_snapshot_modes, problem, problem.positions, problem.coefficients)
+    value0, _, _, failed0 = _value_and_gradient(problem, basis, problem.positions,
+                                                problem.coefficients)
+    if bool(failed0):
+        raise ValueError(MARK + "the reduced objective is not finite at the problem's own "
+                         "design; check the excitation and the dampers.")
+    params = _inverse(n, c_ref, start_positions,
+                      np.broadcast_to(coefficients0, start_positions.shape))
+    dummy = jnp.zeros(start_positions.shape)
+    certified, status = False, ""
+    for round_ in range(max_rounds):
+        search = _search(problem, basis, c_ref, params, dummy, optimizer=optimizer,
+                         iterations=iterations, learning_rate=learning_rate,
+                         positions_fixed=False, tol=1e-7, progress=progress,
+                         label=f"round {round_ + 1}: search", race=round_ == 0)
+        history.append(_phase_record("search", round_, search))
+        dead = int(np.sum(~search.alive))
+        if dead:
+            messages.append(f"round {round_ + 1}: {dead} of {len(search.alive)} starts stopped "
+                            "(objective not finite or solve failed); the rest went on.")
+        last = _last_finite(search)
+        if last is None:
+            raise ValueError(MARK + "optimise_dampers stopped: the objective was not finite at "
+                             "any start (a solve failed); try other starts or a larger "
+                             "max_steps.")
+        relaxed_p, relaxed_c, relaxed_v = last
+        best = _best(relaxed_v)
+        if split:
+            positions, coefficients = relaxed_p[best], relaxed_c[best]
+        else:
+            order = np.argsort(np.where(np.isfinite(relaxed_v), relaxed_v, np.inf))
+            chosen, seen = [], set()
+            for s in order:
+                key = tuple(np.round(relaxed_p[s]).astype(int))
+                if np.isfinite(relaxed_v[s]) and key not in seen:
+                    seen.add(key)
+                    chosen.append(s)
+                if len(chosen) == keep:
+                    break
+            cand_p = np.concatenate([_candidates(relaxed_p[s], n) for s in chosen])
+            cand_c = np.concatenate([np.broadcast_to(relaxed_c[s], (len(_candidates(
+                relaxed_p[s], n)), g)) for s in chosen])
+            cand_p, unique = np.unique(cand_p, axis=0, return_index=True)
+            cand_c = cand_c[unique]
+            polish = _search(problem, basis, c_ref, _inverse(n, c_ref, cand_p, cand_c),
+                             jnp.asarray(cand_p), optimizer="lbfgs",
+                             iterations=polish_iterations, learning_rate=learning_rate,
+                             positions_fixed=True, tol=1e-9, progress=progress,
+                             label=f"round {round_ + 1}: polish")
+            history.append(_phase_record("polish", round_, polish))
+            polished = _last_finite(polish)
+            if polished is None:
+                raise ValueError(MARK + "optimise_dampers stopped: the objective was not finite "
+                                 "at any DOF next to the relaxed optimum.")
+            k = _best(polished[2])
+            positions, coefficients = polished[0][k], polished[1][k]
+        positions, coefficients = jnp.asarray(positions), jnp.asarray(coefficients)
+        full_value, full_gp, full_gc, full_failed = full_timed(
+            _value_and_gradient, problem, None, positions, coefficients)
+        rom_value, rom_gp, rom_gc, _ = _value_and_gradient(problem, basis, positions,
+                                                           coefficients)
+        if bool(full_failed):
+            raise ValueError(MARK + "the full-model solve at the optimum failed (max_steps "
+                             "reached or non-finite); increase max_steps.")
+        scale = abs(float(full_value))
+        rom_error = abs(float(rom_value) - float(full_value)) / scale
+        sensitivities = np.abs(np.asarray(coefficients) * np.asarray(rom_gc - full_gc)) / scale
+        if split:
+            sensitivities = np.concatenate([sensitivities, np.abs(np.asarray(rom_gp - full_gp))
+                                            * (n - 1) / scale])
+        gradient_error = float(np.max(sensitivities))
+        certified = rom_error <= tolerance and gradient_error <= tolerance
+        if certified:
+            status = (f"certified in round {round_ + 1}: reduced and full model agree to "
+                      f"{max(rom_error, gradient_error):.2e} (tolerance {tolerance:.0e}).")
+            break
+        messages.append(f"round {round_ + 1}: ROM error {rom_error:.2e}, log-sensitivity error "
+                        f"{gradient_error:.2e} > tolerance {tolerance:.0e}: basis enriched at "
+                        f"positions {np.asarray(positions).tolist()}.")
+        if round_ == max_rounds - 1:
+            status = (f"NOT certified after {max_rounds} rounds: ROM error {rom_error:.2e}, "
+                      f"log-sensitivity error {gradient_error:.2e} (tolerance "
+                      f"{tolerance:.0e}); the objective reported is the full model's.")
+            break
+        modes = full_timed(_snapshot_modes, problem, positions, coefficients)
+        basis = _enrich(basis, modes)
+        params = search.params
+    return PlacementResult(
+        positions=np.asarray(positions), coefficients=np.asarray(coefficients),
+        objective=float(full_value), objective_reduced=float(rom_value), rom_error=rom_error,
+        gradient_error=gradient_error, gradient=np.asarray(full_gc), certified=certified,
+        status=status, rounds=round_ + 1, full_solves=full_solves, rank=int(basis.shape[1]),
+        relaxed_positions=relaxed_p[best], relaxed_coefficients=relaxed_c[best],
+        relaxed_objective=float(relaxed_v[best]), initial_objective=float(value0),
+        history=history, seconds=time.perf_counter() - clock, seconds_full=full_seconds,
+        messages=messages, basis=np.asarray(basis))
+
+
+def _last_finite(search: _Search):
+    """Per start, the last design with a finite objective: (positions, coefficients, values)."""
+    finite = np.isfinite(search.values)
+    if not finite.any():
+        return None
+    index = np.where(finite, np.arange(len(search.values))[:, None], -1).max(axis=0)
+    starts = np.arange(search.values.shape[1])
+    ok = index >= 0
+    index = np.maximum(index, 0)
+    values = np.where(ok, search.values[index, starts], np.nan)
+    return search.positions[index, starts], search.coefficients[index, starts], values
+
+
+_init = _callback_free(_init_jit)
+_step = _callback_free(_step_jit)
+_value_and_gradient = _callback_free(_value_and_gradient_jit)
+_snapshots = _callback_free(_snapshots_jit)
+
+
+@eqx.filter_jit
+def _full_values_jit(problem, positions, coefficients):
+    objective = _objective_fn(problem, None)
+    return jax.vmap(lambda p, c: objective(p[None], c[None]))(positions, coefficients)
+
+
+_full_values = _callback_free(_full_values_jit)
+
+
+@eqx.filter_jit
+def _reduced_values_jit(problem, basis, positions, coefficients):
+    objective = _objective_fn(problem, _reduced(problem, basis))
+    return jax.vmap(lambda p, c: objective(p[None], c[None]))(positions, coefficients)
+
+
+_reduced_values = _callback_free(_reduced_values_jit)
+
+
+def reduced_landscape(problem: DamperProblem, basis, positions, coefficients, *,
+                      batch_size: int = 16, progress: bool = False) -> np.ndarray:
+    """The reduced model's objective for one damper on a (positions x coefficients) grid.
+
+    ``basis``: e.g. ``PlacementResult.basis``. For plots: far cheaper than ``sweep_dampers``.
+    """
+    if problem.num_dampers != 1:
+        raise ValueError(MARK + "reduced_landscape places one damper; the problem has "
+                         f"{problem.num_dampers}.")
+    grid_p, grid_c = (a.ravel() for a in np.meshgrid(np.asarray(positions, float),
+                                                       np.asarray(coefficients, float),
+                                                       indexing="ij"))
+    total = grid_p.size
+    chunks = -(-total // batch_size)
+    pad = chunks * batch_size - total
+    grid_p = np.concatenate([grid_p, np.full(pad, grid_p[-1])])
+    grid_c = np.concatenate([grid_c, np.full(pad, grid_c[-1])])
+    values = np.empty(grid_p.size)
+    bar = _progress(progress, chunks, "landscape (reduced model)")
+    basis = jnp.asarray(basis)
+    for k in range(chunks):
+        part = slice(k * batch_size, (k + 1) * batch_size)
+        value, bad = _reduced_values(problem, basis, jnp.asarray(grid_p[part]),
+                                     jnp.asarray(grid_c[part]))
+        values[part] = np.where(np.asarray(bad), np.nan, np.asarray(value))
+        if bar is not None:
+            bar.update(1)
+    if bar is not None:
+        bar.close()
+    return values[:total].reshape(len(positions), len(coefficients))
+
+
+@dataclasses.dataclass
+class SweepResult:
+    """A brute-force sweep of the full model: ``objective[i, j]`` at ``positions[i]``,
+    ``coefficients[j]`` (NaN where a solve failed, listed in ``failed``)."""
+
+    positions: np.ndarray
+    coefficients: np.ndarray
+    objective: np.ndarray
+    best_position: float
+    best_coefficient: float
+    best_objective: float
+    failed: int
+    seconds: float
+    batch_size: int
+
+    def to_json(self) -> dict:
+        return {f.name: _plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
+
+
+def sweep_dampers(problem: DamperProblem, coefficients, positions=None, *, batch_size: int = 1,
+                  progress: bool = False) -> SweepResult:
+    """The full model's objective for one damper at every position x coefficient of a grid.
+
+    ``positions`` defaults to every DOF 1..n. Points are evaluated ``batch_size`` at a time with
+    ``jax.vmap`` (one compiled chunk shape; memory bounded by the chunk), with a progress bar
+    over chunks. On a CPU, ``batch_size=1`` is fastest (a vmapped adaptive solve steps every
+    member with the batch's largest step count); on a GPU, use hundreds.
+    """
+    check_x64()
+    if not isinstance(problem, DamperProblem):
+        raise ValueError(MARK + f"problem must be a DamperProblem, got {type(problem).__name__}.")
+    if problem.num_dampers != 1:
+        raise ValueError(MARK + "sweep_dampers places one damper; the problem has "
+                         f"{problem.num_dampers}.")
+    n = problem.size
+    positions = (np.arange(1.0, n + 1) if positions is None
+                 else np.atleast_1d(np.asarray(positions, dtype=float)))
+    coefficients = np.atleast_1d(np.asarray(coefficients, dtype=float))
+    if positions.ndim != 1 or not np.all((positions >= 1) & (positions <= n)):
+        raise ValueError(MARK + f"positions must be a 1-d array of positions in [1, {n}].")
+    if (coefficients.ndim != 1 or coefficients.size < 1
+            or not np.all(np.isfinite(coefficients) & (coefficients >= 0))):
+        raise ValueError(MARK + "coefficients must be a non-empty 1-d array of finite values "
+                         ">= 0.")
+    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
+        raise ValueError(MARK + f"batch_size must be an integer >= 1, got {batch_size!r}.")
+    grid_p, grid_c = (a.ravel() for a in np.meshgrid(positions, coefficients, indexing="ij"))
+    total = grid_p.size
+    chunks = -(-total // batch_size)
+    pad = chunks * batch_size - total
+    grid_p = np.concatenate([grid_p, np.full(pad, grid_p[-1])])
+    grid_c = np.concatenate([grid_c, np.full(pad, grid_c[-1])])
+    values, failed = np.empty(grid_p.size), np.empty(grid_p.size, bool)
+    bar = _progress(progress, chunks, "sweep (full model)")
+    clock = time.perf_counter()
+    for k in range(chunks):
+        part = slice(k * batch_size, (k + 1) * batch_size)
+        value, bad = _full_values(problem, jnp.asarray(grid_p[part]), jnp.asarray(grid_c[part]))
+        values[part], failed[part] = np.asarray(value), np.asarray(bad)
+        if bar is not None:
+            bar.update(1)
+    seconds = time.perf_counter() - clock
+    if bar is not None:
+        bar.close()
+    values = np.where(failed, np.nan, values)[:total].reshape(positions.size, coefficients.size)
+    if not np.isfinite(values).any():
+        raise ValueError(MARK + "sweep_dampers: every full solve failed; increase max_steps.")
+    i, j = np.unravel_index(np.nanargmin(values), values.shape)
+    return SweepResult(positions, coefficients, values, float(positions[i]),
+                       float(coefficients[j]), float(values[i, j]), int(failed[:total].sum()),
+                       seconds, batch_size)
+
+
+def placement_objective(problem: DamperProblem, basis=None):
+    """The problem's objective as a pure function (positions, coefficients) -> value.
+
+    Reduced (POD ``basis`` held fixed, n x r) or full (``basis=None``). ``jax.grad``, ``jax.jit``
+    and ``jax.vmap`` pass through it; the value is NaN where a solve failed (never silently
+    finite). Positions in [1, n] (between DOFs a damper is split linearly), coefficients >= 0.
+    """
+    if not isinstance(problem, DamperProblem):
+        raise ValueError(MARK + f"problem must be a DamperProblem, got {type(problem).__name__}.")
+    if basis is not None:
+        basis = jnp.asarray(basis)
+        if basis.ndim != 2 or basis.shape[0] != problem.size or basis.dtype != jnp.float64:
+            raise ValueError(MARK + f"basis must be a float64 (n, r) array with n = "
+                             f"{problem.size}, got {basis.dtype} {basis.shape}.")
+
+    def objective(positions, coefficients):
+        positions = jnp.atleast_1d(jnp.asarray(positions, jnp.float64))
+        coefficients = jnp.atleast_1d(jnp.asarray(coefficients, jnp.float64))
+        with callback_free_checks():
+            value, failed = _objective_fn(problem, _reduced(problem, basis))(positions,
+                                                                          coefficients)
+        return jnp.where(failed, jnp.nan, value)
+
+    return objective

@@ -1,0 +1,223 @@
+"""Damper placement: gradients through the ROM against central differences of the full model, the
+constraints, the realisable polish, the certification loop, the sweep, the CLI and bad input."""
+
+import json
+import os
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import mikota_jax as mj
+from mikota_jax._optimise import _inverse, _transform
+
+N = 12
+HORIZON = 8.0
+
+
+def problem(n=N, position=4.0, coefficient=0.8, **kwargs):
+    system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(position, coefficient)])
+    x0 = jnp.zeros(n).at[2].set(1.0)
+    kwargs.setdefault("energy", 1.0)
+    return mj.DamperProblem(system, jnp.linspace(0.0, HORIZON, 401), x0, **kwargs)
+
+
+def full_energy(n, position, coefficient):
+    """Independent truth: the exact integrated energy of the full chain (matrix exponentials)."""
+    system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(position, coefficient)])
+    return float(mj.integrated_energy(system, HORIZON, jnp.zeros(n).at[2].set(1.0)))
+
+
+def full_basis(n=N):
+    return jnp.eye(n)
+
+
+@pytest.mark.parametrize("position", [4.0, 4.3, 1.0, float(N)])
+def test_reduced_gradient_matches_central_differences_of_the_full_model(position):
+    p = problem(position=position)
+    objective = mj.placement_objective(p, full_basis())  # full basis: the ROM is exact
+    c = 0.8
+    value, (gp, gc) = jax.value_and_grad(objective, argnums=(0, 1))(
+        jnp.array([position]), jnp.array([c]))
+    assert float(value) == pytest.approx(full_energy(N, position, c), rel=1e-10)
+    h = 1e-4  # the exact energy carries ~1e-11 relative rounding: steps below 1e-5 amplify it
+    dc = (full_energy(N, position, c + h) - full_energy(N, position, c - h)) / (2 * h)
+    assert float(gc[0]) == pytest.approx(dc, rel=1e-6)
+    # positions: one-sided at DOFs (the split damper has a kink there; JAX takes the right side,
+    # the left side at p = n), central in between
+    f = lambda q: full_energy(N, q, c)  # noqa: E731
+    if position == int(position):  # second-order one-sided differences
+        s = -1.0 if position == N else 1.0
+        dp = s * (-3 * f(position) + 4 * f(position + s * h) - f(position + 2 * s * h)) / (2 * h)
+    else:
+        dp = (f(position + h) - f(position - h)) / (2 * h)
+    assert float(gp[0]) == pytest.approx(dp, rel=1e-6)
+
+
+def test_gradient_near_zero_coefficient_is_finite_and_matches_differences():
+    p = problem()
+    objective = mj.placement_objective(p, full_basis())
+    c, h = 1e-6, 5e-7  # both sides >= 0; larger steps would amplify rounding less but cross 0
+    gc = jax.grad(objective, argnums=1)(jnp.array([4.0]), jnp.array([c]))
+    dc = (full_energy(N, 4.0, c + h) - full_energy(N, 4.0, c - h)) / (2 * h)
+    assert np.all(np.isfinite(gc))
+    assert float(gc[0]) == pytest.approx(dc, rel=1e-4)
+
+
+def test_truncated_basis_gradient_differs_from_the_full_one_by_the_rom_error():
+    p = problem()
+    snapshots = mj.simulate(p.system(p.positions, p.coefficients), p.ts, p.x0).displacement
+    basis = mj.pod(snapshots.T).basis(6)
+    reduced = jax.grad(mj.placement_objective(p, basis), argnums=1)(p.positions, p.coefficients)
+    full = jax.grad(mj.placement_objective(p), argnums=1)(p.positions, p.coefficients)
+    exact = jax.grad(mj.placement_objective(p, full_basis()), argnums=1)(p.positions,
+                                                                         p.coefficients)
+    assert float(full[0]) == pytest.approx(float(exact[0]), rel=1e-5)  # ODE vs exact
+    assert abs(float(reduced[0]) - float(exact[0])) > 1e-6 * abs(float(exact[0]))
+
+
+def test_reparametrisation_keeps_every_design_feasible():
+    u = jnp.array([-1e3, -5.0, 0.0, 5.0, 1e3])
+    w = jnp.array([-1e3, -3.0, 0.0, 3.0, 1e3])
+    positions, coefficients = _transform(N, 2.0, u, w)
+    assert np.all((positions >= 1) & (positions <= N))
+    assert np.all(np.isfinite(coefficients) & (coefficients >= 0))
+    u2, w2 = _inverse(N, 2.0, np.array([1.5, 6.0, 11.5]), np.array([0.1, 2.0, 50.0]))
+    p2, c2 = _transform(N, 2.0, u2, w2)
+    np.testing.assert_allclose(p2, [1.5, 6.0, 11.5], rtol=1e-12)
+    np.testing.assert_allclose(c2, [0.1, 2.0, 50.0], rtol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def small_sweep():
+    p = problem(n=10)
+    coefficients = np.geomspace(0.05, 50.0, 60)
+    return p, mj.sweep_dampers(p, coefficients)
+
+
+def test_sweep_equals_unbatched_evaluations(small_sweep):
+    p, sweep = small_sweep
+    assert sweep.objective.shape == (10, 60) and sweep.failed == 0
+    batched = mj.sweep_dampers(p, sweep.coefficients[:7], positions=[2.0, 9.0], batch_size=4)
+    np.testing.assert_allclose(batched.objective, sweep.objective[[1, 8], :7], rtol=1e-12)
+    for i, j in [(0, 0), (4, 30), (9, 59)]:
+        assert sweep.objective[i, j] == pytest.approx(
+            full_energy(10, i + 1.0, sweep.coefficients[j]), rel=1e-6)
+
+
+def test_certified_optimum_matches_the_sweep(small_sweep):
+    p, sweep = small_sweep
+    result = mj.optimise_dampers(p, starts=4, iterations=40)
+    assert result.certified and result.rom_error <= 1e-4
+    assert float(result.positions[0]) == int(result.positions[0])  # realisable: at a DOF
+    # the optimum (continuous coefficient) is at least as good as the grid's best, and close
+    assert result.objective <= sweep.best_objective * (1 + 1e-9)
+    assert result.objective == pytest.approx(sweep.best_objective, rel=1e-3)
+    assert result.objective == pytest.approx(
+        full_energy(10, float(result.positions[0]), float(result.coefficients[0])), rel=1e-6)
+    assert result.relaxed_objective <= result.objective * (1 + 1e-6)  # split is a better device
+    assert result.full_solves == 2  # one snapshot solve, one certification
+    searches = [h for h in result.history if h["phase"] == "search"]
+    assert searches[0]["objective"].shape[1] == 4
+
+
+def test_split_designs_only_on_request():
+    p = problem()
+    result = mj.optimise_dampers(p, starts=3, iterations=30, split=True)
+    assert result.positions[0] == pytest.approx(result.relaxed_positions[0])
+    assert result.objective == pytest.approx(
+        full_energy(N, float(result.positions[0]), float(result.coefficients[0])), rel=1e-6)
+
+
+def test_certification_enriches_a_poor_basis_until_the_models_agree():
+    p = problem(n=20, energy=0.9, criterion="squared")
+    result = mj.optimise_dampers(p, starts=2, iterations=10, tolerance=1e-6, max_rounds=6)
+    assert result.rounds >= 2 and result.full_solves == 2 * result.rounds
+    assert any("enriched" in m for m in result.messages)
+    assert result.certified, result.status
+    assert result.rom_error <= 1e-6 and result.gradient_error <= 1e-6
+    first_rank = mj.pod(mj.simulate(p.system(p.positions, p.coefficients), p.ts,
+                                    p.x0).displacement.T).rank_for_energy(0.9)
+    assert result.rank > first_rank
+
+
+def test_two_dampers_are_placed_at_dofs():
+    system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(3.0, 0.5), mj.GroundedDamper(9.0, 0.5)])
+    p = mj.DamperProblem(system, jnp.linspace(0.0, HORIZON, 401), jnp.zeros(N).at[2].set(1.0),
+                         energy=1.0)
+    result = mj.optimise_dampers(p, starts=3, iterations=20)
+    assert result.positions.shape == (2,) and np.all(result.positions == np.round(result.positions))
+    assert result.certified
+    assert result.objective < result.initial_objective
+
+
+def test_average_energy_objective_is_certified():
+    p = problem(objective="average_energy", lowest=3)
+    objective = mj.placement_objective(p, full_basis())
+    truth = mj.total_average_energy(p.system(p.positions, p.coefficients), lowest=3)
+    assert float(objective(p.positions, p.coefficients)) == pytest.approx(float(truth), rel=1e-8)
+    result = mj.optimise_dampers(p, starts=2, iterations=15)
+    assert result.certified and np.isfinite(result.objective)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(position=0.5), "position must lie in"),
+    (dict(position=N + 1.0), "position must lie in"),
+    (dict(coefficient=-1.0), "coefficient must be finite and >= 0"),
+    (dict(objective="speed"), "objective must be one of"),
+    (dict(objective="peak"), "needs dof"),
+    (dict(energy=0.0), "energy must lie in"),
+    (dict(snapshots=(5.0, 100.0)), "snapshots must be a window"),
+])
+def test_bad_problems_are_refused(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        problem(**kwargs)
+
+
+def test_no_excitation_is_refused():
+    with pytest.raises(ValueError, match="needs an excitation"):
+        mj.DamperProblem(mj.mikota_chain(N, dampers=[mj.GroundedDamper(2.0, 1.0)]),
+                         jnp.linspace(0.0, 1.0, 11))
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(optimizer="sgd"), "optimizer must be one of"),
+    (dict(iterations=0), "iterations must be an integer >= 1"),
+    (dict(starts=np.array([[0.0]])), "starts must be an int or"),
+    (dict(tolerance=-1.0), "tolerance must be > 0"),
+])
+def test_bad_optimiser_settings_are_refused(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        mj.optimise_dampers(problem(), **kwargs)
+
+
+def test_failing_solves_stop_with_a_reason_not_a_nan_optimum():
+    p = problem(objective="peak", dof=N, max_steps=3)
+    with pytest.raises(ValueError, match="solve failed"):
+        mj.optimise_dampers(p, starts=2, iterations=3)
+    assert np.isnan(float(mj.placement_objective(p)(p.positions, p.coefficients)))
+
+
+def test_cli_optimise_writes_json_and_plot(tmp_path):
+    scene = tmp_path / "small.toml"
+    scene.write_text(
+        '[chain]\ntype = "mikota"\nn = 10\n[[damper]]\nposition = 5\ncoefficient = 1.0\n'
+        '[initial]\ndisplacement = { 3 = 1.0 }\n[time]\nend = 8.0\nstep = 0.02\n'
+        '[reduction]\nsnapshots = [0.0, 8.0]\nenergy = 1.0\n')
+    out = tmp_path / "out"
+    done = subprocess.run(
+        [sys.executable, "-m", "mikota_jax", "optimise", str(scene), "--out", str(out),
+         "--starts", "2", "--iterations", "8", "--no-progress"],
+        capture_output=True, text=True, env=os.environ | {"MIKOTA_JAX_CACHE": "0"})
+    assert done.returncode == 0, done.stderr
+    report = json.loads((out / "placement.json").read_text())
+    assert report["result"]["certified"]
+    assert report["result"]["positions"][0] == int(report["result"]["positions"][0])
+    assert (out / "placement.png").stat().st_size > 10_000
+    bad = subprocess.run(
+        [sys.executable, "-m", "mikota_jax", "optimise", str(scene), "--out", str(out),
+         "--iterations", "0"], capture_output=True, text=True)
+    assert bad.returncode == 2 and "iterations must be an integer" in bad.stderr
