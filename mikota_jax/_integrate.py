@@ -178,11 +178,31 @@ def _simulate(model, ts, x0, v0, load, rtol, atol, *, solver, dofs, displacement
         stepsize_controller=controller, max_steps=max_steps, throw=False, progress_meter=meter,
         adjoint=adjoint)
     out = sol.ys
+    failures = solve_flags(sol, out)
+    return Trajectory(ts, out[0], out[1], dofs, sol.stats["num_steps"]), failures
+
+
+def solve_flags(sol, out):
+    """(max_steps reached, other diffrax failure, non-finite ``out``): the order of the messages
+    of ``solve_failure_messages``."""
     max_steps_reached = sol.result == diffrax.RESULTS.max_steps_reached
     failed = (sol.result != diffrax.RESULTS.successful) & ~max_steps_reached
     finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(a)) for a in jax.tree.leaves(out)]))
-    failures = (max_steps_reached, failed, ~finite)
-    return Trajectory(ts, out[0], out[1], dofs, sol.stats["num_steps"]), failures
+    return max_steps_reached, failed, ~finite
+
+
+def check_solve_options(rtol, atol, max_steps, adjoint):
+    """Validated (rtol, atol, adjoint) of a diffrax solve (tolerances traced, so no recompile)."""
+    if not isinstance(max_steps, int) or max_steps < 1:
+        raise ValueError(MARK + f"max_steps must be an integer >= 1, got {max_steps!r}.")
+    rtol, atol = as_float(rtol, "rtol"), as_float(atol, "atol")
+    rtol = check(rtol, ~(rtol > 0), "rtol must be > 0.")
+    atol = check(atol, ~(atol > 0), "atol must be > 0.")
+    if adjoint is None:
+        adjoint = diffrax.RecursiveCheckpointAdjoint()
+    elif not isinstance(adjoint, diffrax.AbstractAdjoint):
+        raise ValueError(MARK + f"adjoint must be a diffrax adjoint, got {adjoint!r}.")
+    return rtol, atol, adjoint
 
 
 def solve_failure_messages(max_steps: int) -> tuple[str, ...]:
@@ -224,16 +244,8 @@ def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | No
         solver = SOLVERS[solver]()
     if not (displacement or velocity):
         raise ValueError(MARK + "ask for displacement and/or velocity; nothing would be saved.")
-    if not isinstance(max_steps, int) or max_steps < 1:
-        raise ValueError(MARK + f"max_steps must be an integer >= 1, got {max_steps!r}.")
+    rtol, atol, adjoint = check_solve_options(rtol, atol, max_steps, adjoint)
     ts = check_times(ts)
-    rtol, atol = as_float(rtol, "rtol"), as_float(atol, "atol")
-    rtol = check(rtol, ~(rtol > 0), "rtol must be > 0.")
-    atol = check(atol, ~(atol > 0), "atol must be > 0.")
-    if adjoint is None:
-        adjoint = diffrax.RecursiveCheckpointAdjoint()
-    elif not isinstance(adjoint, diffrax.AbstractAdjoint):
-        raise ValueError(MARK + f"adjoint must be a diffrax adjoint, got {adjoint!r}.")
     x0, v0, load = check_problem(model, x0, v0, load)
     with callback_free_checks():  # so that the persistent compilation cache can store the solve
         trajectory, failures = _simulate(

@@ -36,7 +36,14 @@ from ._errors import (
 )
 from ._exact import NOT_DEFINITE, modal_projection, scaled_modal, state_matrix
 from ._excitation import Pulse
-from ._integrate import acceleration, check_problem, solve_failure_messages, unpack
+from ._integrate import (
+    acceleration,
+    check_problem,
+    check_solve_options,
+    solve_failure_messages,
+    solve_flags,
+    unpack,
+)
 
 _DOUBLINGS_FINITE = 16  # first step T / 2^16: Van Loan's exponential stays well scaled
 _DOUBLINGS_INFINITE = 64  # horizon 2^64 / omega_max: every damped mode has long decayed
@@ -103,9 +110,7 @@ def _integrated_energy_ode(model, horizon, x0, v0, load, rtol, atol, *, max_step
         saveat=diffrax.SaveAt(t1=True), stepsize_controller=controller, max_steps=max_steps,
         throw=False, adjoint=adjoint)
     value = sol.ys[-1, -1]
-    max_steps_reached = sol.result == diffrax.RESULTS.max_steps_reached
-    failed = (sol.result != diffrax.RESULTS.successful) & ~max_steps_reached
-    return value, (max_steps_reached, failed, ~jnp.isfinite(value))
+    return value, solve_flags(sol, value)
 
 
 @raises_value_error
@@ -136,15 +141,7 @@ def integrated_energy(model, horizon: float, x0: Vector | None = None,
                              "use method='ode'.")
         value, failures = _integrated_energy(model, horizon, x0, v0)
         return raise_failures(value, failures, (NOT_DEFINITE,))
-    if not isinstance(max_steps, int) or max_steps < 1:
-        raise ValueError(MARK + f"max_steps must be an integer >= 1, got {max_steps!r}.")
-    rtol, atol = as_float(rtol, "rtol"), as_float(atol, "atol")
-    rtol = check(rtol, ~(rtol > 0), "rtol must be > 0.")
-    atol = check(atol, ~(atol > 0), "atol must be > 0.")
-    if adjoint is None:
-        adjoint = diffrax.RecursiveCheckpointAdjoint()
-    elif not isinstance(adjoint, diffrax.AbstractAdjoint):
-        raise ValueError(MARK + f"adjoint must be a diffrax adjoint, got {adjoint!r}.")
+    rtol, atol, adjoint = check_solve_options(rtol, atol, max_steps, adjoint)
     with callback_free_checks():
         value, failures = _integrated_energy_ode(model, horizon, x0, v0, load, rtol, atol,
                                                  max_steps=max_steps, adjoint=adjoint)

@@ -234,7 +234,7 @@ def _reduced(problem: DamperProblem, basis):
     return _modal_rom(problem, basis)
 
 
-def _evaluate(problem: DamperProblem, model, *, exact: bool):
+def _evaluate(problem: DamperProblem, model):
     """(objective value, failed) of a full or reduced model; ODE solves use forward mode."""
     horizon = problem.ts[-1] - problem.ts[0]
     if problem.objective == "average_energy":
@@ -270,7 +270,7 @@ def _objective_fn(problem: DamperProblem, reduced):
         model = problem.system(positions, coefficients)
         if reduced is not None:
             model = galerkin(model, reduced)
-        return _evaluate(problem, model, exact=reduced is not None)
+        return _evaluate(problem, model)
 
     if problem.objective == "average_energy":
         return raw
@@ -766,21 +766,39 @@ _snapshots = _callback_free(_snapshots_jit)
 
 
 @eqx.filter_jit
-def _full_values_jit(problem, positions, coefficients):
-    objective = _objective_fn(problem, None)
-    return jax.vmap(lambda p, c: objective(p[None], c[None]))(positions, coefficients)
-
-
-_full_values = _callback_free(_full_values_jit)
-
-
-@eqx.filter_jit
-def _reduced_values_jit(problem, basis, positions, coefficients):
+def _grid_values_jit(problem, basis, positions, coefficients):
+    """(values, failed) of one-damper designs, reduced (``basis``) or full (None), vmapped."""
     objective = _objective_fn(problem, _reduced(problem, basis))
     return jax.vmap(lambda p, c: objective(p[None], c[None]))(positions, coefficients)
 
 
-_reduced_values = _callback_free(_reduced_values_jit)
+_grid_values = _callback_free(_grid_values_jit)
+
+
+def _evaluate_grid(problem, basis, positions, coefficients, batch_size: int, progress: bool,
+                   label: str):
+    """Objective on positions x coefficients, ``batch_size`` points per compiled call (the last
+    chunk padded, so one shape compiles once): (values with NaN where failed, failed)."""
+    grid_p, grid_c = (a.ravel() for a in np.meshgrid(positions, coefficients, indexing="ij"))
+    total = grid_p.size
+    chunks = -(-total // batch_size)
+    pad = chunks * batch_size - total
+    grid_p = np.concatenate([grid_p, np.full(pad, grid_p[-1])])
+    grid_c = np.concatenate([grid_c, np.full(pad, grid_c[-1])])
+    values, failed = np.empty(grid_p.size), np.empty(grid_p.size, bool)
+    bar = _progress(progress, chunks, label)
+    for k in range(chunks):
+        part = slice(k * batch_size, (k + 1) * batch_size)
+        value, bad = _grid_values(problem, basis, jnp.asarray(grid_p[part]),
+                                  jnp.asarray(grid_c[part]))
+        values[part], failed[part] = np.asarray(value), np.asarray(bad)
+        if bar is not None:
+            bar.update(1)
+    if bar is not None:
+        bar.close()
+    shape = (len(positions), len(coefficients))
+    return (np.where(failed, np.nan, values)[:total].reshape(shape),
+            failed[:total].reshape(shape))
 
 
 def reduced_landscape(problem: DamperProblem, basis, positions, coefficients, *,
@@ -792,27 +810,10 @@ def reduced_landscape(problem: DamperProblem, basis, positions, coefficients, *,
     if problem.num_dampers != 1:
         raise ValueError(MARK + "reduced_landscape places one damper; the problem has "
                          f"{problem.num_dampers}.")
-    grid_p, grid_c = (a.ravel() for a in np.meshgrid(np.asarray(positions, float),
-                                                       np.asarray(coefficients, float),
-                                                       indexing="ij"))
-    total = grid_p.size
-    chunks = -(-total // batch_size)
-    pad = chunks * batch_size - total
-    grid_p = np.concatenate([grid_p, np.full(pad, grid_p[-1])])
-    grid_c = np.concatenate([grid_c, np.full(pad, grid_c[-1])])
-    values = np.empty(grid_p.size)
-    bar = _progress(progress, chunks, "landscape (reduced model)")
-    basis = jnp.asarray(basis)
-    for k in range(chunks):
-        part = slice(k * batch_size, (k + 1) * batch_size)
-        value, bad = _reduced_values(problem, basis, jnp.asarray(grid_p[part]),
-                                     jnp.asarray(grid_c[part]))
-        values[part] = np.where(np.asarray(bad), np.nan, np.asarray(value))
-        if bar is not None:
-            bar.update(1)
-    if bar is not None:
-        bar.close()
-    return values[:total].reshape(len(positions), len(coefficients))
+    values, _ = _evaluate_grid(problem, jnp.asarray(basis), np.asarray(positions, float),
+                               np.asarray(coefficients, float), batch_size, progress,
+                               "landscape (reduced model)")
+    return values
 
 
 @dataclasses.dataclass
@@ -861,30 +862,15 @@ def sweep_dampers(problem: DamperProblem, coefficients, positions=None, *, batch
                          ">= 0.")
     if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
         raise ValueError(MARK + f"batch_size must be an integer >= 1, got {batch_size!r}.")
-    grid_p, grid_c = (a.ravel() for a in np.meshgrid(positions, coefficients, indexing="ij"))
-    total = grid_p.size
-    chunks = -(-total // batch_size)
-    pad = chunks * batch_size - total
-    grid_p = np.concatenate([grid_p, np.full(pad, grid_p[-1])])
-    grid_c = np.concatenate([grid_c, np.full(pad, grid_c[-1])])
-    values, failed = np.empty(grid_p.size), np.empty(grid_p.size, bool)
-    bar = _progress(progress, chunks, "sweep (full model)")
     clock = time.perf_counter()
-    for k in range(chunks):
-        part = slice(k * batch_size, (k + 1) * batch_size)
-        value, bad = _full_values(problem, jnp.asarray(grid_p[part]), jnp.asarray(grid_c[part]))
-        values[part], failed[part] = np.asarray(value), np.asarray(bad)
-        if bar is not None:
-            bar.update(1)
+    values, failed = _evaluate_grid(problem, None, positions, coefficients, batch_size, progress,
+                                    "sweep (full model)")
     seconds = time.perf_counter() - clock
-    if bar is not None:
-        bar.close()
-    values = np.where(failed, np.nan, values)[:total].reshape(positions.size, coefficients.size)
     if not np.isfinite(values).any():
         raise ValueError(MARK + "sweep_dampers: every full solve failed; increase max_steps.")
     i, j = np.unravel_index(np.nanargmin(values), values.shape)
     return SweepResult(positions, coefficients, values, float(positions[i]),
-                       float(coefficients[j]), float(values[i, j]), int(failed[:total].sum()),
+                       float(coefficients[j]), float(values[i, j]), int(failed.sum()),
                        seconds, batch_size)
 
 
