@@ -30,16 +30,22 @@ def _parser() -> argparse.ArgumentParser:
     opt.add_argument("--dof", type=int, help="DOF of the 'peak' objective (1-based)")
     opt.add_argument("--lowest", type=int, help="'average_energy': only the s lowest modes")
     opt.add_argument("--energy", type=float,
-                     help="pseudo-energy fraction of the first POD basis (default: the scene's)")
-    opt.add_argument("--starts", type=int, default=8, help="number of starts (default 8)")
-    opt.add_argument("--optimizer", default="adam", choices=["adam", "lbfgs"])
-    opt.add_argument("--iterations", type=int, default=80)
+                     help="pseudo-energy fraction of the first POD basis (default: the scene's, "
+                     "at least 0.9999)")
+    opt.add_argument("--starts", type=int, default=8,
+                     help="starts of the relaxed search (--split, or several dampers; one "
+                     "damper at a DOF is found by screening every DOF); default 8")
+    opt.add_argument("--optimizer", default="adam", choices=["adam", "lbfgs"],
+                     help="optimiser of the relaxed search")
+    opt.add_argument("--iterations", type=int, default=80,
+                     help="iterations of the relaxed search (default 80)")
     opt.add_argument("--tolerance", type=float, default=1e-4,
                      help="largest ROM error accepted at the optimum (default 1e-4)")
     opt.add_argument("--split", action="store_true",
                      help="allow dampers between DOFs (split over the neighbours)")
     opt.add_argument("--sweep", type=int, default=0, metavar="C",
-                     help="also sweep the full model over every DOF x C coefficients")
+                     help="also sweep the full model over every DOF x C coefficients (the 3 "
+                     "best DOFs refined)")
     opt.add_argument("--no-progress", action="store_true", help="no progress bars")
     return parser
 

@@ -125,7 +125,7 @@ def placement_landscape(path, positions, coefficients, values, paths, optimum, t
     fig.colorbar(mesh, ax=ax, label=r"$\log_{10} J$")
     for k, (p, c) in enumerate(paths):
         ax.plot(p, c, "-", color="white", lw=0.9, alpha=0.8,
-                label="optimiser paths (relaxed)" if k == 0 else None)
+                label="optimiser paths" if k == 0 else None)
         ax.plot(p[:1], c[:1], "o", color="white", ms=3)
     ax.plot([optimum[0]], [optimum[1]], "*", color="red", ms=14, label="certified optimum")
     ax.set(xlabel="damper position (DOF)", ylabel="damper coefficient", yscale="log",

@@ -4,17 +4,26 @@ The design is (positions, coefficients) of the problem's grounded dampers; any r
 the chain stay as they are. Gradients are taken through the reduced model with its POD basis held
 fixed (no derivative through the SVD), and the optimum is certified on the full model:
 
-1. *relaxed search*: several starts spread over the chain, optax (Adam or L-BFGS) on unconstrained
-   variables, position = 1 + (n - 1) sigmoid(u) in [1, n] and coefficient = c_ref exp(w) >= 0.
-   Between DOFs a damper is split linearly over its neighbours (``Dampers``): a different device,
-   which the relaxed search may prefer.
-2. *realisable polish* (unless ``split=True``): each damper is moved to the DOFs on either side of
-   its relaxed position, every combination gets its coefficients re-optimised (L-BFGS in log c),
-   and the best wins.
-3. *certification*: the full model's objective and coefficient gradient at the design are compared
+1. *relaxed search* (with ``split=True``, and to start several dampers): several starts spread
+   over the chain, optax (Adam or L-BFGS) on unconstrained variables, position = 1 + (n - 1)
+   sigmoid(u) in [1, n] and coefficient = c_ref exp(w) >= 0. Between DOFs a damper is split
+   linearly over its neighbours (``Dampers``): a different device, which the search prefers.
+2. *screening* (realisable designs, the default): the objective over the DOFs is rugged (Section
+   5: J(4) = 724, J(6) = 859, J(7) = 801 with c re-optimised at each), so no relaxation points
+   to the best DOF (the relaxed optimum sat at p = 7.85). Every DOF is screened on the reduced
+   model with three coefficients around its local scale 2 sqrt(K_jj M_jj) (a parabola in log c
+   estimates the best); several dampers are screened one at a time from the rounded relaxed
+   optimum.
+3. *polish*: the ``keep`` best screened designs get their coefficients optimised (L-BFGS in
+   log c, positions fixed); the best wins.
+4. *certification*: the full model's objective and coefficient gradient at the design are compared
    with the reduced model's. If they disagree beyond ``tolerance``, the basis is enriched with
-   POD modes of a full simulation at that design (trust-region reduced-basis style) and the search
-   goes on from where it was.
+   POD modes of a full simulation at that design (trust-region reduced-basis style) and the
+   screening (of the 4 ``keep`` best DOFs) and polish run again.
+
+"Certified" means the reduced model is accurate (to ``tolerance``) at the design returned, which
+is the best the reduced model found; the full sweep (``sweep_dampers``) is the independent check
+that it is the best DOF (``benchmarks/placement.py``).
 
 Objectives (``DamperProblem.objective``):
 
@@ -48,6 +57,8 @@ from ._objectives import (
     _DOUBLINGS_FINITE,
     _DOUBLINGS_INFINITE,
     _doubled_gramian,
+    _first_step_too_long,
+    _integrated_energy,
     _integrated_energy_ode,
     _total_average_energy,
     smooth_peak,
@@ -212,10 +223,12 @@ def _modal_objective(problem: DamperProblem, rom: _ModalROM, positions, coeffici
     a = state_matrix(rom.omega, damping)
     if problem.objective == "energy":
         horizon = problem.ts[-1] - problem.ts[0]
+        # a fixed first step T / 2^16 (no cond: reverse mode 25 % cheaper); a damper so strong
+        # that it is too long counts as a failed evaluation, never a wrong value
         w, _ = _doubled_gramian(a, jnp.eye(a.shape[0]), horizon / 2**_DOUBLINGS_FINITE,
                                 _DOUBLINGS_FINITE)
         value = rom.z0 @ ((w + w.T) / 2) @ rom.z0 / 2
-        undamped = jnp.asarray(False)
+        undamped = _first_step_too_long(a, horizon)
     else:
         r = rom.omega.shape[0]
         lowest = r if problem.lowest is None else min(problem.lowest, r)
@@ -503,6 +516,62 @@ def _enrich(basis, modes, tol: float = 1e-8):
     return jnp.concatenate([basis, u[:, :keep]], axis=1)
 
 
+_SCREEN_RATIO = 3.0  # trial coefficients s_j / 3, s_j, 3 s_j around the local scale s_j
+
+
+@eqx.filter_jit
+def _screen_values_jit(problem, basis, positions, coefficients, index, dofs, trials):
+    """The reduced objective with damper ``index`` moved to each of ``dofs`` and given each of
+    ``trials`` (J, 3) coefficients, the other dampers as they are; NaN where it fails."""
+    objective = _objective_fn(problem, _reduced(problem, basis))
+
+    def one(args):
+        dof, c = args
+        value, failed = objective(positions.at[index].set(dof), coefficients.at[index].set(c))
+        return jnp.where(failed, jnp.nan, value)
+
+    grid = jnp.repeat(dofs, trials.shape[1]), trials.ravel()
+    return jax.lax.map(one, grid).reshape(trials.shape)
+
+
+_screen_values = _callback_free(_screen_values_jit)
+
+
+def _local_scale(problem: DamperProblem) -> np.ndarray:
+    """s_j = 2 sqrt(K_jj M_jj): the critical damping of DOF j held by its own springs."""
+    def diagonal(op):
+        return np.asarray(op.diagonal if hasattr(op, "diagonal") else jnp.diag(op.as_matrix()))
+
+    return 2.0 * np.sqrt(diagonal(problem.stiffness) * diagonal(problem.mass))
+
+
+def _screen(problem, basis, positions, coefficients, index: int, dofs: np.ndarray):
+    """Screen DOFs for damper ``index``: (estimated best objective, its coefficient) per DOF.
+
+    Three reduced evaluations per DOF, at s_j / 3, s_j and 3 s_j; a parabola in log c through
+    them estimates the best coefficient when it has its minimum inside, else the best trial
+    counts. The estimate only ranks DOFs: the best ones are then polished exactly.
+    """
+    scale = _local_scale(problem)[dofs.astype(int) - 1]
+    factors = _SCREEN_RATIO ** np.array([-1.0, 0.0, 1.0])
+    trials = scale[:, None] * factors[None, :]
+    values = np.asarray(_screen_values(problem, basis, jnp.asarray(positions),
+                                       jnp.asarray(coefficients), jnp.asarray(index),
+                                       jnp.asarray(dofs, float), jnp.asarray(trials)))
+    low, mid, high = values.T
+    curvature = low - 2 * mid + high
+    with np.errstate(invalid="ignore", divide="ignore"):
+        shift = (low - high) / (2 * curvature)  # vertex, in units of log(ratio)
+        vertex = mid - (low - high) ** 2 / (8 * curvature)
+    inside = np.isfinite(values).all(axis=1) & (curvature > 0) & (np.abs(shift) <= 1)
+    best = np.nanargmin(np.where(np.isfinite(values), values, np.inf), axis=1)
+    estimate = np.where(inside, vertex, values[np.arange(len(dofs)), best])
+    coefficient = np.where(inside, scale * _SCREEN_RATIO ** np.where(inside, shift, 0.0),
+                           trials[np.arange(len(dofs)), best])
+    estimate = np.where(np.isfinite(values).any(axis=1), estimate, np.inf)
+    return estimate, coefficient
+
+
 def _default_starts(problem: DamperProblem, starts: int, seed: int):
     """(S, g) positions: the problem's own design first, then spread over [1, n]."""
     n, g = problem.size, problem.num_dampers
@@ -526,7 +595,8 @@ class PlacementResult:
     relative difference and ``gradient_error`` that of the logarithmic coefficient sensitivities
     c dJ/dc / J (and dJ/dp / J for split designs). ``full_solves`` counts full-model solves
     (snapshot simulations and certifications, each with its forward-mode tangents); ``history``
-    the path of every phase (relaxed search, polish) of every round.
+    the path of every phase (relaxed search, screen, polish) of every round; ``relaxed_*`` the best
+    relaxed design (None where no relaxed search ran: one damper at a DOF).
     """
 
     positions: np.ndarray
@@ -541,9 +611,9 @@ class PlacementResult:
     rounds: int
     full_solves: int
     rank: int
-    relaxed_positions: np.ndarray
-    relaxed_coefficients: np.ndarray
-    relaxed_objective: float
+    relaxed_positions: np.ndarray | None
+    relaxed_coefficients: np.ndarray | None
+    relaxed_objective: float | None
     initial_objective: float
     history: list
     seconds: float
@@ -585,27 +655,63 @@ def _best(values, mask=None) -> int:
     return int(np.argmin(values))
 
 
-def _candidates(positions: np.ndarray, n: int) -> np.ndarray:
-    """Every combination of the DOFs either side of each damper's relaxed position."""
-    options = [sorted({int(np.floor(p)), int(np.ceil(p))} & set(range(1, n + 1)))
-               for p in positions]
-    grid = np.meshgrid(*options, indexing="ij")
-    return np.stack([g.ravel() for g in grid], axis=1).astype(float)
+def _realisable_candidates(problem, basis, relaxed, shortlist, keep: int, round_: int,
+                          history: list):
+    """(positions, coefficients) of ``keep`` designs at DOFs to polish, and the new shortlist.
+
+    One damper: the first round screens every DOF (``_screen``), later rounds re-screen the
+    ``4 keep`` best of the previous screening with the enriched basis; the ``keep`` best go on.
+    Several dampers: from the rounded relaxed optimum, each damper in turn is screened over every
+    DOF with the others fixed and moved to its best; the candidates are that design and, for each
+    damper, its next best DOFs.
+    """
+    n, g = problem.size, problem.num_dampers
+    if g == 1:
+        dofs = np.arange(1.0, n + 1) if shortlist is None else shortlist
+        estimate, coefficient = _screen(problem, basis, np.asarray(problem.positions),
+                                        np.asarray(problem.coefficients), 0, dofs)
+        history.append(dict(phase="screen", round=round_, damper=0, positions=dofs,
+                            coefficients=coefficient, objective=estimate))
+        order = np.argsort(estimate, kind="stable")
+        top = order[:min(keep, len(order))]
+        top = np.concatenate([top, np.full(keep - len(top), top[0])])  # one shape: one compile
+        return dofs[top][:, None], coefficient[top][:, None], dofs[order[:4 * keep]]
+    positions = np.clip(np.round(relaxed[0]), 1, n)
+    coefficients = np.asarray(relaxed[1], float).copy()
+    dofs = np.arange(1.0, n + 1)
+    alternatives = []
+    for i in range(g):
+        estimate, coefficient = _screen(problem, basis, positions, coefficients, i, dofs)
+        history.append(dict(phase="screen", round=round_, damper=i, positions=dofs,
+                            coefficients=coefficient, objective=estimate))
+        order = np.argsort(estimate, kind="stable")
+        positions[i], coefficients[i] = dofs[order[0]], coefficient[order[0]]
+        alternatives.append([(dofs[j], coefficient[j]) for j in order[1:keep]])
+    cand_p, cand_c = [positions.copy()], [coefficients.copy()]
+    for i, options in enumerate(alternatives):
+        for dof, c in options:
+            p, q = positions.copy(), coefficients.copy()
+            p[i], q[i] = dof, c
+            cand_p.append(p)
+            cand_c.append(q)
+    return np.stack(cand_p), np.stack(cand_c), None
 
 
 def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
                      optimizer: str = "adam", iterations: int = 80,
-                     learning_rate: float = 0.1, split: bool = False, keep: int = 2,
+                     learning_rate: float = 0.1, split: bool = False, keep: int = 4,
                      polish_iterations: int = 20, tolerance: float = 1e-4, max_rounds: int = 4,
                      seed: int = 0, progress: bool = False) -> PlacementResult:
     """Place the problem's grounded dampers: gradients through the ROM, certified on the full model.
 
-    ``starts``: the number of starts (the problem's design, then spread over the chain) or an
-    (S, g) array of start positions. ``optimizer``: "adam" (``learning_rate`` on the unconstrained
-    variables) or "lbfgs". ``split=True`` allows dampers between DOFs (split linearly over the
-    neighbours); otherwise the ``keep`` best relaxed designs are polished to DOFs. ``tolerance``:
-    the largest relative ROM error (objective and log-sensitivities) accepted at the optimum;
-    beyond it the basis is enriched and the search goes on, up to ``max_rounds`` rounds.
+    See the module docstring for the phases. ``starts``: the number of starts of the relaxed
+    search (the problem's design, then spread over the chain) or an (S, g) array of start
+    positions; ``optimizer``: its "adam" (``learning_rate`` on the unconstrained variables) or
+    "lbfgs"; ``iterations`` its length. The relaxed search runs for ``split=True`` (dampers may
+    sit between DOFs, split linearly over the neighbours) and for several dampers; one damper at
+    a DOF is found by screening every DOF. ``keep``: how many screened designs are polished.
+    ``tolerance``: the largest relative ROM error (objective and log-sensitivities) accepted at
+    the optimum; beyond it the basis is enriched and the search goes on, up to ``max_rounds``.
     """
     check_x64()
     if not isinstance(problem, DamperProblem):
@@ -657,41 +763,32 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
     params = _inverse(n, c_ref, start_positions,
                       np.broadcast_to(coefficients0, start_positions.shape))
     dummy = jnp.zeros(start_positions.shape)
-    certified, status = False, ""
+    certified, status, relaxed, shortlist = False, "", None, None
     for round_ in range(max_rounds):
-        search = _search(problem, basis, c_ref, params, dummy, optimizer=optimizer,
-                         iterations=iterations, learning_rate=learning_rate,
-                         positions_fixed=False, tol=1e-7, progress=progress,
-                         label=f"round {round_ + 1}: search", race=round_ == 0)
-        history.append(_phase_record("search", round_, search))
-        dead = int(np.sum(~search.alive))
-        if dead:
-            messages.append(f"round {round_ + 1}: {dead} of {len(search.alive)} starts stopped "
-                            "(objective not finite or solve failed); the rest went on.")
-        last = _last_finite(search)
-        if last is None:
-            raise ValueError(MARK + "optimise_dampers stopped: the objective was not finite at "
-                             "any start (a solve failed); try other starts or a larger "
-                             "max_steps.")
-        relaxed_p, relaxed_c, relaxed_v = last
-        best = _best(relaxed_v)
+        if split or g > 1:
+            search = _search(problem, basis, c_ref, params, dummy, optimizer=optimizer,
+                             iterations=iterations, learning_rate=learning_rate,
+                             positions_fixed=False, tol=1e-7, progress=progress,
+                             label=f"round {round_ + 1}: relaxed search", race=round_ == 0)
+            history.append(_phase_record("search", round_, search))
+            dead = int(np.sum(~search.alive))
+            if dead:
+                messages.append(f"round {round_ + 1}: {dead} of {len(search.alive)} starts "
+                                "stopped (objective not finite or solve failed); the rest went "
+                                "on.")
+            last = _last_finite(search)
+            if last is None:
+                raise ValueError(MARK + "optimise_dampers stopped: the objective was not finite "
+                                 "at any start (a solve failed); try other starts or a larger "
+                                 "max_steps.")
+            best = _best(last[2])
+            relaxed = tuple(a[best] for a in last)
+            params = search.params
         if split:
-            positions, coefficients = relaxed_p[best], relaxed_c[best]
+            positions, coefficients = relaxed[0], relaxed[1]
         else:
-            order = np.argsort(np.where(np.isfinite(relaxed_v), relaxed_v, np.inf))
-            chosen, seen = [], set()
-            for s in order:
-                key = tuple(np.round(relaxed_p[s]).astype(int))
-                if np.isfinite(relaxed_v[s]) and key not in seen:
-                    seen.add(key)
-                    chosen.append(s)
-                if len(chosen) == keep:
-                    break
-            cand_p = np.concatenate([_candidates(relaxed_p[s], n) for s in chosen])
-            cand_c = np.concatenate([np.broadcast_to(relaxed_c[s], (len(_candidates(
-                relaxed_p[s], n)), g)) for s in chosen])
-            cand_p, unique = np.unique(cand_p, axis=0, return_index=True)
-            cand_c = cand_c[unique]
+            cand_p, cand_c, shortlist = _realisable_candidates(
+                problem, basis, relaxed, shortlist, keep, round_, history)
             polish = _search(problem, basis, c_ref, _inverse(n, c_ref, cand_p, cand_c),
                              jnp.asarray(cand_p), optimizer="lbfgs",
                              iterations=polish_iterations, learning_rate=learning_rate,
@@ -701,7 +798,8 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
             polished = _last_finite(polish)
             if polished is None:
                 raise ValueError(MARK + "optimise_dampers stopped: the objective was not finite "
-                                 "at any DOF next to the relaxed optimum.")
+                                 "at any screened DOF (every solve failed); try a larger "
+                                 "max_steps.")
             k = _best(polished[2])
             positions, coefficients = polished[0][k], polished[1][k]
         positions, coefficients = jnp.asarray(positions), jnp.asarray(coefficients)
@@ -734,14 +832,15 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
             break
         modes = full_timed(_snapshot_modes, problem, positions, coefficients)
         basis = _enrich(basis, modes)
-        params = search.params
     return PlacementResult(
         positions=np.asarray(positions), coefficients=np.asarray(coefficients),
         objective=float(full_value), objective_reduced=float(rom_value), rom_error=rom_error,
         gradient_error=gradient_error, gradient=np.asarray(full_gc), certified=certified,
         status=status, rounds=round_ + 1, full_solves=full_solves, rank=int(basis.shape[1]),
-        relaxed_positions=relaxed_p[best], relaxed_coefficients=relaxed_c[best],
-        relaxed_objective=float(relaxed_v[best]), initial_objective=float(value0),
+        relaxed_positions=None if relaxed is None else relaxed[0],
+        relaxed_coefficients=None if relaxed is None else relaxed[1],
+        relaxed_objective=None if relaxed is None else float(relaxed[2]),
+        initial_objective=float(value0),
         history=history, seconds=time.perf_counter() - clock, seconds_full=full_seconds,
         messages=messages, basis=np.asarray(basis))
 
@@ -766,39 +865,119 @@ _snapshots = _callback_free(_snapshots_jit)
 
 
 @eqx.filter_jit
-def _grid_values_jit(problem, basis, positions, coefficients):
-    """(values, failed) of one-damper designs, reduced (``basis``) or full (None), vmapped."""
-    objective = _objective_fn(problem, _reduced(problem, basis))
-    return jax.vmap(lambda p, c: objective(p[None], c[None]))(positions, coefficients)
+def _grid_values_jit(problem, basis, positions, coefficients, exact: bool = False):
+    """(values, failed) of one-damper designs, reduced (``basis``) or full (None), vmapped.
+    ``exact``: the full model's free-vibration energy by matrix exponentials (any stiffness)."""
+    if exact:
+        horizon = problem.ts[-1] - problem.ts[0]
+
+        def one(p, c):
+            value, (not_definite,) = _integrated_energy(problem.system(p[None], c[None]),
+                                                        horizon, problem.x0, problem.v0)
+            return value, not_definite | ~jnp.isfinite(value)
+    else:
+        objective = _objective_fn(problem, _reduced(problem, basis))
+        one = lambda p, c: objective(p[None], c[None])  # noqa: E731
+    if exact or basis is not None:
+        # matrix exponentials: under vmap every Pade branch of expm is computed, so in turn
+        return jax.lax.map(lambda pc: one(*pc), (positions, coefficients))
+    return jax.vmap(one)(positions, coefficients)
 
 
 _grid_values = _callback_free(_grid_values_jit)
 
 
+def _evaluate_points(problem, basis, points_p, points_c, batch_size: int, bar=None,
+                     exact=None):
+    """Objective at the points (p_k, c_k), ``batch_size`` per compiled call (the last chunk
+    padded, so one shape compiles once); ``exact``: a mask of points for the exact evaluator.
+    (values with NaN where failed, failed)."""
+    points_p, points_c = np.asarray(points_p, float), np.asarray(points_c, float)
+    exact = np.zeros(points_p.size, bool) if exact is None else np.asarray(exact, bool)
+    values, failed = np.full(points_p.size, np.nan), np.zeros(points_p.size, bool)
+    for flag in (False, True):
+        index = np.flatnonzero(exact == flag)
+        if index.size == 0:
+            continue
+        chunks = -(-index.size // batch_size)
+        padded = np.concatenate([index, np.full(chunks * batch_size - index.size, index[-1])])
+        for k in range(chunks):
+            part = padded[k * batch_size:(k + 1) * batch_size]
+            value, bad = _grid_values(problem, basis, jnp.asarray(points_p[part]),
+                                      jnp.asarray(points_c[part]), exact=flag)
+            values[part], failed[part] = np.asarray(value), np.asarray(bad)
+            if bar is not None:
+                bar.update(len(part))
+    return np.where(failed, np.nan, values), failed
+
+
 def _evaluate_grid(problem, basis, positions, coefficients, batch_size: int, progress: bool,
-                   label: str):
-    """Objective on positions x coefficients, ``batch_size`` points per compiled call (the last
-    chunk padded, so one shape compiles once): (values with NaN where failed, failed)."""
+                   label: str, exact=None):
+    """``_evaluate_points`` on the grid positions x coefficients, as (P, C) arrays."""
     grid_p, grid_c = (a.ravel() for a in np.meshgrid(positions, coefficients, indexing="ij"))
-    total = grid_p.size
-    chunks = -(-total // batch_size)
-    pad = chunks * batch_size - total
-    grid_p = np.concatenate([grid_p, np.full(pad, grid_p[-1])])
-    grid_c = np.concatenate([grid_c, np.full(pad, grid_c[-1])])
-    values, failed = np.empty(grid_p.size), np.empty(grid_p.size, bool)
-    bar = _progress(progress, chunks, label)
-    for k in range(chunks):
-        part = slice(k * batch_size, (k + 1) * batch_size)
-        value, bad = _grid_values(problem, basis, jnp.asarray(grid_p[part]),
-                                  jnp.asarray(grid_c[part]))
-        values[part], failed[part] = np.asarray(value), np.asarray(bad)
-        if bar is not None:
-            bar.update(1)
+    bar = _progress(progress, grid_p.size, label)
+    values, failed = _evaluate_points(problem, basis, grid_p, grid_c, batch_size, bar,
+                                      None if exact is None else exact(grid_p, grid_c))
     if bar is not None:
         bar.close()
     shape = (len(positions), len(coefficients))
-    return (np.where(failed, np.nan, values)[:total].reshape(shape),
-            failed[:total].reshape(shape))
+    return values.reshape(shape), failed.reshape(shape)
+
+
+_STIFF_RATIO = 10.0  # beyond 10x the highest eigenfrequency, Dopri8 costs more than expm
+
+
+def _stiff_rule(problem: DamperProblem, method: str):
+    """For ``sweep_dampers``: which (positions, coefficients) the exact evaluator takes.
+
+    "auto": the free-vibration energy of a damper whose own rate c / M_jj exceeds 10x the
+    Gershgorin bound of the highest eigenfrequency (there the explicit Dopri8 is stiff and slow,
+    and past ``max_steps`` fails); "exact": every point; "ode": none.
+    """
+    if method not in ("auto", "exact", "ode"):
+        raise ValueError(MARK + f"method must be 'auto', 'exact' or 'ode', got {method!r}.")
+    exact_possible = problem.objective == "energy" and problem.load is None
+    if method == "exact" and not exact_possible:
+        raise ValueError(MARK + "method='exact' computes the free-vibration energy only "
+                         "(objective 'energy', no load).")
+    if method == "ode" or not exact_possible:
+        return None
+    stiffness = problem.stiffness
+    if hasattr(stiffness, "off_diagonal"):
+        off = np.pad(np.abs(np.asarray(stiffness.off_diagonal)), 1)
+        rows = np.abs(np.asarray(stiffness.diagonal)) + off[:-1] + off[1:]
+    else:
+        rows = np.abs(np.asarray(stiffness.as_matrix())).sum(axis=1)
+    mass = np.asarray(problem.mass.diagonal if hasattr(problem.mass, "diagonal")
+                      else jnp.diag(problem.mass.as_matrix()))
+    omega_max = float(np.sqrt(np.max(rows / mass)))
+
+    def exact(positions, coefficients):
+        if method == "exact":
+            return np.ones(np.size(positions), bool)
+        dof = np.clip(np.floor(np.asarray(positions)).astype(int), 1, problem.size)
+        return np.asarray(coefficients) / mass[dof - 1] > _STIFF_RATIO * omega_max
+
+    return exact
+
+
+def _golden(f, low: float, high: float, tol: float):
+    """Golden-section minimum of f on [low, high] to width ``tol``: (x, f(x), evaluations)."""
+    ratio = (np.sqrt(5.0) - 1) / 2
+    x1, x2 = high - ratio * (high - low), low + ratio * (high - low)
+    f1, f2 = f(x1), f(x2)
+    count = 2
+    while high - low > tol:
+        if f1 <= f2:
+            high, x2, f2 = x2, x1, f1
+            x1 = high - ratio * (high - low)
+            f1 = f(x1)
+        else:
+            low, x1, f1 = x1, x2, f2
+            x2 = low + ratio * (high - low)
+            f2 = f(x2)
+        count += 1
+    return (x1, f1, count) if f1 <= f2 else (x2, f2, count)
 
 
 def reduced_landscape(problem: DamperProblem, basis, positions, coefficients, *,
@@ -819,7 +998,10 @@ def reduced_landscape(problem: DamperProblem, basis, positions, coefficients, *,
 @dataclasses.dataclass
 class SweepResult:
     """A brute-force sweep of the full model: ``objective[i, j]`` at ``positions[i]``,
-    ``coefficients[j]`` (NaN where a solve failed, listed in ``failed``)."""
+    ``coefficients[j]`` (NaN where a solve failed, counted in ``failed``). ``refined``: for the
+    ``refine`` best DOFs, the coefficient refined by golden-section search between the grid
+    neighbours of their best; ``best_*`` is the best of grid and refinement. ``exact``: how many
+    points the exact evaluator took (see ``sweep_dampers``)."""
 
     positions: np.ndarray
     coefficients: np.ndarray
@@ -830,19 +1012,32 @@ class SweepResult:
     failed: int
     seconds: float
     batch_size: int
+    method: str
+    exact: int
+    refined: list
+    seconds_refine: float
 
     def to_json(self) -> dict:
         return {f.name: _plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
 
 
-def sweep_dampers(problem: DamperProblem, coefficients, positions=None, *, batch_size: int = 1,
+def sweep_dampers(problem: DamperProblem, coefficients, positions=None, *, method: str = "auto",
+                  refine: int = 0, refine_tol: float = 1e-3, batch_size: int = 1,
                   progress: bool = False) -> SweepResult:
     """The full model's objective for one damper at every position x coefficient of a grid.
 
     ``positions`` defaults to every DOF 1..n. Points are evaluated ``batch_size`` at a time with
-    ``jax.vmap`` (one compiled chunk shape; memory bounded by the chunk), with a progress bar
-    over chunks. On a CPU, ``batch_size=1`` is fastest (a vmapped adaptive solve steps every
-    member with the batch's largest step count); on a GPU, use hundreds.
+    ``jax.vmap`` (one compiled chunk shape; memory bounded by the chunk), with a progress bar.
+    On a CPU, ``batch_size=1`` is fastest (a vmapped adaptive solve steps every member with the
+    batch's largest step count); on a GPU, use hundreds.
+
+    ``method``: "ode" (Dopri8 with the energy as one more state: what the optimiser certifies
+    with), "exact" (the free-vibration energy by matrix exponentials, O(n^3) per point, any
+    stiffness) or "auto": exact where the damper's rate c / M_jj exceeds 10x the highest
+    eigenfrequency (there Dopri8 is slower than expm and, past ``max_steps``, fails), the ODE
+    elsewhere. ``refine`` > 0: the coefficient of the ``refine`` best DOFs is then refined by
+    golden-section search in log c (to ``refine_tol``), so that the sweep's best does not carry
+    the grid's spacing.
     """
     check_x64()
     if not isinstance(problem, DamperProblem):
@@ -862,16 +1057,45 @@ def sweep_dampers(problem: DamperProblem, coefficients, positions=None, *, batch
                          ">= 0.")
     if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
         raise ValueError(MARK + f"batch_size must be an integer >= 1, got {batch_size!r}.")
+    if isinstance(refine, bool) or not isinstance(refine, int) or refine < 0:
+        raise ValueError(MARK + f"refine must be an integer >= 0, got {refine!r}.")
+    if not (np.isfinite(refine_tol) and refine_tol > 0):
+        raise ValueError(MARK + f"refine_tol must be > 0, got {refine_tol!r}.")
+    exact = _stiff_rule(problem, method)
     clock = time.perf_counter()
     values, failed = _evaluate_grid(problem, None, positions, coefficients, batch_size, progress,
-                                    "sweep (full model)")
+                                    "sweep (full model)", exact)
     seconds = time.perf_counter() - clock
     if not np.isfinite(values).any():
         raise ValueError(MARK + "sweep_dampers: every full solve failed; increase max_steps.")
+    exact_points = 0 if exact is None else int(exact(*(a.ravel() for a in np.meshgrid(
+        positions, coefficients, indexing="ij"))).sum())
     i, j = np.unravel_index(np.nanargmin(values), values.shape)
-    return SweepResult(positions, coefficients, values, float(positions[i]),
-                       float(coefficients[j]), float(values[i, j]), int(failed.sum()),
-                       seconds, batch_size)
+    best = (float(positions[i]), float(coefficients[j]), float(values[i, j]))
+    refined, clock = [], time.perf_counter()
+    positive = coefficients > 0
+    logs = np.log(coefficients[positive])
+    if refine and logs.size >= 2:
+        rows = np.argsort(np.nanmin(np.where(np.isfinite(values), values, np.inf), axis=1))
+        for row in rows[:refine]:
+            p = float(positions[row])
+
+            def f(log_c, p=p):
+                value, _ = _evaluate_points(problem, None, [p], [np.exp(log_c)], 1, None,
+                                            None if exact is None else exact([p],
+                                                                             [np.exp(log_c)]))
+                return float(value[0]) if np.isfinite(value[0]) else np.inf
+
+            k = int(np.nanargmin(np.where(np.isfinite(values[row, positive]),
+                                          values[row, positive], np.inf)))
+            low, high = logs[max(k - 1, 0)], logs[min(k + 1, logs.size - 1)]
+            log_c, value, count = _golden(f, low, high, refine_tol)
+            refined.append(dict(position=p, coefficient=float(np.exp(log_c)), objective=value,
+                                evaluations=count))
+            if value < best[2]:
+                best = (p, float(np.exp(log_c)), value)
+    return SweepResult(positions, coefficients, values, *best, int(failed.sum()), seconds,
+                       batch_size, method, exact_points, refined, time.perf_counter() - clock)
 
 
 def placement_objective(problem: DamperProblem, basis=None):

@@ -118,10 +118,31 @@ def test_certified_optimum_matches_the_sweep(small_sweep):
     assert result.objective == pytest.approx(sweep.best_objective, rel=1e-3)
     assert result.objective == pytest.approx(
         full_energy(10, float(result.positions[0]), float(result.coefficients[0])), rel=1e-6)
-    assert result.relaxed_objective <= result.objective * (1 + 1e-6)  # split is a better device
     assert result.full_solves == 2  # one snapshot solve, one certification
-    searches = [h for h in result.history if h["phase"] == "search"]
-    assert searches[0]["objective"].shape[1] == 4
+    # one damper: every DOF screened (no relaxed search), and the sweep's best DOF chosen
+    assert result.relaxed_objective is None
+    screen = [h for h in result.history if h["phase"] == "screen"]
+    np.testing.assert_array_equal(screen[0]["positions"], np.arange(1.0, 11.0))
+    assert float(result.positions[0]) == sweep.best_position
+
+
+def test_sweep_refinement_and_its_two_evaluators(small_sweep):
+    p, sweep = small_sweep
+    coarse = mj.sweep_dampers(p, sweep.coefficients[::6], refine=2)
+    assert len(coarse.refined) == 2 and coarse.seconds_refine > 0
+    grid_best = float(np.nanmin(coarse.objective))
+    # refinement beats the coarse grid, reaches the fine grid's best, and is the full model's J
+    assert coarse.best_objective < grid_best
+    assert coarse.best_objective <= sweep.best_objective * (1 + 1e-9)
+    assert coarse.best_objective == pytest.approx(sweep.best_objective, rel=1e-3)
+    assert coarse.best_objective == pytest.approx(
+        full_energy(10, coarse.best_position, coarse.best_coefficient), rel=1e-6)
+    # the ODE and the exact evaluator agree; "auto" sends the stiff points (c / m_j large) to
+    # the exact one
+    ode = mj.sweep_dampers(p, [20.0, 50.0], positions=[10.0], method="ode")
+    exact = mj.sweep_dampers(p, [20.0, 50.0], positions=[10.0], method="exact")
+    np.testing.assert_allclose(ode.objective, exact.objective, rtol=1e-6)
+    assert (ode.exact, exact.exact) == (0, 2) and 0 < sweep.exact < sweep.objective.size
 
 
 def test_split_designs_only_on_request():
@@ -192,6 +213,20 @@ def test_no_excitation_is_refused():
 def test_bad_optimiser_settings_are_refused(kwargs, match):
     with pytest.raises(ValueError, match=match):
         mj.optimise_dampers(problem(), **kwargs)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(method="euler"), "method must be 'auto', 'exact' or 'ode'"),
+    (dict(refine=-1), "refine must be an integer >= 0"),
+    (dict(coefficients=[-1.0]), "coefficients must be a non-empty"),
+    (dict(positions=[0.0]), "positions must be a 1-d array of positions in"),
+])
+def test_bad_sweep_settings_are_refused(kwargs, match):
+    kwargs = dict(coefficients=[1.0], positions=[2.0]) | kwargs
+    with pytest.raises(ValueError, match=match):
+        mj.sweep_dampers(problem(), kwargs.pop("coefficients"), **kwargs)
+    with pytest.raises(ValueError, match="free-vibration energy only"):
+        mj.sweep_dampers(problem(objective="peak", dof=3), [1.0], method="exact")
 
 
 def test_failing_solves_stop_with_a_reason_not_a_nan_optimum():
