@@ -537,12 +537,14 @@ def _screen_values_jit(problem, basis, positions, coefficients, index, dofs, tri
 _screen_values = _callback_free(_screen_values_jit)
 
 
+def _diagonal(op) -> np.ndarray:
+    """The main diagonal of a mass or stiffness operator, on the host."""
+    return np.asarray(op.diagonal if hasattr(op, "diagonal") else jnp.diag(op.as_matrix()))
+
+
 def _local_scale(problem: DamperProblem) -> np.ndarray:
     """s_j = 2 sqrt(K_jj M_jj): the critical damping of DOF j held by its own springs."""
-    def diagonal(op):
-        return np.asarray(op.diagonal if hasattr(op, "diagonal") else jnp.diag(op.as_matrix()))
-
-    return 2.0 * np.sqrt(diagonal(problem.stiffness) * diagonal(problem.mass))
+    return 2.0 * np.sqrt(_diagonal(problem.stiffness) * _diagonal(problem.mass))
 
 
 def _screen(problem, basis, positions, coefficients, index: int, dofs: np.ndarray):
@@ -948,8 +950,7 @@ def _stiff_rule(problem: DamperProblem, method: str):
         rows = np.abs(np.asarray(stiffness.diagonal)) + off[:-1] + off[1:]
     else:
         rows = np.abs(np.asarray(stiffness.as_matrix())).sum(axis=1)
-    mass = np.asarray(problem.mass.diagonal if hasattr(problem.mass, "diagonal")
-                      else jnp.diag(problem.mass.as_matrix()))
+    mass = _diagonal(problem.mass)
     omega_max = float(np.sqrt(np.max(rows / mass)))
 
     def exact(positions, coefficients):
