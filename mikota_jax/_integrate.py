@@ -30,13 +30,14 @@ from ._errors import (
 )
 from ._excitation import Pulse, as_load
 from ._galerkin import ReducedModel
+from ._implicit import StructuredKvaerno5, choose_solver
 from ._operators import Diagonal
 
 SOLVERS = {
     "tsit5": diffrax.Tsit5,
     "dopri5": diffrax.Dopri5,
     "dopri8": diffrax.Dopri8,
-    "kvaerno5": diffrax.Kvaerno5,
+    "kvaerno5": StructuredKvaerno5,
 }
 
 
@@ -157,6 +158,8 @@ def _simulate(model, ts, x0, v0, load, rtol, atol, *, solver, dofs, displacement
               max_steps, progress, adjoint):
     system, lift, y0x, y0v, load = unpack(model, x0, v0, load)
     accel = acceleration(system, load)
+    if isinstance(solver, StructuredKvaerno5):
+        solver = solver.bind(system, load)
     m = system.size  # the state is one flat vector (x, v): fewer, larger kernels per stage
 
     def field(t, y, args):
@@ -208,12 +211,12 @@ def check_solve_options(rtol, atol, max_steps, adjoint):
 def solve_failure_messages(max_steps: int) -> tuple[str, ...]:
     return (
         f"simulate stopped: max_steps = {max_steps} reached before ts[-1]. Increase max_steps, "
-        "loosen rtol/atol, or for a stiff case (large n, strong damper) use solver='kvaerno5' or "
-        "the exact solver.",
+        "loosen rtol/atol, or for a stiff case (large n, strong damper) use solver='kvaerno5' "
+        "(or 'auto'), or exact_solve.",
         "simulate failed inside diffrax (step size collapsed or the implicit solve diverged); "
         "check the inputs for non-finite values, or try another solver.",
         "simulate produced non-finite states; check the inputs and tolerances, or use a stiff "
-        "solver.",
+        "solver (solver='kvaerno5').",
     )
 
 
@@ -229,24 +232,32 @@ def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | No
 
     ``model`` is a full system or a ``ReducedModel`` (initial state and load given in full
     coordinates, projected by the basis; outputs lifted back, eq. 3.2). ``dofs`` are 1-based
-    (default: all). Tolerances are traced: changing them does not recompile. ``adjoint`` is how
-    derivatives pass through the solve (diffrax's; default ``RecursiveCheckpointAdjoint``, for
-    reverse mode); use ``diffrax.ForwardMode()`` under ``jax.jvp``/``jax.jacfwd``, which is the
-    cheaper choice for a few parameters. In reverse mode the checkpoint count follows
-    ``max_steps``: a bound near the real step count (e.g. 2**14 for the paper's n = 300 chain)
-    makes the gradient several times cheaper than the default 100 000.
+    (default: all). Tolerances are traced: changing them does not recompile.
+
+    ``solver``: "dopri8" (default; explicit, the most accurate per step), "tsit5", "dopri5",
+    "kvaerno5" (L-stable implicit ESDIRK whose stage equations are solved exactly in the chain's
+    O(n) structure: for stiff cases, large n or a strong damper), "auto" (``choose_solver``:
+    "kvaerno5" when the highest eigenfrequency or damper rate times the span exceeds 1e5), or a
+    diffrax solver instance (diffrax's own implicit solvers factor a dense 2n x 2n Jacobian).
+
+    ``adjoint`` is how derivatives pass through the solve (diffrax's; default
+    ``RecursiveCheckpointAdjoint``, for reverse mode); use ``diffrax.ForwardMode()`` under
+    ``jax.jvp``/``jax.jacfwd``, which is the cheaper choice for a few parameters. In reverse mode
+    the checkpoint count follows ``max_steps``: a bound near the real step count (e.g. 2**14 for
+    the paper's n = 300 chain) makes the gradient several times cheaper than the default 100 000.
     """
     check_x64()
     if isinstance(solver, str):
-        if solver not in SOLVERS:
-            raise ValueError(MARK + f"solver must be one of {sorted(SOLVERS)} or a diffrax solver, "
-                             f"got {solver!r}.")
-        solver = SOLVERS[solver]()
+        if solver not in (*SOLVERS, "auto"):
+            raise ValueError(MARK + f"solver must be 'auto', one of {sorted(SOLVERS)} or a "
+                             f"diffrax solver, got {solver!r}.")
     if not (displacement or velocity):
         raise ValueError(MARK + "ask for displacement and/or velocity; nothing would be saved.")
     rtol, atol, adjoint = check_solve_options(rtol, atol, max_steps, adjoint)
     ts = check_times(ts)
     x0, v0, load = check_problem(model, x0, v0, load)
+    if isinstance(solver, str):
+        solver = SOLVERS[choose_solver(model, ts) if solver == "auto" else solver]()
     with callback_free_checks():  # so that the persistent compilation cache can store the solve
         trajectory, failures = _simulate(
             model, ts, x0, v0, load, rtol, atol, solver=solver, dofs=check_dofs(dofs, model.size),

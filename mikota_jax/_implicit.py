@@ -1,0 +1,194 @@
+"""A stiff solver that keeps the system's structure: Kvaerno's 5/4 ESDIRK with O(n) stage solves.
+
+diffrax's implicit solvers find each stage by Newton iterations on a dense 2n x 2n Jacobian,
+factored every step: O(n^3), unusable from n ~ 1000 on. Our system is linear, y = (x, v),
+y' = (v, M^-1 (f(t) - D v - K x)), so an implicit stage z = w + s F(t, z) (s = h gamma) is one
+linear solve, done exactly. Eliminating x = w_x + s v leaves
+
+    (M + s D + s^2 K) v = M w_v + s (f(t) - K w_x),
+
+a symmetric positive definite n x n system. For a chain it is tridiagonal (diagonal mass and
+grounded dampers, tridiagonal K) plus one rank-one term per relative damper (Woodbury); in modal
+coordinates (a reduced model) it is diagonal plus the low-rank projected dampers. Either way a
+stage costs O(n) (O(r p) reduced), the method is L-stable and stiffly accurate, and diffrax's
+step-size control, dense output, events and adjoints work unchanged around it.
+"""
+
+from typing import ClassVar
+
+import diffrax
+import jax
+import jax.numpy as jnp
+import numpy as np
+from diffrax._local_interpolation import ThirdOrderHermitePolynomialInterpolation
+from jax.lax.linalg import tridiagonal_solve
+
+from ._dampers import Dampers
+from ._errors import MARK
+from ._operators import Dense, Diagonal, LowRank, SymmetricTridiagonal
+
+_TABLEAU = diffrax.Kvaerno5.tableau
+
+
+def _tridiagonal_solve(diagonal, off_diagonal, rhs):
+    """Solve a symmetric tridiagonal system for rhs (n,) or (n, p) (no pivoting: it is SPD)."""
+    vector = rhs.ndim == 1
+    rhs = rhs[:, None] if vector else rhs
+    if diagonal.shape[0] == 1:
+        out = rhs / diagonal[:, None]
+    else:
+        lower = jnp.pad(off_diagonal, (1, 0))
+        upper = jnp.pad(off_diagonal, (0, 1))
+        out = tridiagonal_solve(lower, diagonal, upper, rhs)
+    return out[:, 0] if vector else out
+
+
+def _woodbury(base_solve, factor, weights):
+    """y -> (T + U diag(w) U^T)^-1 y given y -> T^-1 y; no inverse of w (it may be zero)."""
+    z = base_solve(factor)  # T^-1 U, (n, p)
+    capacitance = jnp.eye(factor.shape[1]) + weights[:, None] * (factor.T @ z)
+
+    def solve(rhs):
+        y = base_solve(rhs)
+        return y - z @ jnp.linalg.solve(capacitance, weights * (factor.T @ y))
+
+    return solve
+
+
+def shifted_solver(system, s):
+    """rhs -> (M + s D + s^2 K)^-1 rhs, prepared once per step (s = h gamma), in O(n) structure."""
+    mass, stiffness, damping = system.mass, system.stiffness, system.damping
+    if not isinstance(mass, Diagonal) or isinstance(stiffness, Dense) or isinstance(damping, Dense):
+        matrix = mass.as_matrix() + s**2 * stiffness.as_matrix()
+        if damping is not None:
+            matrix = matrix + s * damping.as_matrix()
+        return lambda rhs: jnp.linalg.solve(matrix, rhs)
+    diagonal = mass.diagonal + s**2 * stiffness.diagonal
+    if isinstance(damping, Dampers):
+        diagonal = diagonal + s * damping.grounded_diagonal()
+    if isinstance(stiffness, SymmetricTridiagonal):
+        off = s**2 * stiffness.off_diagonal
+        solve = lambda rhs: _tridiagonal_solve(diagonal, off, rhs)  # noqa: E731
+    else:
+        solve = lambda rhs: rhs / (diagonal if rhs.ndim == 1 else diagonal[:, None])  # noqa: E731
+    if isinstance(damping, Dampers) and damping.pairs:
+        i, j = (jnp.asarray(a) for a in zip(*damping.pairs))
+        columns = jnp.arange(len(damping.pairs))
+        factor = jnp.zeros((system.size, len(damping.pairs))).at[i, columns].set(1.0)
+        factor = factor.at[j, columns].add(-1.0)  # D_rel = sum c (e_i - e_j)(e_i - e_j)^T
+        solve = _woodbury(solve, factor, s * damping.pair_coefficients)
+    elif isinstance(damping, LowRank):
+        solve = _woodbury(solve, damping.factor, s * damping.weights)
+    return solve
+
+
+class StructuredKvaerno5(diffrax.AbstractSolver):
+    """Kvaerno's L-stable 5/4 ESDIRK (diffrax's tableau) with exact, structured stage solves.
+
+    Use it as ``simulate(..., solver="kvaerno5")`` for stiff cases: large n (highest
+    eigenfrequency n sqrt(k/m)) or a strong damper. ``simulate`` binds the system and load; a
+    stage costs one O(n) tridiagonal solve instead of Newton iterations on a dense Jacobian.
+    """
+
+    system: object = None
+    load: object = None
+
+    term_structure: ClassVar = diffrax.AbstractTerm
+    interpolation_cls: ClassVar = ThirdOrderHermitePolynomialInterpolation.from_k
+
+    def bind(self, system, load) -> "StructuredKvaerno5":
+        return StructuredKvaerno5(system, load)
+
+    def order(self, terms):
+        return 5
+
+    def init(self, terms, t0, t1, y0, args):
+        if self.system is None:
+            raise ValueError("StructuredKvaerno5 must be bound to a system; use simulate().")
+        return None
+
+    def func(self, terms, t0, y0, args):
+        return terms.vf(t0, y0, args)
+
+    def step(self, terms, t0, t1, y0, args, solver_state, made_jump):
+        del solver_state, made_jump
+        tableau, system = _TABLEAU, self.system
+        n = system.size
+        h = t1 - t0
+        s = h * tableau.a_diagonal[1]
+        solve = shifted_solver(system, s)
+
+        def stage(w, t):
+            """z = w + s F(t, z) (F without the load when t is None): one structured solve."""
+            force = -system.stiffness.mv(w[:n])
+            if self.load is not None and t is not None:
+                force = force + self.load(t)
+            v = solve(system.mass.mv(w[n:]) + s * force)
+            return jnp.concatenate([w[:n] + s * v, v])
+
+        ks = [terms.vf(t0, y0, args)]
+        z = y0
+        for a_row, c in zip(tableau.a_lower, tableau.c):
+            w = y0 + h * sum(a * k for a, k in zip(a_row, ks) if a != 0)
+            t = t0 + c * h
+            z = stage(w, t)
+            ks.append(terms.vf(t, z, args))
+        y1 = z  # stiffly accurate: the last stage is the solution
+        error = h * sum(b * k for b, k in zip(tableau.b_error, ks) if b != 0)
+        # Filter the estimate through (I - s A)^-1 (Hairer & Wanner, IV.8): unfiltered, the
+        # stiff components' k (lambda z, |lambda| up to n sqrt(k/m)) inflate it by |s lambda|
+        # and the controller takes explicit-sized steps after all.
+        error = stage(error, None)
+        dense_info = dict(y0=y0, y1=y1, k=jnp.stack([h * ks[0], h * ks[-1]]))
+        return y1, error, dense_info, None, diffrax.RESULTS.successful
+
+
+# Dopri8 is stable for |h lambda| up to about 4-6; beyond rho T = 1e5 (some 2e4 explicit steps)
+# the structured implicit solver was measured faster (n = 1000: 1.0x, 10^4: 27x, section 5 damper
+# c = 1000 at DOF 7: 1.25x), below it the explicit one (far fewer steps per unit accuracy).
+STIFF_THRESHOLD = 1e5
+
+
+def stiffness_rate(system) -> float:
+    """rho = max(highest eigenfrequency, fastest damper decay rate), Gershgorin bounds on the host.
+
+    For a diagonal mass: omega_max^2 <= max_i sum_j |K_ij| / M_ii and the damper rate
+    <= max_i sum_j |D_ij| / M_ii; for a dense mass (a reduced model) the exact values.
+    """
+    system = system.system if hasattr(system, "basis") else system
+    mass, stiffness, damping = system.mass, system.stiffness, system.damping
+    if isinstance(mass, Diagonal) and isinstance(stiffness, SymmetricTridiagonal):
+        m = np.asarray(mass.diagonal)
+        off = np.pad(np.abs(np.asarray(stiffness.off_diagonal)), 1)
+        omega2 = np.max((np.abs(np.asarray(stiffness.diagonal)) + off[:-1] + off[1:]) / m)
+        rate = 0.0
+        if isinstance(damping, Dampers):
+            rows = np.asarray(damping.grounded_diagonal())
+            for (i, j), c in zip(damping.pairs, np.asarray(damping.pair_coefficients)):
+                rows[i] += 2 * c
+                rows[j] += 2 * c
+            rate = float(np.max(rows / m))
+        return max(float(np.sqrt(omega2)), rate)
+    m = np.asarray(mass.as_matrix())
+    k = np.asarray(stiffness.as_matrix())
+    omega2 = np.max(np.abs(np.linalg.eigvals(np.linalg.solve(m, k))))
+    rate = 0.0
+    if damping is not None:
+        d = np.linalg.solve(m, np.asarray(damping.as_matrix()))
+        rate = float(np.max(np.abs(np.linalg.eigvals(d))))
+    return max(float(np.sqrt(omega2)), rate)
+
+
+def choose_solver(model, ts) -> str:
+    """The solver ``simulate(solver="auto")`` takes: "kvaerno5" when rho * T > 1e5, else "dopri8".
+
+    rho is ``stiffness_rate`` (highest eigenfrequency or damper rate), T the time span: rho * T / 5
+    is about the number of steps the explicit Dopri8 needs for stability alone, whatever the
+    tolerance. Needs concrete (not traced) system values; name the solver under ``jit``.
+    """
+    leaves = jax.tree.leaves(model) + [ts]
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
+        raise ValueError(MARK + "solver='auto' needs concrete system values and times; under "
+                         "jit/vmap name the solver ('dopri8', or 'kvaerno5' for stiff cases).")
+    span = float(np.asarray(ts)[-1] - np.asarray(ts)[0])
+    return "kvaerno5" if stiffness_rate(model) * span > STIFF_THRESHOLD else "dopri8"

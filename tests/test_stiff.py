@@ -1,0 +1,148 @@
+"""The structured implicit solver (``solver="kvaerno5"``) and the stiff-case choice ("auto").
+
+Truths: the exact matrix-exponential solution (small n), the analytic modal solution of Mikota's
+chain at large n (x0 = a mode shape oscillates as cos(l Omega t)), central differences.
+"""
+
+import diffrax
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import mikota_jax as mj
+from mikota_jax._implicit import STIFF_THRESHOLD, choose_solver, stiffness_rate
+
+N = 12
+TS = np.linspace(0.0, 6.0, 61)
+DAMPERS = (mj.GroundedDamper(4.3, 0.7), mj.RelativeDamper((2, 9), 0.4),
+           mj.RelativeDamper((5, 6), 0.2))
+
+
+def state(n, seed=0):
+    rng = np.random.default_rng(seed)
+    return rng.standard_normal(n), rng.standard_normal(n)
+
+
+def scale(a):
+    return float(np.max(np.abs(np.asarray(a))))
+
+
+def test_kvaerno5_agrees_with_the_exact_solution_with_relative_dampers_and_a_pulse(close):
+    system = mj.mikota_chain(N, 1.3, 0.9, dampers=DAMPERS)
+    x0, v0 = state(N)
+    load = mj.pulse(N, 5, amplitude=2.0, duration=0.7, start=0.4)
+    exact = mj.exact_solve(system, TS, x0, v0, load, velocity=True)
+    out = mj.simulate(system, TS, x0, v0, load, velocity=True, solver="kvaerno5", rtol=1e-10,
+                      atol=1e-12)
+    close(out.displacement, exact.displacement, atol=1e-7 * scale(exact.displacement))
+    close(out.velocity, exact.velocity, atol=1e-7 * scale(exact.velocity))
+
+
+def test_kvaerno5_solves_a_reduced_model_in_its_modal_structure(close):
+    system = mj.mikota_chain(N, dampers=DAMPERS)
+    x0, v0 = state(N, 1)
+    basis, _ = np.linalg.qr(np.random.default_rng(2).standard_normal((N, 7)))
+    reduced = mj.galerkin(system, jnp.asarray(basis))
+    exact = mj.exact_solve(reduced, TS, x0, v0)
+    out = mj.simulate(reduced, TS, x0, v0, solver="kvaerno5", rtol=1e-10, atol=1e-12)
+    close(out.displacement, exact.displacement, atol=1e-7 * scale(exact.displacement))
+
+
+def test_a_very_strong_damper_is_cheap_and_accurate_for_kvaerno5_and_stiff_for_dopri8(close):
+    # c / M_jj = 1e6 * 4: an eigenvalue near -4e6, far beyond the chain's highest frequency 12
+    system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(4.0, 1e6)])
+    x0, v0 = state(N, 3)
+    exact = mj.exact_solve(system, TS, x0, v0)
+    out = mj.simulate(system, TS, x0, v0, solver="kvaerno5", rtol=1e-9, atol=1e-11)
+    close(out.displacement, exact.displacement, atol=1e-6 * scale(exact.displacement))
+    assert int(out.num_steps) < 2000
+    with pytest.raises(ValueError, match="max_steps = 2000 reached.*kvaerno5"):
+        mj.simulate(system, TS, x0, v0, solver="dopri8", max_steps=2000)
+
+
+def test_kvaerno5_at_ten_thousand_dofs_keeps_the_analytic_mode_shape_solution(close):
+    n, omega = 10_000, 1.0
+    ts = np.linspace(0.0, 12.0, 9)  # rho T ~ 1.2e5: "auto" takes kvaerno5
+    x0 = np.asarray(mj.paper_mode_shape(n, 1)) / n + np.asarray(mj.mode_shape(n, 2))
+    out = mj.simulate(mj.mikota_chain(n), ts, x0, dofs=[1, n // 2, n], solver="auto",
+                      rtol=1e-9, atol=1e-12)
+    u1, u2 = np.asarray(mj.paper_mode_shape(n, 1)) / n, np.asarray(mj.mode_shape(n, 2))
+    rows = np.array([0, n // 2 - 1, n - 1])
+    truth = (np.cos(omega * ts)[:, None] * u1[rows] + np.cos(2 * omega * ts)[:, None] * u2[rows])
+    close(out.displacement, truth, atol=1e-6)
+    assert int(out.num_steps) < 1000  # Dopri8 needs ~ 3e4 steps for stability alone
+
+
+@pytest.mark.slow
+def test_kvaerno5_at_a_hundred_thousand_dofs_keeps_the_analytic_first_mode(close):
+    n = 100_000
+    ts = np.linspace(0.0, 20.0, 11)
+    x0 = np.arange(1.0, n + 1) / n  # p_1(i) = i: the first mode, frequency sqrt(k/m) = 1
+    out = mj.simulate(mj.mikota_chain(n), ts, x0, dofs=[1, n], solver="kvaerno5", rtol=1e-8,
+                      atol=1e-12)
+    close(out.displacement, np.cos(ts)[:, None] * np.array([1.0 / n, 1.0]), atol=1e-6)
+
+
+def test_gradients_pass_through_the_structured_solves(close):
+    x0, v0 = state(N, 4)
+    ts = np.linspace(0.0, 3.0, 4)
+
+    def response(c, p):
+        system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(p, c)])
+        out = mj.simulate(system, ts, x0, v0, dofs=[2], solver="kvaerno5", rtol=1e-11,
+                          atol=1e-13, max_steps=4096)
+        return out.displacement[-1, 0]
+
+    c, p = 0.9, 5.3
+    grad = jax.grad(response, argnums=(0, 1))(c, p)
+    h = 1e-5
+    fd_c = (response(c + h, p) - response(c - h, p)) / (2 * h)
+    fd_p = (response(c, p + h) - response(c, p - h)) / (2 * h)
+    close(grad[0], fd_c, rtol=1e-5)
+    close(grad[1], fd_p, rtol=1e-5)
+    assert np.all(np.isfinite(np.asarray(grad)))
+
+
+def test_kvaerno5_runs_under_vmap_over_damper_coefficients(close):
+    x0, v0 = state(N, 5)
+    ts = np.linspace(0.0, 2.0, 3)
+
+    def final(c):
+        system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(3.0, c)])
+        return mj.simulate(system, ts, x0, v0, dofs=[1], solver="kvaerno5", rtol=1e-10,
+                           atol=1e-12).displacement[-1, 0]
+
+    cs = jnp.array([0.0, 1.0, 1e4])
+    close(jax.vmap(final)(cs), np.array([final(c) for c in cs]), rtol=1e-9)
+
+
+def test_auto_picks_dopri8_for_the_paper_scene_and_kvaerno5_when_stiff():
+    paper = mj.mikota_chain(300)
+    assert choose_solver(paper, np.linspace(0.0, 20.0, 3)) == "dopri8"
+    assert choose_solver(mj.mikota_chain(10_000), np.linspace(0.0, 20.0, 3)) == "kvaerno5"
+    pinned = mj.mikota_chain(300, dampers=[mj.GroundedDamper(7.0, 1e4)])
+    assert choose_solver(pinned, np.linspace(0.0, 20.0, 3)) == "kvaerno5"
+    # the Gershgorin bound is a bound: never below the true highest frequency (n sqrt(k/m))
+    assert 300.0 <= stiffness_rate(paper) <= 2 * 300.0
+    assert stiffness_rate(pinned) >= 7e4
+    assert STIFF_THRESHOLD == 1e5
+
+
+def test_auto_needs_concrete_values_and_says_so():
+    x0 = np.ones(N)
+
+    @jax.jit
+    def run(k):
+        return mj.simulate(mj.mikota_chain(N, k=k), TS, x0, solver="auto").displacement
+
+    with pytest.raises(ValueError, match="solver='auto' needs concrete"):
+        run(1.0)
+
+
+def test_diffrax_solver_instances_are_still_accepted(close):
+    system = mj.mikota_chain(4, dampers=[mj.GroundedDamper(2.0, 0.5)])
+    x0, v0 = state(4, 6)
+    exact = mj.exact_solve(system, TS, x0, v0)
+    out = mj.simulate(system, TS, x0, v0, solver=diffrax.Kvaerno5(), rtol=1e-9, atol=1e-11)
+    close(out.displacement, exact.displacement, atol=1e-6 * scale(exact.displacement))
