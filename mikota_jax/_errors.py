@@ -111,3 +111,37 @@ def raises_value_error(fn):
             raise
 
     return wrapper
+
+
+def _available_bytes() -> float | None:
+    """Memory the default device can still use: its allocator limit, or the host's available RAM."""
+    try:
+        stats = jax.devices()[0].memory_stats() or {}
+    except Exception:  # a backend without memory statistics
+        stats = {}
+    if "bytes_limit" in stats:
+        return float(stats["bytes_limit"] - stats.get("bytes_in_use", 0))
+    try:
+        with open("/proc/meminfo") as meminfo:
+            for line in meminfo:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
+
+
+def check_dense_memory(size: int, matrices: float, what: str) -> None:
+    """Refuse a dense O(size^2) computation that cannot fit in memory, before it is attempted.
+
+    ``matrices`` is how many float64 size x size arrays the computation holds at its peak (counted
+    for the method, generously); the error names the size and the O(n) alternatives.
+    """
+    need = matrices * size * size * 8.0
+    available = _available_bytes()
+    if available is not None and need > available:
+        raise ValueError(
+            MARK + f"{what} works with dense matrices: at n = {size} it needs about "
+            f"{need / 2**30:.1f} GiB, more than the {available / 2**30:.1f} GiB available. Use "
+            "simulate(..., solver='kvaerno5') or integrated_energy(..., method='ode') (O(n) "
+            "memory), or a reduced model.")

@@ -20,7 +20,14 @@ import jax.scipy.linalg as jsl
 
 from ._chain import generalized_modes
 from ._custom_types import Times, Vector
-from ._errors import MARK, check, check_x64, raise_failures, raises_value_error
+from ._errors import (
+    MARK,
+    check,
+    check_dense_memory,
+    check_x64,
+    raise_failures,
+    raises_value_error,
+)
 from ._excitation import LoadFunction, Pulse
 from ._galerkin import ReducedModel
 from ._integrate import Trajectory, check_dofs, check_problem, check_times, unpack
@@ -160,6 +167,8 @@ def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = 
                    "ts must be a uniform grid for exact_solve of a damped system; use simulate "
                    "for other grids.")
     x0, v0, load = check_problem(model, x0, v0, load)
+    damped = getattr(system, "damping", None) is not None
+    check_dense_memory(system.size, 32 if damped else 6, "exact_solve")
     trajectory, failures = _exact(model, ts, x0, v0, load, dofs=check_dofs(dofs, model.size),
                                   displacement=displacement, velocity=velocity)
     return raise_failures(trajectory, failures, (NOT_DEFINITE,))

@@ -31,6 +31,7 @@ from ._errors import (
     as_float,
     callback_free_checks,
     check,
+    check_dense_memory,
     check_x64,
     raise_failures,
     raises_value_error,
@@ -144,6 +145,11 @@ def _integrated_energy_ode(model, horizon, x0, v0, load, rtol, atol, *, max_step
     return value, solve_flags(sol, value)
 
 
+def _modal_size(model) -> int:
+    """The size of the dense modal problem: r for a reduced model, n for a full one."""
+    return getattr(model, "rank", model.size)
+
+
 @raises_value_error
 def integrated_energy(model, horizon: float, x0: Vector | None = None,
                       v0: Vector | None = None, load=None, *, method: str = "exact",
@@ -170,6 +176,7 @@ def integrated_energy(model, horizon: float, x0: Vector | None = None,
         if load is not None:
             raise ValueError(MARK + "method='exact' integrates free vibration only; for a load "
                              "use method='ode'.")
+        check_dense_memory(_modal_size(model), 100, "integrated_energy(method='exact')")
         value, failures = _integrated_energy(model, horizon, x0, v0)
         return raise_failures(value, failures, (NOT_DEFINITE,))
     rtol, atol, adjoint = check_solve_options(rtol, atol, max_steps, adjoint)
@@ -206,6 +213,7 @@ def total_average_energy(model, lowest: int | None = None) -> Float[Array, ""]:
                                or not 1 <= lowest <= modal_size):
         raise ValueError(MARK + f"lowest must be None or an integer in 1..{modal_size}, "
                          f"got {lowest!r}.")
+    check_dense_memory(_modal_size(model), 100, "total_average_energy")
     value, failures = _total_average_energy(model, lowest=lowest)
     return raise_failures(value, failures, (NOT_DEFINITE, NOT_DAMPED))
 

@@ -296,7 +296,7 @@ def _output_from(data, n: int, reduced: bool) -> Output:
 
 def _solver_from(data) -> dict:
     table = _table(data, "solver", {"method", "rtol", "atol", "max_steps"})
-    method = _choice(table, "[solver]", "method", ("exact", *SOLVERS), "exact")
+    method = _choice(table, "[solver]", "method", ("exact", "auto", *SOLVERS), "exact")
     return dict(
         solver=method,
         rtol=float(_number(table, "[solver]", "rtol", default=1e-10, low=0, strict_low=True)),
@@ -338,8 +338,8 @@ def load_scene(source: str | Path | Mapping) -> Scene:
     ``[[damper]]`` (type = "grounded" with position in [1, n] | "relative" with dofs = [i, j];
     coefficient >= 0), ``[initial]`` (displacement, velocity: {DOF = value}, a list, or "mode l"),
     ``[load]`` (type = "pulse", dof, amplitude, duration, start), ``[time]`` (start, end, step),
-    ``[solver]`` (method = "exact" | "dopri8" | "tsit5" | "dopri5" | "kvaerno5", rtol, atol,
-    max_steps), ``[reduction]`` (snapshots = [t0, t1], energy or rank, criterion = "squared" |
+    ``[solver]`` (method = "exact" | "auto" | "dopri8" | "tsit5" | "dopri5" | "kvaerno5", rtol,
+    atol, max_steps), ``[reduction]`` (snapshots = [t0, t1], energy or rank, criterion = "squared" |
     "paper", quantity, method = "svd" | "snapshots"), ``[output]`` (dofs, quantities, phase_error =
     "sum" | "max" | "mean", figures).
     """

@@ -146,3 +146,15 @@ def test_diffrax_solver_instances_are_still_accepted(close):
     exact = mj.exact_solve(system, TS, x0, v0)
     out = mj.simulate(system, TS, x0, v0, solver=diffrax.Kvaerno5(), rtol=1e-9, atol=1e-11)
     close(out.displacement, exact.displacement, atol=1e-6 * scale(exact.displacement))
+
+
+def test_dense_methods_refuse_a_size_that_cannot_fit_in_memory():
+    n = 200_000  # 32 n^2 float64 = 10 TB: refused before anything is allocated
+    system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(5.0, 1.0)])
+    x0 = np.ones(n)
+    with pytest.raises(ValueError, match="exact_solve works with dense matrices.*kvaerno5"):
+        mj.exact_solve(system, np.linspace(0.0, 1.0, 3), x0)
+    with pytest.raises(ValueError, match="integrated_energy.*GiB.*method='ode'"):
+        mj.integrated_energy(system, 1.0, x0)
+    with pytest.raises(ValueError, match="total_average_energy works with dense"):
+        mj.total_average_energy(system)
