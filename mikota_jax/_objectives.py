@@ -51,6 +51,9 @@ _DOUBLINGS_FINITE = 16  # first step at most T / 2^16: Van Loan's exponential st
 _DOUBLINGS_MAX = 60  # ... and at least T / 2^60: ||A h|| <= 8 up to rates of 1e17 / T
 _FIRST_STEP_NORM = 8.0
 _DOUBLINGS_INFINITE = 64  # horizon 2^64 / omega_max: every damped mode has long decayed
+OUT_OF_RANGE = ("integrated_energy: the fastest rate times the horizon (||A|| T) exceeds 8 * 2^60 "
+                "~ 9e18, beyond the exact energy's range (or the result is not finite); a damper "
+                "that strong pins its DOF: model that DOF as fixed, or shorten the horizon.")
 NOT_DAMPED = ("total_average_energy: some mode is undamped (the Lyapunov solution does not exist); "
               "place a damper where every mode moves, or restrict Z with lowest=s.")
 
@@ -118,7 +121,10 @@ def _integrated_energy(model, horizon, x0, v0):
     a, z0, _, not_definite = _modal_problem(model, x0, v0)
     w, _ = _finite_gramian(a, jnp.eye(a.shape[0]), horizon)
     w = (w + w.T) / 2
-    return z0 @ w @ z0 / 2, (not_definite,)
+    out_of_range = (jnp.max(jnp.sum(jnp.abs(a), axis=0)) * horizon / 2.0**_DOUBLINGS_MAX
+                    > _FIRST_STEP_NORM)
+    value = z0 @ w @ z0 / 2
+    return value, (not_definite, out_of_range | ~jnp.isfinite(value))
 
 
 @eqx.filter_jit
@@ -178,7 +184,7 @@ def integrated_energy(model, horizon: float, x0: Vector | None = None,
                              "use method='ode'.")
         check_dense_memory(_modal_size(model), 100, "integrated_energy(method='exact')")
         value, failures = _integrated_energy(model, horizon, x0, v0)
-        return raise_failures(value, failures, (NOT_DEFINITE,))
+        return raise_failures(value, failures, (NOT_DEFINITE, OUT_OF_RANGE))
     rtol, atol, adjoint = check_solve_options(rtol, atol, max_steps, adjoint)
     with callback_free_checks():
         value, failures = _integrated_energy_ode(model, horizon, x0, v0, load, rtol, atol,

@@ -874,9 +874,9 @@ def _grid_values_jit(problem, basis, positions, coefficients, exact: bool = Fals
         horizon = problem.ts[-1] - problem.ts[0]
 
         def one(p, c):
-            value, (not_definite,) = _integrated_energy(problem.system(p[None], c[None]),
-                                                        horizon, problem.x0, problem.v0)
-            return value, not_definite | ~jnp.isfinite(value)
+            value, (not_definite, out_of_range) = _integrated_energy(
+                problem.system(p[None], c[None]), horizon, problem.x0, problem.v0)
+            return value, not_definite | out_of_range
     else:
         objective = _objective_fn(problem, _reduced(problem, basis))
         one = lambda p, c: objective(p[None], c[None])  # noqa: E731

@@ -158,3 +158,12 @@ def test_dense_methods_refuse_a_size_that_cannot_fit_in_memory():
         mj.integrated_energy(system, 1.0, x0)
     with pytest.raises(ValueError, match="total_average_energy works with dense"):
         mj.total_average_energy(system)
+
+
+def test_a_damper_rate_beyond_the_exact_energys_range_is_refused():
+    system = mj.mikota_chain(4, dampers=[mj.GroundedDamper(2.0, 1e19)])
+    with pytest.raises(ValueError, match="beyond the exact energy's range"):
+        mj.integrated_energy(system, 20.0, np.eye(4)[2])
+    # the largest rates inside the range still give a finite, positive energy
+    inside = mj.mikota_chain(4, dampers=[mj.GroundedDamper(2.0, 1e16)])
+    assert 0.0 < float(mj.integrated_energy(inside, 20.0, np.eye(4)[2])) < np.inf
