@@ -3,6 +3,9 @@
 With an orthonormal basis Phi (n x r) of proper orthogonal modes, x ~ Phi q (eq. 3.2) and
 Phi^T M Phi q'' + Phi^T D Phi q' + Phi^T K Phi q = Phi^T f (eq. 3.4). The reduced initial state is
 q(0) = Phi^T x(0), q'(0) = Phi^T x'(0): the orthogonal projection, exact when x(0) lies in span Phi.
+Both that projection and the lift x = Phi q need orthonormal columns, so ``galerkin`` refuses a
+basis with max |Phi^T Phi - I| > ORTHONORMALITY: dependent or duplicated columns (a singular reduced
+mass), unnormalised ones, or POMs that lost orthogonality (Sirovich's method far below sigma_1).
 """
 
 import equinox as eqx
@@ -11,6 +14,10 @@ import jax.numpy as jnp
 from ._chain import SecondOrderSystem
 from ._custom_types import Basis, Vector
 from ._errors import MARK, check
+
+# The error of the reduced initial state and of the lift is of this order. The bases this package
+# builds are orthonormal to ~1e-15 (SVD, QR), or to ~1e-8 after basis enrichment.
+ORTHONORMALITY = 1e-6
 
 
 class ReducedModel(eqx.Module):
@@ -36,7 +43,11 @@ class ReducedModel(eqx.Module):
 
 
 def galerkin(system: SecondOrderSystem, basis: Basis) -> ReducedModel:
-    """Project M, D, K onto ``basis`` (n x r, orthonormal columns), eq. (3.4)."""
+    """Project M, D, K onto ``basis`` (n x r, orthonormal columns), eq. (3.4).
+
+    A basis that is not orthonormal to ``ORTHONORMALITY`` (1e-6, in max |basis^T basis - I|) is a
+    ``ValueError`` (under ``jit`` an ``eqx.error_if``); the check costs O(n r^2).
+    """
     if not isinstance(system, SecondOrderSystem):
         raise ValueError(MARK + f"system must be a SecondOrderSystem, got {type(system).__name__}.")
     basis = jnp.asarray(basis)
@@ -46,4 +57,9 @@ def galerkin(system: SecondOrderSystem, basis: Basis) -> ReducedModel:
         raise ValueError(MARK + f"basis must have shape (n, r) with n = {system.size} and "
                          f"1 <= r <= n, got {basis.shape}.")
     basis = check(basis, ~jnp.all(jnp.isfinite(basis)), "basis must be finite.")
+    gram_error = jnp.max(jnp.abs(basis.T @ basis - jnp.eye(basis.shape[1])))
+    basis = check(basis, ~(gram_error <= ORTHONORMALITY),
+                  f"basis must have orthonormal columns (max |basis^T basis - I| <= "
+                  f"{ORTHONORMALITY:g}); orthonormalise it (QR, or the POD modes), or drop "
+                  "dependent columns (a smaller rank).")
     return ReducedModel(system.project(basis), basis)

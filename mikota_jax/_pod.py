@@ -4,8 +4,16 @@ Conventions: the snapshot matrix Q is (n, m), one column per time instant (eq. 3
 values sigma_1 >= sigma_2 >= ... and left singular vectors (proper orthogonal modes, POMs) come from
 a jit-compiled SVD, or for m >> n (or n >> m) from the eigendecomposition of the smaller Gram matrix
 (Sirovich's method of snapshots: cheaper, but it squares the condition, so singular values below
-about 1e-8 sigma_1 are lost). Each POM's sign is fixed so that its entry of largest magnitude is
-positive.
+about 1e-8 sigma_1 are lost and those below ~1e-6 sigma_1 inaccurate). Each POM's sign is fixed so
+that its entry of largest magnitude is positive.
+
+Numerical rank: the number of singular values above ``rounding_level`` * sigma_1, the level of
+rounding noise: 4 max(n, m) eps for ``"svd"`` and ``"randomized"`` (a backward-stable SVD, and
+snapshots rounded entry by entry, as ``numpy.linalg.matrix_rank``), its square root (1e-7 to
+1e-6) for ``"snapshots"`` (the Gram matrix resolves sigma^2 to max(n, m) eps sigma_1^2). The modes
+beyond it are rounding noise (Sirovich's are not even orthonormal), so no rank choice goes past it:
+a rank above it is a ``ValueError`` (``POD.basis``; under ``jit`` an ``eqx.error_if``), and an
+energy fraction of 1, or one so close to 1 that only noise could reach it, gives the numerical rank.
 
 For large snapshot sets (n >= 10^4) ``method="randomized"`` computes only the leading k singular
 values and POMs with a randomized range finder (Halko, Martinsson & Tropp 2011, Algs. 4.4 and 5.1):
@@ -29,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._custom_types import Array, Basis, Float, Snapshots
-from ._errors import MARK, as_float, check_x64
+from ._errors import MARK, as_float, check, check_x64
 
 CRITERIA = ("squared", "paper")
 METHODS = ("svd", "snapshots")  # the full PODs (all a scene file may name)
@@ -39,32 +47,55 @@ ALL_METHODS = (*METHODS, "randomized")  # plus the truncated one, which needs a 
 class POD(eqx.Module):
     """Singular values (descending) and proper orthogonal modes of a snapshot matrix.
 
-    ``total_energy`` is None when ``singular_values`` are all min(n, m) of them (``"svd"``,
-    ``"snapshots"``). A ``"randomized"`` POD holds only the leading k values and modes, so
-    ``basis(r)`` needs r <= k, ``numerical_rank()`` counts among those k only, and
-    ``total_energy`` = ||Q||_F^2 = sum of *all* sigma_k^2 supplies the denominator of the
-    ``"squared"`` energy fraction; the ``"paper"`` criterion needs sum of all sigma_k, which a
-    truncated POD does not know, so it is refused.
+    ``rounding_level`` is the sigma_k / sigma_1 at or below which a singular value is rounding
+    noise (set by ``pod``; None for a POD built by hand: 4 max(modes.shape) eps). ``total_energy``
+    is None when ``singular_values`` are all min(n, m) of them (``"svd"``, ``"snapshots"``). A
+    ``"randomized"`` POD holds only the leading k values and modes, so ``basis(r)`` needs
+    r <= k, ``numerical_rank()`` counts among those k only, and ``total_energy`` = ||Q||_F^2 =
+    sum of *all* sigma_k^2 supplies the denominator of the ``"squared"`` energy fraction; the
+    ``"paper"`` criterion needs sum of all sigma_k, which a truncated POD does not know, so it is
+    refused.
     """
 
     singular_values: Float[Array, " k"]
     modes: Float[Array, "n k"]
     total_energy: Float[Array, ""] | None = None
+    rounding_level: float | None = eqx.field(default=None, static=True)
+
+    def _level(self) -> float:
+        if self.rounding_level is not None:
+            return self.rounding_level
+        return 4 * max(self.modes.shape) * float(np.finfo(np.float64).eps)
 
     def basis(self, rank: int) -> Basis:
-        """Phi = [phi_1, ..., phi_r] (eq. 3.8), orthonormal columns."""
+        """Phi = [phi_1, ..., phi_r] (eq. 3.8), orthonormal columns.
+
+        A rank above the numerical rank (``numerical_rank``) is a ``ValueError``: the modes past it
+        are rounding noise. Under ``jit`` (traced singular values) the same check is an
+        ``eqx.error_if``.
+        """
         if isinstance(rank, bool) or not isinstance(rank, int | np.integer):
             raise ValueError(MARK + f"rank must be an integer, got {rank!r}.")
         available = self.modes.shape[1]
         if not 1 <= rank <= available:
             raise ValueError(MARK + f"rank must lie in 1..{available} (the number of modes), "
                              f"got {rank}.")
-        if not isinstance(self.singular_values, jax.core.Tracer):
-            numerical = self.numerical_rank()
-            if rank > numerical:
-                raise ValueError(MARK + f"rank = {rank} exceeds the numerical rank {numerical} of "
-                                 "the snapshots (the other singular values are rounding noise); "
-                                 f"choose rank <= {numerical}.")
+        s = self.singular_values
+        if isinstance(s, jax.core.Tracer) or isinstance(self.modes, jax.core.Tracer):
+            # sorted descending: the rank exceeds the numerical rank iff sigma_rank is noise
+            return check(self.modes[:, :rank], ~(s[rank - 1] > self._level() * s[0]),
+                         f"rank = {rank} exceeds the numerical rank of the snapshots (sigma_{rank} "
+                         f"<= {self._level():.1e} sigma_1 is rounding noise); choose a smaller "
+                         "rank.")
+        numerical = self.numerical_rank()
+        if numerical == 0:
+            raise ValueError(MARK + f"rank = {rank} exceeds the numerical rank 0 of the snapshots: "
+                             "they are zero (up to rounding), so there is no basis; check the "
+                             "excitation and the snapshot window.")
+        if rank > numerical:
+            raise ValueError(MARK + f"rank = {rank} exceeds the numerical rank {numerical} of "
+                             "the snapshots (the other singular values are rounding noise); "
+                             f"choose rank <= {numerical}.")
         return self.modes[:, :rank]
 
     def energy_fraction(self, criterion: str = "squared") -> Float[Array, " k"]:
@@ -75,13 +106,14 @@ class POD(eqx.Module):
         return jnp.cumsum(self.singular_values**2) / self.total_energy
 
     def rank_for_energy(self, energy: float, criterion: str = "squared") -> int:
-        """Smallest r whose captured fraction is at least ``energy`` (0 < energy <= 1).
+        """Smallest r whose captured fraction is at least ``energy`` (0 < energy <= 1), at most
+        the numerical rank (``energy = 1`` gives it).
 
         For a truncated (randomized) POD, "squared" only, and an error when the k leading modes
         do not reach ``energy``.
         """
         if self.total_energy is None:
-            return rank_for_energy(self.singular_values, energy, criterion)
+            return _rank_for_energy(self.singular_values, energy, criterion, self._level())
         _check_energy(energy)
         fraction = np.asarray(self.energy_fraction(criterion))
         slack = 4 * max(self.modes.shape) * np.finfo(np.float64).eps
@@ -89,21 +121,28 @@ class POD(eqx.Module):
             raise ValueError(MARK + f"the {fraction.size} computed modes capture a fraction "
                              f"{fraction[-1]:.6g} of the energy, below energy = {energy!r}; "
                              "compute more (a larger rank) or use method='svd'.")
-        if energy == 1:
-            return max(1, numerical_rank(self.singular_values, max(self.modes.shape)))
-        return int(np.argmax(fraction >= energy - slack)) + 1
+        return _capped(fraction, energy, slack, self.numerical_rank())
 
     def numerical_rank(self) -> int:
-        """Number of singular values above max(n, m) * eps * sigma_1 (the rest is rounding)."""
-        return numerical_rank(self.singular_values, max(self.modes.shape))
+        """Number of singular values above ``rounding_level`` * sigma_1 (the rest is rounding)."""
+        return _count_above(self.singular_values, self._level())
 
 
-def numerical_rank(singular_values, size: int) -> int:
-    """Count singular values above 4 size eps sigma_1 (size = max(n, m)); the rest is rounding."""
+def _count_above(singular_values, level: float) -> int:
+    """The numerical rank: the number of singular values above level * sigma_1."""
     s = np.asarray(singular_values)
     if s.size == 0 or s[0] == 0:
         return 0
-    return int(np.sum(s > 4 * size * np.finfo(np.float64).eps * s[0]))
+    return int(np.sum(s > level * s[0]))
+
+
+def _capped(fraction, energy, slack, numerical: int) -> int:
+    """The smallest r reaching ``energy``, never past the numerical rank: the modes beyond it are
+    noise, and an e near 1 that only their sum reaches (the ``"paper"`` criterion sums sigma_k,
+    so noise weighs more) gets the same rank as e = 1 (monotone in e)."""
+    if energy == 1:
+        return max(1, numerical)
+    return min(int(np.argmax(fraction >= energy - slack)) + 1, max(1, numerical))
 
 
 def _fix_signs(modes):
@@ -176,7 +215,9 @@ def pod(snapshots: Snapshots, *, method: str = "svd", rank: int | None = None,
     ``method="svd"`` (default) is the accurate thin SVD; ``"snapshots"`` uses the eigenvectors of
     the smaller of Q Q^T and Q^T Q, for snapshot sets much longer (or much taller) than the other
     side. Returns all min(n, m) singular values and modes; choose the rank with
-    ``POD.rank_for_energy`` or pass it to ``POD.basis``. Jit-compiled; may itself be jit-ed,
+    ``POD.rank_for_energy`` or pass it to ``POD.basis``: a rank above the numerical rank (the
+    values above rounding noise, ``POD.numerical_rank``) is a ``ValueError``, never silently
+    capped, and ``energy = 1`` gives the numerical rank. Jit-compiled; may itself be jit-ed,
     vmap-ed and differentiated.
 
     ``"randomized"`` returns only the leading ``rank`` values and modes (1 <= rank <= min(n, m),
@@ -194,19 +235,21 @@ def pod(snapshots: Snapshots, *, method: str = "svd", rank: int | None = None,
         raise ValueError(MARK + f"snapshots must be a non-empty (n, m) matrix, got {q.shape}.")
     if not isinstance(q, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(q))):
         raise ValueError(MARK + "snapshots must be finite (the simulation produced NaN or inf).")
+    level = 4 * max(q.shape) * float(np.finfo(np.float64).eps)  # see the module docstring
     if method != "randomized":
         if rank is not None or key is not None:
             raise ValueError(MARK + "rank and key apply to method='randomized' only; choose the "
                              "rank of a full POD with POD.basis(rank).")
-        s, u = (_pod_svd if method == "svd" else _pod_snapshots)(q)
-        return POD(s, u)
+        if method == "svd":
+            return POD(*_pod_svd(q), rounding_level=level)
+        return POD(*_pod_snapshots(q), rounding_level=float(np.sqrt(level)))
     smaller = min(q.shape)
     rank = _count(rank, "rank (required for method='randomized')", 1, smaller)
     oversampling = _count(oversampling, "oversampling", 0)
     power_iterations = _count(power_iterations, "power_iterations", 0)
     s, u, total = _pod_randomized(q, _prng_key(key), rank=rank, power_iterations=power_iterations,
                                   sketch=min(rank + oversampling, smaller))
-    return POD(s, u, total)
+    return POD(s, u, total, rounding_level=level)
 
 
 def energy_fraction(singular_values, criterion: str = "squared"):
@@ -236,16 +279,20 @@ def _check_truncated_criterion(criterion: str, k: int) -> None:
 def rank_for_energy(singular_values, energy: float, criterion: str = "squared") -> int:
     """Smallest r with captured fraction >= ``energy`` (0 < energy <= 1); a concrete integer.
 
-    ``singular_values`` are taken as all of them: for a truncated (randomized) POD use
-    ``POD.rank_for_energy``, which knows the total energy.
+    Never past the numerical rank (here: values above 4 k eps sigma_1, k of them; ``POD``'s own
+    method knows the snapshot shape and method); ``energy = 1`` gives it. ``singular_values`` are
+    taken as all of them: for a truncated (randomized) POD use ``POD.rank_for_energy``, which
+    knows the total energy.
     """
+    level = 4 * np.size(singular_values) * float(np.finfo(np.float64).eps)
+    return _rank_for_energy(singular_values, energy, criterion, level)
+
+
+def _rank_for_energy(singular_values, energy, criterion: str, level: float) -> int:
     _check_energy(energy)
     fraction = np.asarray(energy_fraction(singular_values, criterion))
     if fraction.size == 0 or not np.all(np.isfinite(fraction)):
         raise ValueError(MARK + "singular values must be finite and not all zero.")
-    if energy == 1:
-        # e = 1 exactly: every mode that carries energy above rounding, never more than exist.
-        return max(1, numerical_rank(singular_values, len(fraction)))
     # A fraction within rounding of the target counts as reaching it (cumsum error ~ k eps).
     slack = 4 * fraction.size * np.finfo(np.float64).eps
-    return int(np.argmax(fraction >= energy - slack)) + 1
+    return _capped(fraction, energy, slack, _count_above(singular_values, level))
