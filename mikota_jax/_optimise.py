@@ -63,7 +63,7 @@ from ._objectives import (
     _total_average_energy,
     smooth_peak,
 )
-from ._pod import pod, rank_for_energy
+from ._pod import pod
 
 OBJECTIVES = ("energy", "average_energy", "peak")
 OPTIMIZERS = ("adam", "lbfgs")
@@ -503,7 +503,7 @@ def _snapshot_modes(problem, positions, coefficients):
     if problem.rank is not None:
         rank = min(problem.rank, result.numerical_rank())
     else:
-        rank = rank_for_energy(result.singular_values, problem.energy, problem.criterion)
+        rank = result.rank_for_energy(problem.energy, problem.criterion)
     return result.basis(rank)
 
 
