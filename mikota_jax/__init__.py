@@ -27,6 +27,8 @@ from ._excitation import pulse as pulse
 from ._excitation import unit_vector as unit_vector
 from ._galerkin import ReducedModel as ReducedModel
 from ._galerkin import galerkin as galerkin
+from ._implicit import StructuredKvaerno5 as StructuredKvaerno5
+from ._implicit import choose_solver as choose_solver
 from ._integrate import Trajectory as Trajectory
 from ._integrate import simulate as simulate
 from ._metrics import phase_error as phase_error

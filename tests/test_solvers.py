@@ -298,7 +298,7 @@ def test_wrong_initial_state_shape_or_precision_is_rejected(solve, undamped):
 
 
 def test_unknown_solver_and_non_positive_tolerances_are_rejected(undamped):
-    with pytest.raises(ValueError, match="solver must be one of"):
+    with pytest.raises(ValueError, match="solver must be .auto., one of"):
         mj.simulate(undamped, TS, np.ones(N), solver="rk4")
     for rtol in (0.0, -1e-8, np.nan):
         with pytest.raises(ValueError, match="rtol must be > 0"):

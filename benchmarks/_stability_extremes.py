@@ -1,0 +1,290 @@
+"""Stability on extreme cases, measured: damping and parameter extremes of tests/test_extremes.py.
+
+``rows()`` runs each case once (small chains, n = 7 or 10) against an independent truth (scipy's
+``expm`` of the state matrix, Mikota's closed forms, the SVD of the chain's bidiagonal factor, the
+closed-form pulse response) and returns one dict per case: ``area``, ``case``, ``measured`` (the
+error or the behaviour, computed now, with a verdict: right / loud / SILENTLY WRONG /
+NON-FINITE) and ``test`` (the covering test in tests/test_extremes.py). Imported by
+benchmarks/stability.py; about 30-60 s, most of it compilation.
+"""
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy: LAPACK must not busy-wait
+
+import jax  # noqa: E402
+
+jax.config.update("jax_enable_x64", True)
+
+import numpy as np  # noqa: E402
+import scipy.linalg as sl  # noqa: E402
+
+import mikota_jax as mj  # noqa: E402
+
+DAMPING, PARAMETERS = "Damping extremes", "Parameter extremes"
+N, M_, K_ = 10, 1.3, 0.9
+OMEGA = np.sqrt(K_ / M_)
+TS = np.linspace(0.0, 20.0, 201)
+_RNG = np.random.default_rng(7)
+X0, V0 = _RNG.standard_normal(N), _RNG.standard_normal(N)
+MASSES = np.logspace(-6.0, 6.0, 7)
+MIXED = MASSES[[3, 0, 5, 4, 2, 6, 1]]
+
+
+def _dense(system):
+    M, D, K = (None if a is None else np.asarray(a) for a in system.dense())
+    return M, np.zeros_like(M) if D is None else D, K
+
+
+def _expm_reference(system, ts, x0, v0):
+    M, D, K = _dense(system)
+    n, inverse = M.shape[0], np.linalg.inv(M)
+    a = np.block([[np.zeros((n, n)), np.eye(n)], [-inverse @ K, -inverse @ D]])
+    y = np.stack([sl.expm(a * (t - ts[0])) @ np.concatenate([x0, v0]) for t in ts])
+    return y[:, :n], y[:, n:]
+
+
+def _energy(system, x, v):
+    M, _, K = _dense(system)
+    return 0.5 * (np.einsum("ti,ij,tj->t", x, K, x) + np.einsum("ti,ij,tj->t", v, M, v))
+
+
+def _mikota_free_vibration(m, k, ts, x0, v0):
+    modes = np.stack([np.asarray(mj.mode_shape(N, l)) for l in range(1, N + 1)], axis=1)
+    mass = m / np.arange(1, N + 1)
+    weight = np.einsum("il,i,il->l", modes, mass, modes)
+    a, b = (modes.T @ (mass * x0)) / weight, (modes.T @ (mass * v0)) / weight
+    w = np.arange(1, N + 1) * np.sqrt(k / m)
+    phase = np.outer(ts, w)
+    return ((np.cos(phase) * a + np.sin(phase) * b / w) @ modes.T,
+            (-np.sin(phase) * a * w + np.cos(phase) * b) @ modes.T)
+
+
+def _bidiagonal_modal(masses, ts, x0, v0):
+    """Free vibration of a unit-spring chain from the SVD of diag(sqrt k) L M^-1/2 (relative
+    accuracy); also returns omega ascending."""
+    n = masses.shape[0]
+    b = (np.eye(n) - np.eye(n, k=-1)) / np.sqrt(masses)[None, :]
+    _, sigma, vt = np.linalg.svd(b)
+    modes = vt.T / np.sqrt(masses)[:, None]
+    a, c = modes.T @ (masses * x0), modes.T @ (masses * v0)
+    phase = np.outer(ts, sigma)
+    return (np.cos(phase) * a + np.sin(phase) * c / sigma) @ modes.T, sigma[::-1]
+
+
+def _pulse_response(system, ts, dof, amplitude, duration, start=0.0):
+    M, _, K = _dense(system)
+    omega2, modes = sl.eigh(K, M)
+    w, g = np.sqrt(omega2), amplitude * modes[dof - 1]
+    t = (ts - start)[:, None]
+    during, after = (t >= 0) & (t <= duration), t > duration
+    eta = (np.where(during, 2 * np.sin(w * t / 2) ** 2, 0.0) + np.where(
+        after, 2 * np.sin(w * (t - duration / 2)) * np.sin(w * duration / 2), 0.0)) * g / omega2
+    return eta @ modes.T
+
+
+def _rel(actual, expected):
+    actual = np.asarray(actual)
+    if not np.all(np.isfinite(actual)):
+        return np.nan
+    return float(np.max(np.abs(actual - expected)) / np.max(np.abs(expected)))
+
+
+def _verdict(error, tol):
+    if np.isnan(error):
+        return "NON-FINITE, no error raised"
+    return f"{error:.1e} ({'right' if error <= tol else 'SILENTLY WRONG'})"
+
+
+def _loud(fn, match):
+    try:
+        fn()
+    except ValueError as error:
+        return "loud: ValueError" + (f" ({match})" if match in str(error) else f": {error}")
+    return "SILENTLY accepted"
+
+
+def _row(area, case, measured, test):
+    return {"area": area, "case": case, "measured": measured, "test": test}
+
+
+def _damping_rows():
+    rows = []
+    undamped = mj.mikota_chain(N, M_, K_)
+    long = np.linspace(0.0, 1000.0, 2001)
+    out = mj.exact_solve(undamped, long, X0, V0, velocity=True)
+    e = _energy(undamped, np.asarray(out.displacement), np.asarray(out.velocity))
+    rows.append(_row(DAMPING, "d = 0, T = 1000: exact_solve energy drift",
+                     _verdict(float(np.max(np.abs(e / e[0] - 1))), 1e-12),
+                     "test_exact_solve_conserves_the_energy_of_an_undamped_chain_over_a_"
+                     "thousand_time_units"))
+    drifts = []
+    for rtol in (1e-8, 1e-10):
+        out = mj.simulate(undamped, long, X0, V0, velocity=True, rtol=rtol, atol=rtol / 100)
+        e = _energy(undamped, np.asarray(out.displacement), np.asarray(out.velocity))
+        drifts.append(f"{np.max(np.abs(e / e[0] - 1)):.1e} at rtol {rtol:.0e}")
+    rows.append(_row(DAMPING, "d = 0, T = 1000: dopri8 energy drift", ", ".join(drifts),
+                     "test_dopri8_energy_drift_over_a_thousand_time_units_stays_within_horizon_"
+                     "times_rtol"))
+
+    errors = []
+    for c in (1e-8, 1.0, 1e4, 1e6):
+        system = mj.mikota_chain(N, M_, K_, dampers=[mj.GroundedDamper(4, c)])
+        x, _ = _expm_reference(system, TS, X0, V0)
+        errors.append(f"{c:.0e}: {_rel(mj.exact_solve(system, TS, X0, V0).displacement, x):.0e}")
+    rows.append(_row(DAMPING, "grounded c = 1e-8..1e6 at DOF 4: exact_solve vs expm",
+                     "; ".join(errors),
+                     "test_exact_solve_matches_the_matrix_exponential_for_damper_coefficients_"
+                     "1e_8_to_1e6"))
+
+    for case, dampers in (("grounded c = 1e6 at DOF n", [mj.GroundedDamper(N, 1e6)]),
+                          ("relative c = 1e6 (3, 6)", [mj.RelativeDamper((3, 6), 1e6)])):
+        system = mj.mikota_chain(N, M_, K_, dampers=dampers)
+        x, _ = _expm_reference(system, TS, X0, V0)
+        error = _rel(mj.exact_solve(system, TS, X0, V0).displacement, x)
+        rows.append(_row(DAMPING, f"{case}: exact_solve", _verdict(error, 1e-8),
+                         "test_exact_solve_with_a_very_fast_damper_mode_is_finite_and_right"))
+    system = mj.mikota_chain(N, M_, K_, dampers=[mj.GroundedDamper(1, 1.0)])
+    coarse = 1e5 * np.arange(TS.shape[0], dtype=float)  # the shape of TS: compiled already
+    x, _ = _expm_reference(system, coarse[:3], X0, V0)
+    out = np.asarray(mj.exact_solve(system, coarse, X0, V0).displacement)[:3]
+    error = np.nan if not np.all(np.isfinite(out)) else float(np.max(np.abs(out - x)))
+    rows.append(_row(DAMPING, "c = 1 at DOF 1, grid step 1e5: exact_solve",
+                     _verdict(error, 1e-12),
+                     "test_exact_solve_on_a_very_coarse_grid_of_a_damped_chain_is_finite_and_"
+                     "right"))
+
+    system = mj.mikota_chain(N, M_, K_, dampers=[mj.GroundedDamper(1, 1e6)])
+    exact = mj.exact_solve(system, TS, X0, V0)
+    out = mj.simulate(system, TS, X0, V0, solver="kvaerno5", rtol=1e-10, atol=1e-12)
+    rows.append(_row(DAMPING, "c = 1e6 at DOF 1: kvaerno5 (rtol 1e-10) vs exact_solve",
+                     f"{_verdict(_rel(out.displacement, exact.displacement), 5e-8)}, "
+                     f"{int(out.num_steps)} steps",
+                     "test_kvaerno5_with_a_1e6_damper_agrees_with_exact_solve"))
+    rows.append(_row(DAMPING, "c = 1e6 at DOF 1: dopri8, max_steps = 2000",
+                     _loud(lambda: mj.simulate(system, TS, X0, V0, max_steps=2000), "max_steps"),
+                     "test_dopri8_with_a_1e6_damper_stops_loudly_at_max_steps"))
+
+    several = mj.mikota_chain(N, M_, K_, dampers=[
+        mj.GroundedDamper(1, 3.0), mj.GroundedDamper(5.5, 0.7), mj.GroundedDamper(N, 2.0),
+        mj.RelativeDamper((2, 7), 1.5), mj.RelativeDamper((N - 1, N), 0.4)])
+    x, _ = _expm_reference(several, TS, X0, V0)
+    exact = _rel(mj.exact_solve(several, TS, X0, V0).displacement, x)
+    rows.append(_row(DAMPING, "5 dampers incl. DOF 1, DOF n, 2 relative: exact_solve vs expm",
+                     _verdict(exact, 1e-12),
+                     "test_several_dampers_at_the_first_and_last_dof_match_the_matrix_"
+                     "exponential"))
+
+    errors = []
+    for c in (1e-8, 1e4):
+        system = mj.mikota_chain(N, M_, K_, dampers=[mj.RelativeDamper((3, 6), c)])
+        x, _ = _expm_reference(system, TS, X0, V0)
+        errors.append(f"{c:.0e}: {_rel(mj.exact_solve(system, TS, X0, V0).displacement, x):.0e}")
+    rows.append(_row(DAMPING, "relative (3, 6) c = 1e-8, 1e4: exact_solve vs expm",
+                     "; ".join(errors),
+                     "test_exact_solve_matches_the_matrix_exponential_for_relative_dampers"))
+    system = mj.mikota_chain(N, M_, K_, dampers=[mj.RelativeDamper((3, 6), 1e6)])
+    x, _ = _expm_reference(system, TS, X0, V0)
+    out = mj.simulate(system, TS, X0, V0, solver="kvaerno5", rtol=1e-10, atol=1e-12)
+    rows.append(_row(DAMPING, "relative c = 1e6 (3, 6): kvaerno5 vs expm",
+                     _verdict(_rel(out.displacement, x), 5e-8),
+                     "test_kvaerno5_with_a_strong_relative_damper_matches_the_matrix_"
+                     "exponential"))
+    return rows
+
+
+def _parameter_rows():
+    rows = []
+    tau = np.linspace(0.0, 20.0, 201)
+    x, v = _mikota_free_vibration(1.0, 1.0, tau, X0, V0)
+    exact, sim = [], []
+    for m, k in ((1.0, 1e-6), (1.0, 1e6)):
+        rate = np.sqrt(k / m)
+        system = mj.mikota_chain(N, m, k)
+        exact.append(_rel(mj.exact_solve(system, tau / rate, X0, rate * V0).displacement, x))
+        sim.append(_rel(mj.simulate(system, tau / rate, X0, rate * V0).displacement, x))
+    rows.append(_row(PARAMETERS, "k/m = 1e-6, 1e6: x(t; k, m) = x(t sqrt(k/m); 1, 1)",
+                     f"exact_solve {max(exact):.0e}, dopri8 (default tol) {max(sim):.0e}",
+                     "test_exact_solve_obeys_the_time_scaling_law_for_k_over_m_from_1e_6_to_1e6"))
+    x, _ = _mikota_free_vibration(M_, K_, tau, X0, V0)
+    system = mj.mikota_chain(N, M_, K_)
+    errors = []
+    for amplitude in (1e-6, 1e-10):
+        out = mj.simulate(system, tau, amplitude * X0, amplitude * V0)
+        error = _rel(np.asarray(out.displacement) / amplitude, x)
+        errors.append(f"{amplitude:.0e}: {_verdict(error, 1e-6)}")
+    rows.append(_row(PARAMETERS, "tiny amplitude, default atol = 1e-10: dopri8 relative error",
+                     "; ".join(errors),
+                     "test_simulate_with_default_tolerances_keeps_relative_accuracy_for_tiny_"
+                     "amplitudes"))
+
+    ts = np.linspace(0.0, 1e4, 501)
+    for case, masses, tol, test in (
+            ("masses 1e-6..1e6 increasing: exact_solve at t <= 1e4", MASSES, 1e-11,
+             "test_exact_solve_with_masses_from_1e_6_to_1e6_in_monotone_order_matches_the_"
+             "modal_solution"),
+            ("masses 1e-6..1e6 mixed order: exact_solve at t <= 1e4", MIXED, 1e-9,
+             "test_exact_solve_with_masses_in_mixed_order_matches_the_modal_solution_at_t_1e4")):
+        system = mj.chain(masses, np.ones(7))
+        x, omega = _bidiagonal_modal(masses, ts, X0[:7], V0[:7])
+        computed, _ = mj.modal_decomposition(system)
+        omega_error = float(np.max(np.abs(np.asarray(computed) - omega) / omega))
+        error = _rel(mj.exact_solve(system, ts, X0[:7], V0[:7]).displacement, x)
+        rows.append(_row(PARAMETERS, case,
+                         f"x {_verdict(error, tol)}; omega {omega_error:.0e}", test))
+
+    horizon = np.linspace(0.0, 1e4 / OMEGA, 2001)
+    u = np.asarray(mj.mode_shape(N, 1))
+    expected = np.cos(OMEGA * horizon)[:, None] * u
+    system = mj.mikota_chain(N, M_, K_)
+    exact = _rel(mj.exact_solve(system, horizon, u, velocity=True).displacement, expected)
+    out = mj.simulate(system, horizon, u, velocity=True)  # shapes of the T = 1000 rows
+    rows.append(_row(PARAMETERS, "T = 1e4 / Omega, x0 = u_1: vs u_1 cos(Omega t)",
+                     f"exact_solve {_verdict(exact, 1e-9)}; dopri8 (rtol 1e-8) "
+                     f"{_rel(out.displacement, expected):.0e} in {int(out.num_steps)} steps",
+                     "test_a_mode_shape_oscillates_as_cos_l_omega_t_in_exact_solve_up_to_1e4_"
+                     "over_omega"))
+
+    for case, start, duration, test in (
+            ("pulse tau = 1e-6 (A = 1e6)", 0.0, 1e-6,
+             "test_a_pulse_of_duration_1e_6_matches_the_closed_form_in_exact_solve"),
+            ("pulse tau = 1e-12 (A = 1e12)", 0.0, 1e-12,
+             "test_a_pulse_of_duration_1e_12_matches_the_closed_form_in_exact_solve"),
+            ("pulse tau = 1e-12 at start 1.234", 1.234, 1e-12,
+             "test_a_pulse_too_short_for_its_start_time_is_integrated_right_or_refused")):
+        load = mj.pulse(N, 3, 1.0 / duration, duration, start)
+        x = _pulse_response(system, TS, 3, 1.0 / duration, duration, start)
+        exact = _rel(mj.exact_solve(system, TS, load=load).displacement, x)
+        sim = _rel(mj.simulate(system, TS, load=load).displacement, x)
+        rows.append(_row(PARAMETERS, f"{case}: vs closed form",
+                         f"exact_solve {_verdict(exact, 1e-8)}; dopri8 {_verdict(sim, 1e-6)}",
+                         test))
+
+    v0 = 0.7 * np.eye(N)[2] / (M_ / 3)  # impulse 0.7 at DOF 3: v0 = M^-1 I e_3
+    x_dirac, v_dirac = _mikota_free_vibration(M_, K_, TS, np.zeros(N), v0)
+    durations = np.array([1e-2, 1e-3, 1e-4, 1e-5])
+    errors = np.array([np.max(np.abs(np.asarray(mj.exact_solve(
+        system, TS, load=mj.pulse(N, 3, 0.7 / tau, tau)).displacement) - x_dirac))
+        for tau in durations])
+    rates = np.log10(errors[:-1] / errors[1:])
+    constant = errors[-1] / durations[-1] / (np.max(np.abs(v_dirac)) / 2)
+    rows.append(_row(PARAMETERS, "Dirac limit tau = 1e-2..1e-5: pulse vs v0 = M^-1 I e_dof",
+                     f"order {rates.min():.3f}..{rates.max():.3f}; error / (tau max|v| / 2) = "
+                     f"{constant:.3f}",
+                     "test_a_pulse_converges_at_first_order_to_its_dirac_limit_the_initial_"
+                     "velocity"))
+    return rows
+
+
+def rows() -> list[dict]:
+    """One dict per extreme case: area, case, measured (computed now), test."""
+    return _damping_rows() + _parameter_rows()
+
+
+if __name__ == "__main__":
+    import time
+
+    start = time.perf_counter()
+    for row in rows():
+        print(f"{row['area']:<19} | {row['case']:<58} | {row['measured']}")
+    print(f"{time.perf_counter() - start:.1f} s")
