@@ -41,6 +41,9 @@ def modal_decomposition(system):
     return jnp.sqrt(omega2), modes
 
 
+NOT_FINITE = ("exact_solve produced non-finite values; check the inputs for huge or non-finite "
+              "values (a rate ||A|| h beyond ~1e20 is out of the matrix exponential's range: use "
+              "simulate(..., solver='kvaerno5')).")
 NOT_DEFINITE = "stiffness must be positive definite (a fixed-free chain with positive springs is)."
 
 
@@ -66,6 +69,9 @@ def state_matrix(omega, damping_modal):
     return jnp.block([[jnp.zeros((n, n)), jnp.diag(omega)], [-jnp.diag(omega), -damping_modal]])
 
 
+_MAX_SQUARINGS = 64
+
+
 def _propagator(omega, damping_modal):
     """tau -> (z -> exp(A tau) z)."""
     n = omega.shape[0]
@@ -77,7 +83,9 @@ def _propagator(omega, damping_modal):
     a = state_matrix(omega, damping_modal)
 
     def apply(tau):
-        p = jsl.expm(a * tau)
+        # 64 squarings (jax's default 16 returns NaN past ||A tau|| ~ 3.5e5: a strong damper, a
+        # coarse grid); a lax.cond each, so only the ones needed run
+        p = jsl.expm(a * tau, max_squarings=_MAX_SQUARINGS)
         return lambda z: p @ z
 
     return apply
@@ -140,7 +148,8 @@ def _exact(model, ts, x0, v0, load, *, dofs, displacement, velocity):
     _, ys = jax.lax.scan(body, z0, jnp.arange(ts.shape[0] - 1, dtype=jnp.int64))
     first = output(z0)
     ys = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first, ys)
-    return Trajectory(ts, ys[0], ys[1], dofs, None), (not_definite,)
+    finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(y)) for y in ys if y is not None]))
+    return Trajectory(ts, ys[0], ys[1], dofs, None), (not_definite, ~finite)
 
 
 @raises_value_error
@@ -171,4 +180,4 @@ def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = 
     check_dense_memory(system.size, 32 if damped else 6, "exact_solve")
     trajectory, failures = _exact(model, ts, x0, v0, load, dofs=check_dofs(dofs, model.size),
                                   displacement=displacement, velocity=velocity)
-    return raise_failures(trajectory, failures, (NOT_DEFINITE,))
+    return raise_failures(trajectory, failures, (NOT_DEFINITE, NOT_FINITE))

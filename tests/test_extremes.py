@@ -222,8 +222,6 @@ STRONG = {"grounded c=1e6 at DOF n": (mj.GroundedDamper(N, 1e6),),
           "relative c=1e6 between 3 and 6": (mj.RelativeDamper((3, 6), 1e6),)}
 
 
-@pytest.mark.xfail(strict=True, reason="exact_solve returns NaN without an error once "
-                   "||A h||_1 > 5.4 * 2**16 (jax.scipy.linalg.expm gives up after 16 squarings)")
 @pytest.mark.parametrize("dampers", STRONG.values(), ids=STRONG.keys())
 def test_exact_solve_with_a_very_fast_damper_mode_is_finite_and_right(dampers, close):
     # rate c / m_n = 7.7e6 (or c (1/m_3 + 1/m_6) = 6.9e6) times the grid step 0.1
@@ -233,14 +231,13 @@ def test_exact_solve_with_a_very_fast_damper_mode_is_finite_and_right(dampers, c
     close(out.displacement, x, atol=1e-8 * np.max(np.abs(x)))
 
 
-@pytest.mark.xfail(strict=True, reason="exact_solve returns NaN without an error for a damped "
-                   "chain on a grid step of 1e5 (expm of A h needs more than 16 squarings)")
 def test_exact_solve_on_a_very_coarse_grid_of_a_damped_chain_is_finite_and_right(close):
     system = mj.mikota_chain(N, M_, K_, dampers=[mj.GroundedDamper(1, 1.0)])
     ts = 1e5 * np.arange(float(TS.shape[0]))  # step h = 1e5: ||A h||_1 is about 1e6
     x, _ = expm_reference(system, ts[:3], X0, V0)
     out = mj.exact_solve(system, ts, X0, V0, velocity=True)
-    close(out.displacement[:3], x, atol=1e-12 * np.max(np.abs(X0)))
+    # both sides square ~20 times (||A h|| ~ 1e6): rounding grows like 2^20 eps, here ~1e-11
+    close(out.displacement[:3], x, atol=1e-10 * np.max(np.abs(X0)))
 
 
 @pytest.mark.parametrize("dof", [1, 4])
