@@ -44,6 +44,10 @@ def modal_decomposition(system):
 NOT_FINITE = ("exact_solve produced non-finite values; check the inputs for huge or non-finite "
               "values (a rate ||A|| h beyond ~1e20 is out of the matrix exponential's range: use "
               "simulate(..., solver='kvaerno5')).")
+_PULSE_ERROR = 1e-6
+PULSE_TOO_SHORT = ("exact_solve: the pulse duration is too short for the piecewise-constant "
+                   "formula, which loses digits as eps / (omega_1 duration) (more than 1e-6 "
+                   "here); use its Dirac limit v0 = M^-1 (amplitude duration) e_dof, or simulate.")
 NOT_DEFINITE = "stiffness must be positive definite (a fixed-free chain with positive springs is)."
 
 
@@ -149,7 +153,10 @@ def _exact(model, ts, x0, v0, load, *, dofs, displacement, velocity):
     first = output(z0)
     ys = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first, ys)
     finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(y)) for y in ys if y is not None]))
-    return Trajectory(ts, ys[0], ys[1], dofs, None), (not_definite, ~finite)
+    # the pulse enters as differences of |z*| ~ amplitude / omega: relative error eps/(omega tau)
+    too_short = (jnp.finfo(omega.dtype).eps / (omega[0] * load.duration) > _PULSE_ERROR
+                 if load is not None else jnp.array(False))
+    return Trajectory(ts, ys[0], ys[1], dofs, None), (not_definite, ~finite, too_short)
 
 
 @raises_value_error
@@ -180,4 +187,4 @@ def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = 
     check_dense_memory(system.size, 32 if damped else 6, "exact_solve")
     trajectory, failures = _exact(model, ts, x0, v0, load, dofs=check_dofs(dofs, model.size),
                                   displacement=displacement, velocity=velocity)
-    return raise_failures(trajectory, failures, (NOT_DEFINITE, NOT_FINITE))
+    return raise_failures(trajectory, failures, (NOT_DEFINITE, NOT_FINITE, PULSE_TOO_SHORT))

@@ -82,10 +82,19 @@ class LoadFunction(eqx.Module):
 Load = Pulse | LoadFunction
 
 
+SHORTEST_PULSE = 1e-8  # relative to |start|: start + duration keeps the duration to ~2e-8
+
+
 def as_load(load, n: int) -> Load | None:
     if load is None or isinstance(load, Pulse | LoadFunction):
-        if isinstance(load, Pulse) and load.size != n:
-            raise ValueError(MARK + f"load has size {load.size}, the system has n = {n}.")
+        if isinstance(load, Pulse):
+            if load.size != n:
+                raise ValueError(MARK + f"load has size {load.size}, the system has n = {n}.")
+            load = check(load, ~(load.duration > SHORTEST_PULSE * jnp.abs(load.start)),
+                         f"pulse duration must exceed {SHORTEST_PULSE:g} |start|: the end time "
+                         "start + duration keeps it only to ulp(start). Start the pulse at t = 0 "
+                         "(shift the time grid), or use its Dirac limit v0 = M^-1 (amplitude "
+                         "duration) e_dof.")
         return load
     if callable(load):
         return LoadFunction(load)

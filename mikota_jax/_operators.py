@@ -37,10 +37,17 @@ class Diagonal(eqx.Module):
 
 
 class SymmetricTridiagonal(eqx.Module):
-    """A symmetric tridiagonal matrix: main diagonal (n,) and off-diagonal (n-1,)."""
+    """A symmetric tridiagonal matrix: main diagonal (n,) and off-diagonal (n-1,).
+
+    ``springs`` (optional): the k_i of a fixed-free chain, K = L^T diag(k) L with L the
+    difference operator (x_i - x_{i-1}, x_0 = 0). The modal decomposition then uses the SVD of the
+    bidiagonal factor diag(sqrt k) L M^-1/2, which keeps every eigenfrequency to full relative
+    accuracy; eigh of M^-1/2 K M^-1/2 loses the lowest ones when masses span many decades.
+    """
 
     diagonal: Vector
     off_diagonal: Float[Array, " n-1"]
+    springs: Vector | None = None
 
     @property
     def size(self) -> int:
