@@ -149,8 +149,8 @@ def _damping_rows():
     x, _ = _expm_reference(system, coarse[:3], X0, V0)
     out = np.asarray(mj.exact_solve(system, coarse, X0, V0).displacement)[:3]
     error = np.nan if not np.all(np.isfinite(out)) else float(np.max(np.abs(out - x)))
-    rows.append(_row(DAMPING, "c = 1 at DOF 1, grid step 1e5: exact_solve",
-                     _verdict(error, 1e-12),
+    rows.append(_row(DAMPING, "c = 1 at DOF 1, grid step 1e5: exact_solve (vs scipy expm; "
+                     "both square ~20 times)", _verdict(error, 1e-10),
                      "test_exact_solve_on_a_very_coarse_grid_of_a_damped_chain_is_finite_and_"
                      "right"))
 
@@ -213,7 +213,7 @@ def _parameter_rows():
         out = mj.simulate(system, tau, amplitude * X0, amplitude * V0)
         error = _rel(np.asarray(out.displacement) / amplitude, x)
         errors.append(f"{amplitude:.0e}: {_verdict(error, 1e-6)}")
-    rows.append(_row(PARAMETERS, "tiny amplitude, default atol = 1e-10: dopri8 relative error",
+    rows.append(_row(PARAMETERS, "tiny amplitude, default atol (scaled): dopri8 relative error",
                      "; ".join(errors),
                      "test_simulate_with_default_tolerances_keeps_relative_accuracy_for_tiny_"
                      "amplitudes"))
@@ -245,20 +245,30 @@ def _parameter_rows():
                      "test_a_mode_shape_oscillates_as_cos_l_omega_t_in_exact_solve_up_to_1e4_"
                      "over_omega"))
 
+    def attempt(solve, load, x, tol):
+        """The verdict of one solve, or how it refused (loud is right too)."""
+        try:
+            return _verdict(_rel(solve(system, TS, load=load).displacement, x), tol)
+        except ValueError as error:
+            return "loud: ValueError (" + str(error).removeprefix("mikota_jax: ")[:60] + "...)"
+
     for case, start, duration, test in (
             ("pulse tau = 1e-6 (A = 1e6)", 0.0, 1e-6,
              "test_a_pulse_of_duration_1e_6_matches_the_closed_form_in_exact_solve"),
             ("pulse tau = 1e-12 (A = 1e12)", 0.0, 1e-12,
-             "test_a_pulse_of_duration_1e_12_matches_the_closed_form_in_exact_solve"),
+             "test_a_pulse_too_short_for_exact_solves_formula_is_refused_with_the_dirac_remedy"),
             ("pulse tau = 1e-12 at start 1.234", 1.234, 1e-12,
              "test_a_pulse_too_short_for_its_start_time_is_integrated_right_or_refused")):
-        load = mj.pulse(N, 3, 1.0 / duration, duration, start)
+        try:
+            load = mj.pulse(N, 3, 1.0 / duration, duration, start)
+        except ValueError as error:
+            rows.append(_row(PARAMETERS, f"{case}: vs closed form", "loud: pulse() refuses it ("
+                             + str(error).removeprefix("mikota_jax: ")[:70] + "...)", test))
+            continue
         x = _pulse_response(system, TS, 3, 1.0 / duration, duration, start)
-        exact = _rel(mj.exact_solve(system, TS, load=load).displacement, x)
-        sim = _rel(mj.simulate(system, TS, load=load).displacement, x)
         rows.append(_row(PARAMETERS, f"{case}: vs closed form",
-                         f"exact_solve {_verdict(exact, 1e-8)}; dopri8 {_verdict(sim, 1e-6)}",
-                         test))
+                         f"exact_solve {attempt(mj.exact_solve, load, x, 1e-8)}; dopri8 "
+                         f"{attempt(mj.simulate, load, x, 1e-6)}", test))
 
     v0 = 0.7 * np.eye(N)[2] / (M_ / 3)  # impulse 0.7 at DOF 3: v0 = M^-1 I e_3
     x_dirac, v_dirac = _mikota_free_vibration(M_, K_, TS, np.zeros(N), v0)
