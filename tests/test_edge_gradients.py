@@ -73,6 +73,7 @@ def test_gradients_through_a_long_horizon_stay_finite_and_match_differences(clos
     close(grad_p, central(lambda p: energy(p, 1e-3, horizon=1000.0), 3.5, 1e-4), rtol=1e-5)
 
 
+@pytest.mark.slow  # ~35 s for both solvers; the exact-energy versions above run by default
 @pytest.mark.parametrize("solver", ["dopri8", "kvaerno5"])
 def test_gradients_of_a_response_after_many_periods_match_central_differences(solver, close):
     response = lambda c: energy(3.5, c, horizon=200.0, solver=solver)
