@@ -52,6 +52,7 @@ from ._errors import MARK, callback_free_checks, check_x64
 from ._exact import state_matrix
 from ._excitation import as_load
 from ._galerkin import galerkin
+from ._implicit import gershgorin_omega
 from ._integrate import _simulate, check_dofs, check_times, initial_vector
 from ._objectives import (
     _DOUBLINGS_FINITE,
@@ -944,14 +945,8 @@ def _stiff_rule(problem: DamperProblem, method: str):
                          "(objective 'energy', no load).")
     if method == "ode" or not exact_possible:
         return None
-    stiffness = problem.stiffness
-    if hasattr(stiffness, "off_diagonal"):
-        off = np.pad(np.abs(np.asarray(stiffness.off_diagonal)), 1)
-        rows = np.abs(np.asarray(stiffness.diagonal)) + off[:-1] + off[1:]
-    else:
-        rows = np.abs(np.asarray(stiffness.as_matrix())).sum(axis=1)
     mass = _diagonal(problem.mass)
-    omega_max = float(np.sqrt(np.max(rows / mass)))
+    omega_max = gershgorin_omega(mass, problem.stiffness)
 
     def exact(positions, coefficients):
         if method == "exact":
