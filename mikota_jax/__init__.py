@@ -54,5 +54,11 @@ from ._reproduce import reproduce as reproduce
 from ._run import run_scene as run_scene
 from ._scene import Scene as Scene
 from ._scene import load_scene as load_scene
+from ._sensitivity import SceneFunction as SceneFunction
+from ._sensitivity import Sensitivities as Sensitivities
+from ._sensitivity import scene_parameters as scene_parameters
+from ._sensitivity import sensitivities as sensitivities
+from ._sweep import grid as grid
+from ._sweep import sweep as sweep
 
 __version__ = "0.1.0"
