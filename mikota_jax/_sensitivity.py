@@ -365,9 +365,11 @@ def sensitivities(scene: Scene, output: str = "energy", *, wrt=None, model: str 
         scale = jnp.max(jnp.abs(value))
         normalisation = "p dy/dp / max|y|"
     normalised = {}
+    out_ndim = jnp.ndim(value)
     for name, block in jacobian.items():
-        p = nominal[name]
-        y = jnp.reshape(scale, jnp.shape(scale) + (1,) * p.ndim)
+        p = jnp.reshape(nominal[name], (1,) * out_ndim + nominal[name].shape)
+        y = jnp.broadcast_to(scale, value.shape)
+        y = jnp.reshape(y, value.shape + (1,) * nominal[name].ndim)
         normalised[name] = block * p / y
     return Sensitivities(output, model, mode, value, nominal, jacobian, normalised,
                          normalisation)
