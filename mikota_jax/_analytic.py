@@ -31,7 +31,11 @@ def _check_nl(n: int, l: int) -> None:
 
 
 def eigenfrequencies(n: int, m: ScalarLike = 1.0, k: ScalarLike = 1.0) -> Vector:
-    """Omega_l = l sqrt(k/m), l = 1..n (eq. 2.4), in rad per unit time."""
+    """Mikota's eigenfrequencies Omega_l = l sqrt(k/m), l = 1..n (eq. 2.4): an (n,) array.
+
+    ``m`` is the first mass and ``k`` the last spring's stiffness (eq. 2.3), in consistent units
+    (the paper's are dimensionless); the result is in rad per unit time, ascending.
+    """
     _check_nl(n, 1)
     m, k = positive_scalar(m, "m"), positive_scalar(k, "k")
     return jnp.arange(1, n + 1, dtype=jnp.float64) * jnp.sqrt(k / m)
@@ -56,7 +60,12 @@ def _difference_operator(n: int, degree: int) -> tuple[tuple[int, ...], ...]:
 
 
 def mode_shape_coefficients(n: int, l: int) -> tuple[Fraction, ...]:
-    """Exact coefficients c_0..c_l of the monic p_l(i) = sum_j c_j i^j, l = 1..n."""
+    """Exact coefficients (c_0, ..., c_l) of the monic mode polynomial p_l(i) = sum_j c_j i^j.
+
+    The mode shape u_l of Mikota's n-DOF chain has coordinates u_{l,i} = p_l(i) at the 1-based
+    DOFs i = 1..n (eq. 2.5; eq. 2.6 prints l = 1, 2, 3). ``l`` is the 1-based mode number in
+    1..n. Returns l + 1 ``Fraction``s (c_0 = 0: the fixed support), independent of m and k.
+    """
     _check_nl(n, l)
     table = _difference_operator(n, l)
     if table[l][l] != l * l:  # the triangular structure claimed in the module docstring
@@ -77,10 +86,13 @@ def _evaluate(coefficients, i: int) -> Fraction:
 
 
 def mode_shape(n: int, l: int, normalize: str | None = "max") -> Vector:
-    """u_l = (p_l(1), ..., p_l(n)) evaluated exactly, then rounded once to float64.
+    """Mode shape u_l = (p_l(1), ..., p_l(n)) of Mikota's chain (eq. 2.5): an (n,) array.
 
+    ``l`` is the 1-based mode number in 1..n (eigenfrequency l sqrt(k/m), eq. 2.4); entry i - 1
+    belongs to DOF i. Evaluated exactly in rational arithmetic, then rounded once to float64.
     ``normalize="max"`` scales by max_i |p_l(i)| (exactly, before rounding, so high modes do not
-    overflow); ``None`` returns the monic polynomial's values as in eq. (2.6).
+    overflow); ``None`` returns the monic polynomial's values as in eq. (2.6). Dimensionless and
+    independent of m and k.
     """
     coefficients = mode_shape_coefficients(n, l)
     values = [_evaluate(coefficients, i) for i in range(1, n + 1)]
@@ -93,7 +105,11 @@ def mode_shape(n: int, l: int, normalize: str | None = "max") -> Vector:
 
 
 def paper_mode_shape(n: int, l: int) -> Vector:
-    """The paper's closed forms p_1, p_2, p_3 (eq. 2.6) at i = 1..n."""
+    """The paper's closed-form mode polynomials p_1, p_2, p_3 (eq. 2.6) at i = 1..n: an (n,) array.
+
+    ``l`` in 1, 2, 3 (1-based mode number); unnormalised (monic), as printed. For l > 3 use
+    ``mode_shape``.
+    """
     _check_nl(n, l)
     i = jnp.arange(1, n + 1, dtype=jnp.float64)
     if l == 1:

@@ -24,7 +24,12 @@ def default_cache_dir() -> Path:
 
 
 def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path:
-    """Store every compiled executable in ``path`` (default ``default_cache_dir()``); returns it."""
+    """Turn on JAX's persistent compilation cache in ``path``; returns that directory.
+
+    Default: ``$MIKOTA_JAX_CACHE_DIR``, else ``$XDG_CACHE_HOME/mikota_jax/xla`` (``~/.cache/...``).
+    Changes JAX's global configuration for this process; every executable is stored, however short
+    its compile time.
+    """
     path = Path(path).expanduser() if path is not None else default_cache_dir()
     path.mkdir(parents=True, exist_ok=True)
     jax.config.update("jax_compilation_cache_dir", str(path))

@@ -4,6 +4,9 @@ Chain conventions: DOF i = 1..n (1-based) carries mass m_i and is tied to DOF i-
 DOF 0 is the fixed support, DOF n is free. So K = tridiag(-k_i, k_i + k_{i+1}, -k_{i+1}) with
 k_{n+1} = 0 (eq. 2.2). Mikota's chain has m_i = m / i and k_i = (n - i + 1) k (eq. 2.3),
 eigenfrequencies l * sqrt(k / m) (eq. 2.4).
+
+Units: any consistent set (the paper's are dimensionless): masses, stiffnesses in force per length,
+damping coefficients in force * time per length, times, frequencies in rad per unit time.
 """
 
 from collections.abc import Sequence
@@ -19,7 +22,13 @@ from ._operators import Dense, Diagonal, Operator, SymmetricTridiagonal
 
 
 class SecondOrderSystem(eqx.Module):
-    """M x'' + D x' + K x = f with structured operators; ``damping is None`` when undamped."""
+    """A linear second-order system M x'' + D x' + K x = f (eq. 3.1), with structured operators.
+
+    ``mass`` M and ``stiffness`` K (force per length) are n x n operators: diagonal and symmetric
+    tridiagonal for a chain (eq. 2.2), dense for a reduced model; ``damping`` D (force * time per
+    length) is the dampers' operator (low rank once projected), ``None`` when undamped. Build with
+    ``mikota_chain`` or ``chain``; ``simulate`` and ``exact_solve`` solve it.
+    """
 
     mass: Diagonal | Dense
     stiffness: SymmetricTridiagonal | Dense
@@ -27,15 +36,20 @@ class SecondOrderSystem(eqx.Module):
 
     @property
     def size(self) -> int:
+        """n, the number of DOFs."""
         return self.mass.size
 
     def dense(self):
-        """(M, D, K) as dense matrices (D is None when undamped): for small systems and checks."""
+        """(M, D, K) as dense (n, n) arrays (D is None when undamped): for small systems, checks."""
         damping = None if self.damping is None else self.damping.as_matrix()
         return self.mass.as_matrix(), damping, self.stiffness.as_matrix()
 
     def project(self, basis) -> "SecondOrderSystem":
-        """Galerkin projection basis^T (M, D, K) basis (eq. 3.4)."""
+        """The r-DOF system (basis^T M basis, basis^T D basis, basis^T K basis) of eq. (3.4).
+
+        ``basis`` is (n, r); the result has dense r x r mass and stiffness and low-rank dampers.
+        ``galerkin`` checks the basis and keeps it for the lift (eq. 3.2); prefer it.
+        """
         damping = None if self.damping is None else self.damping.project(basis)
         return SecondOrderSystem(self.mass.project(basis), self.stiffness.project(basis), damping)
 
@@ -50,7 +64,12 @@ def _damping(n: int, dampers) -> Dampers | None:
 
 def chain(masses: Sequence[float] | Vector, springs: Sequence[float] | Vector,
           dampers: Sequence[GroundedDamper | RelativeDamper] = ()) -> SecondOrderSystem:
-    """A fixed-free chain from positive masses m_1..m_n and springs k_1..k_n (k_1 to the ground)."""
+    """A fixed-free chain (eq. 2.2) from masses m_1..m_n and springs k_1..k_n, each (n,).
+
+    Spring k_i ties DOF i to DOF i - 1 (1-based; k_1 ties DOF 1 to the fixed support), DOF n is
+    free; all values finite and > 0 (masses, stiffnesses in force per length; consistent units).
+    ``dampers``: ``GroundedDamper``/``RelativeDamper`` instances, or none (then ``damping=None``).
+    """
     masses = as_float(masses, "masses")
     springs = as_float(springs, "springs")
     if masses.ndim != 1 or masses.shape[0] < 1:
@@ -69,7 +88,12 @@ def chain(masses: Sequence[float] | Vector, springs: Sequence[float] | Vector,
 
 def mikota_chain(n: int, m: ScalarLike = 1.0, k: ScalarLike = 1.0,
                  dampers: Sequence[GroundedDamper | RelativeDamper] = ()) -> SecondOrderSystem:
-    """Mikota's chain: m_i = m / i, k_i = (n - i + 1) k for i = 1..n (eq. 2.3)."""
+    """Mikota's chain (eqs. 2.2-2.3): m_i = m / i, k_i = (n - i + 1) k for DOFs i = 1..n.
+
+    ``m`` is the first mass and ``k`` the last spring's stiffness (force per length), in consistent
+    units (the paper: m = k = 1, dimensionless); the undamped chain's eigenfrequencies are
+    l sqrt(k/m), l = 1..n (eq. 2.4). ``dampers`` as in ``chain``.
+    """
     if isinstance(n, bool) or not isinstance(n, int | jnp.integer) or n < 1:
         raise ValueError(MARK + f"n must be an integer >= 1, got {n!r}.")
     n = int(n)

@@ -19,7 +19,14 @@ from ._operators import LowRank
 
 
 class GroundedDamper(eqx.Module):
-    """A damper from a DOF to the ground: ``position`` in [1, n] (1-based), ``coefficient`` >= 0."""
+    """An absolute damper from a DOF to the ground, as in the paper's Section 5 (d in eq. 5.1).
+
+    ``position``: a scalar in [1, n], 1-based (the paper's damper sits at DOF 7); a fractional
+    p = j + w splits the coefficient, d (1 - w) at DOF j and d w at DOF j + 1 (see the module
+    docstring). ``coefficient`` d >= 0: a scalar in force * time per length (consistent units).
+    Both stay traced arrays, so ``jax.grad`` passes through them; the range is checked when the
+    chain is built.
+    """
 
     position: Float[Array, ""]
     coefficient: Float[Array, ""]
@@ -32,7 +39,11 @@ class GroundedDamper(eqx.Module):
 
 
 class RelativeDamper(eqx.Module):
-    """A damper between two DOFs ``dofs = (i, j)`` (1-based, i != j), ``coefficient`` >= 0."""
+    """A relative damper between DOFs i and j: it adds c (e_i - e_j)(e_i - e_j)^T to D (eq. 3.1).
+
+    ``dofs = (i, j)``: 1-based, i != j, static (Python integers). ``coefficient`` c >= 0: a
+    scalar in force * time per length (consistent units), traced.
+    """
 
     dofs: tuple[int, int] = eqx.field(static=True)
     coefficient: Float[Array, ""]

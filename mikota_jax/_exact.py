@@ -35,7 +35,13 @@ from ._operators import Diagonal
 
 
 def modal_decomposition(system):
-    """(omega, U) with U^T M U = I and U^T K U = diag(omega^2), omega ascending."""
+    """Eigenfrequencies and M-orthonormal mode shapes (omega, U) of a system's M and K.
+
+    ``omega``: (n,), ascending, in rad per unit time (l sqrt(k/m) for Mikota's chain, eq. 2.4);
+    ``U``: (n, n), column l - 1 is mode l (proportional to u_l of eq. 2.5 for Mikota's chain),
+    with U^T M U = I and U^T K U = diag(omega^2) (eq. 2.7). Damping is ignored. For a
+    ``SecondOrderSystem``; a stiffness that is not positive definite is a ``ValueError``.
+    """
     omega2, modes = generalized_modes(system)
     omega2 = check(omega2, omega2 <= 0, NOT_DEFINITE)
     return jnp.sqrt(omega2), modes
@@ -163,11 +169,15 @@ def _exact(model, ts, x0, v0, load, *, dofs, displacement, velocity):
 def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = None, load=None,
                 *, dofs: Sequence[int] | None = None, displacement: bool = True,
                 velocity: bool = False) -> Trajectory:
-    """Exact solution of an LTI system for no load or a ``Pulse`` (piecewise constant).
+    """The exact solution of M x'' + D x' + K x = f (eq. 3.1) for no load or a ``Pulse`` (eq. 4.3).
 
-    Same arguments and outputs as ``simulate``. Any increasing grid ``ts`` for an undamped system;
-    a uniform grid when damped (one 2n x 2n matrix exponential serves every step). Costs one
-    n x n eigendecomposition and O(n^2) per time step.
+    Same arguments and outputs as ``simulate``: ``model`` a ``SecondOrderSystem`` or a
+    ``ReducedModel`` (solved in r DOFs, lifted back by eq. 3.2); ``ts`` (N,); ``x0``, ``v0`` (n,)
+    in full coordinates (default zero); ``dofs`` 1-based (default all, d = len(dofs)); returns a
+    ``Trajectory`` of (N, d) arrays, ``num_steps`` None. No integration error: modal
+    coordinates and a matrix exponential. Any increasing grid ``ts`` for an undamped system; a
+    uniform grid when damped (one 2n x 2n matrix exponential serves every step). Costs one n x n
+    eigendecomposition and O(n^2) per time step, so dense memory limits n (``simulate`` is O(n)).
     """
     check_x64()
     if isinstance(load, LoadFunction) or (load is not None and not isinstance(load, Pulse)):

@@ -17,7 +17,10 @@ from ._errors import MARK, as_float, check
 
 
 def unit_vector(n: int, dof: int, value: ScalarLike = 1.0) -> Vector:
-    """A vector of zeros with ``value`` at the 1-based ``dof`` (e.g. the paper's x_3(0) = 1)."""
+    """An (n,) vector of zeros with ``value`` at the 1-based ``dof`` (the paper's x_3(0) = 1).
+
+    For initial states (displacement or velocity, in their own units) and load directions.
+    """
     _check_dof(n, dof, "dof")
     return jnp.zeros(n).at[dof - 1].set(as_float(value, "value"))
 
@@ -28,7 +31,12 @@ def _check_dof(n: int, dof, name: str) -> None:
 
 
 class Pulse(eqx.Module):
-    """Rectangular pulse f(t) = direction on [start, start + duration] (eq. 4.3), else zero."""
+    """Rectangular pulse f(t) = direction on [start, start + duration], else zero (eq. 4.3).
+
+    ``direction``: the (n,) force vector while the pulse is on (force units); ``start``,
+    ``duration``: scalars in time units. Build the paper's with ``pulse``. ``simulate`` stops
+    its steps at the two jumps; ``exact_solve`` treats the load as piecewise constant.
+    """
 
     direction: Vector
     start: Float[Array, ""]
@@ -36,25 +44,35 @@ class Pulse(eqx.Module):
 
     @property
     def size(self) -> int:
+        """n, the length of ``direction``."""
         return self.direction.shape[0]
 
     @property
     def jump_times(self) -> Float[Array, " 2"]:
+        """(2,): the times start and start + duration at which f jumps."""
         return jnp.stack([self.start, self.start + self.duration])
 
     def is_on(self, t) -> Array:
+        """Whether start <= t <= start + duration (a boolean array of t's shape)."""
         return (t >= self.start) & (t <= self.start + self.duration)
 
     def __call__(self, t) -> Vector:
+        """f(t): (n,) for a scalar time t."""
         return jnp.where(self.is_on(t), 1.0, 0.0) * self.direction
 
     def project(self, basis: Basis) -> "Pulse":
+        """The reduced pulse with direction basis^T f, (r,) for an (n, r) basis (eq. 3.4)."""
         return Pulse(basis.T @ self.direction, self.start, self.duration)
 
 
 def pulse(n: int, dof: int, amplitude: ScalarLike = 1.0, duration: ScalarLike = 0.05,
           start: ScalarLike = 0.0) -> Pulse:
-    """The paper's impulse load: ``amplitude`` at the 1-based ``dof`` for ``duration`` (eq. 4.3)."""
+    """The paper's impulse load (eq. 4.3): force ``amplitude`` on the 1-based ``dof``, n DOFs.
+
+    On for start <= t <= start + ``duration`` (the paper: amplitude 1 on DOF 1 for 0.05, starting
+    at 0); forces and times in consistent units. Returns a ``Pulse`` with an (n,) direction.
+    Short pulses approach the Dirac limit v0 = M^-1 (amplitude duration) e_dof (Section 4).
+    """
     _check_dof(n, dof, "dof")
     duration = as_float(duration, "duration")
     duration = check(duration, ~(jnp.isfinite(duration) & (duration > 0)),
@@ -64,16 +82,22 @@ def pulse(n: int, dof: int, amplitude: ScalarLike = 1.0, duration: ScalarLike = 
 
 
 class LoadFunction(eqx.Module):
-    """Any load f(t) -> (n,) given by the user; a reduced model applies basis^T f(t)."""
+    """Any load f(t) given by the user (eq. 3.1): ``function`` maps a scalar t to an (n,) force.
+
+    ``basis``: None, or the (n, r) basis of a reduced model, which then applies basis^T f(t)
+    (eq. 3.4). ``simulate`` wraps a plain callable ``load`` in one; ``exact_solve`` refuses it.
+    """
 
     function: Callable
     basis: Basis | None = None
 
     def __call__(self, t) -> Vector:
+        """f(t): (n,), or basis^T f(t), (r,), once projected."""
         f = self.function(t)
         return f if self.basis is None else self.basis.T @ f
 
     def project(self, basis: Basis) -> "LoadFunction":
+        """The same load seen by a reduced model with an (n, r) ``basis`` (eq. 3.4)."""
         if self.basis is not None:
             raise ValueError(MARK + "this load is already projected.")
         return LoadFunction(self.function, basis)

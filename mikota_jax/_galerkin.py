@@ -21,32 +21,44 @@ ORTHONORMALITY = 1e-6
 
 
 class ReducedModel(eqx.Module):
-    """The projected system (dense r x r M and K, low-rank dampers) and its basis (eq. 3.2)."""
+    """A Galerkin reduced model (eqs. 3.2-3.4): an r-DOF system plus the basis that lifts it.
+
+    ``system``: the projected ``SecondOrderSystem`` M_red, D_red, K_red of eq. (3.4) (dense r x r
+    mass and stiffness, low-rank dampers); ``basis``: Phi, (n, r) with orthonormal columns
+    (eq. 3.8). ``simulate`` and ``exact_solve`` take it like a full system: initial states and
+    loads in full coordinates, outputs lifted back to the 1-based full DOFs. Build with
+    ``galerkin``.
+    """
 
     system: SecondOrderSystem
     basis: Basis
 
     @property
     def size(self) -> int:
+        """n, the number of full DOFs."""
         return self.basis.shape[0]
 
     @property
     def rank(self) -> int:
+        """r, the number of reduced coordinates."""
         return self.basis.shape[1]
 
     def reduce_state(self, x: Vector) -> Vector:
+        """q = Phi^T x: (n,) full coordinates to (r,) reduced ones (exact if x is in span Phi)."""
         return self.basis.T @ x
 
     def lift(self, q):
-        """x = Phi q (eq. 3.2); q may be (r,) or (..., r)."""
+        """x = Phi q (eq. 3.2): (r,) or (..., r) reduced coordinates to (n,) or (..., n)."""
         return q @ self.basis.T
 
 
 def galerkin(system: SecondOrderSystem, basis: Basis) -> ReducedModel:
-    """Project M, D, K onto ``basis`` (n x r, orthonormal columns), eq. (3.4).
+    """The reduced model of ``system`` on ``basis``: M, D, K projected as in eq. (3.4).
 
-    A basis that is not orthonormal to ``ORTHONORMALITY`` (1e-6, in max |basis^T basis - I|) is a
-    ``ValueError`` (under ``jit`` an ``eqx.error_if``); the check costs O(n r^2).
+    ``basis``: Phi, (n, r) float64 with orthonormal columns (e.g. ``POD.basis(r)``, eq. 3.8);
+    x ~ Phi q (eq. 3.2). A basis that is not orthonormal to ``ORTHONORMALITY`` (1e-6, in
+    max |basis^T basis - I|) is a ``ValueError`` (under ``jit`` an ``eqx.error_if``); the check
+    costs O(n r^2).
     """
     if not isinstance(system, SecondOrderSystem):
         raise ValueError(MARK + f"system must be a SecondOrderSystem, got {type(system).__name__}.")

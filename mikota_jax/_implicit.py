@@ -88,6 +88,7 @@ class StructuredKvaerno5(diffrax.AbstractSolver):
     Use it as ``simulate(..., solver="kvaerno5")`` for stiff cases: large n (highest
     eigenfrequency n sqrt(k/m)) or a strong damper. ``simulate`` binds the system and load; a
     stage costs one O(n) tridiagonal solve instead of Newton iterations on a dense Jacobian.
+    The methods below are diffrax's ``AbstractSolver`` interface; the state is y = (x, v), (2n,).
     """
 
     system: object = None
@@ -97,20 +98,25 @@ class StructuredKvaerno5(diffrax.AbstractSolver):
     interpolation_cls: ClassVar = ThirdOrderHermitePolynomialInterpolation.from_k
 
     def bind(self, system, load) -> "StructuredKvaerno5":
+        """This solver for one system (diagonal-mass coordinates) and load; ``simulate`` binds."""
         return StructuredKvaerno5(system, load)
 
     def order(self, terms):
+        """5, the order of the solution (the embedded error estimate is order 4)."""
         return 5
 
     def init(self, terms, t0, t1, y0, args):
+        """No solver state; raises unless bound to a system."""
         if self.system is None:
             raise ValueError("StructuredKvaerno5 must be bound to a system; use simulate().")
         return None
 
     def func(self, terms, t0, y0, args):
+        """The vector field y' = (v, M^-1 (f(t) - D v - K x)) at (t0, y0)."""
         return terms.vf(t0, y0, args)
 
     def step(self, terms, t0, t1, y0, args, solver_state, made_jump):
+        """One ESDIRK step t0 -> t1: (y1, filtered error estimate, dense info, None, result)."""
         del solver_state, made_jump
         tableau, system = _TABLEAU, self.system
         n = system.size
@@ -191,7 +197,9 @@ def stiffness_rate(system) -> float:
 def choose_solver(model, ts) -> str:
     """The solver ``simulate(solver="auto")`` takes: "kvaerno5" when rho * T > 1e5, else "dopri8".
 
-    rho is ``stiffness_rate`` (highest eigenfrequency or damper rate), T the time span: rho * T / 5
+    ``model``: a ``SecondOrderSystem`` or ``ReducedModel``; ``ts``: the (N,) time grid. rho is the
+    highest eigenfrequency or damper rate c / m_i in rad per unit time (a Gershgorin bound on the
+    host for a chain, >= n sqrt(k/m) for Mikota's, eq. 2.4), T = ts[-1] - ts[0]: rho * T / 5
     is about the number of steps the explicit Dopri8 needs for stability alone, whatever the
     tolerance. Needs concrete (not traced) system values; name the solver under ``jit``.
     """

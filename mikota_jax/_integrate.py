@@ -42,7 +42,13 @@ SOLVERS = {
 
 
 class Trajectory(eqx.Module):
-    """Saved outputs (rows: times, columns: requested DOFs); unrequested quantities are None."""
+    """The saved outputs of ``simulate``/``exact_solve``: rows are times, columns requested DOFs.
+
+    ``ts``: (N,) times; ``displacement`` x, ``velocity`` x': (N, d), column j for the 1-based DOF
+    ``dofs[j]`` (d = len(dofs); all n DOFs by default), None when not requested; ``num_steps``:
+    the integrator's step count (``simulate``; None for ``exact_solve``). A reduced model's
+    outputs are lifted to the full DOFs (eq. 3.2).
+    """
 
     ts: Times
     displacement: Float[Array, "N d"] | None
@@ -254,13 +260,16 @@ def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | No
              atol: float | None = None, max_steps: int = 100_000, throw: bool = True,
              progress: bool = False,
              adjoint: diffrax.AbstractAdjoint | None = None) -> Trajectory:
-    """Integrate M x'' + D x' + K x = f(t) with diffrax from x(ts[0]) = x0, x'(ts[0]) = v0.
+    """Integrate M x'' + D x' + K x = f(t) (eq. 3.1) with diffrax from x = x0, x' = v0 at ts[0].
 
-    ``model`` is a full system or a ``ReducedModel`` (initial state and load given in full
-    coordinates, projected by the basis; outputs lifted back, eq. 3.2). ``dofs`` are 1-based
-    (default: all). Tolerances are traced: changing them does not recompile. ``atol`` is
-    absolute; by default it is 1e-2 rtol times the excitation's scale (``default_atol``), so a
-    response of amplitude 1e-10 keeps the relative accuracy of one of amplitude 1.
+    ``model`` is a full system or a ``ReducedModel`` (eq. 3.4; initial state and load given in
+    full coordinates, projected by the basis; outputs lifted back, eq. 3.2). ``ts``: the (N,)
+    increasing output times; ``x0``, ``v0``: (n,) (default zero); ``load``: None, a ``Pulse``
+    (eq. 4.3), a ``LoadFunction`` or a callable t -> (n,). ``dofs`` are 1-based (default: all);
+    returns a ``Trajectory`` of (N, d) arrays (d = len(dofs)). Tolerances are traced: changing
+    them does not recompile. ``atol`` is absolute (displacement and velocity units); by default it
+    is 1e-2 rtol times the excitation's scale (``default_atol``), so a response of amplitude 1e-10
+    keeps the relative accuracy of one of amplitude 1.
 
     ``solver``: "dopri8" (default; explicit, the most accurate per step), "tsit5", "dopri5",
     "kvaerno5" (L-stable implicit ESDIRK whose stage equations are solved exactly in the chain's

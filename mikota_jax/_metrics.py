@@ -21,9 +21,13 @@ def _check_pair(a, b, name_a: str, name_b: str):
 
 def phase_error(displacement, velocity, reduced_displacement, reduced_velocity,
                 aggregate: str = "sum") -> Float[Array, "..."]:
-    """Delta E_phase of eq. (5.4) between a full and a reduced solution, each (N, n).
+    """Delta E_phase of eq. (5.4) between a full and a reduced solution, four (N, n) arrays.
 
-    At every instant: sqrt( sum_i [(x_i - x_red,i)^2 + (v_i - v_red,i)^2] / sum_i (x_i^2 + v_i^2) ).
+    Rows are times, columns DOFs (``Trajectory.displacement`` / ``.velocity``, the reduced ones
+    lifted; eq. 5.4 sums over all n DOFs, a subset of d columns gives that subset's error).
+    Dimensionless; x and x' are summed as they are, so it depends on the unit of time (as the
+    paper's does). At every instant:
+    sqrt( sum_i [(x_i - x_red,i)^2 + (v_i - v_red,i)^2] / sum_i (x_i^2 + v_i^2) ).
     The paper does not say how instants are combined; ``aggregate`` chooses: ``"sum"`` (default:
     one ratio of sums over all instants, i.e. the relative L2 error of the state over the run),
     ``"max"`` or ``"mean"`` of the instantaneous ratio over time, or ``"none"`` (the (N,) history).
@@ -46,12 +50,19 @@ def phase_error(displacement, velocity, reduced_displacement, reduced_velocity,
 
 
 def relative_error(reference, approximation) -> Float[Array, ""]:
-    """Relative L2 (Frobenius) error ||approx - reference|| / ||reference|| over times and DOFs."""
+    """Relative L2 (Frobenius) error ||approx - reference|| / ||reference|| over times and DOFs.
+
+    ``reference``, ``approximation``: arrays of one shape, e.g. (N, d) trajectories; a scalar.
+    """
     a, b = _check_pair(reference, approximation, "reference", "approximation")
     return jnp.linalg.norm(b - a) / jnp.linalg.norm(a)
 
 
 def pseudo_energy(singular_values) -> Float[Array, ""]:
-    """E_pseudo = ||Q||_F^2 = sum_k sigma_k^2 (eq. 3.7)."""
+    """The pseudo-energy E_pseudo = ||Q||_F^2 = sum_k sigma_k^2 (eq. 3.7) of (k,) singular values.
+
+    A scalar in squared snapshot units. The paper's printed value (eq. 5.2, "977.5528^2") is
+    (sum_k sigma_k)^2 instead; ``energy_fraction(..., criterion="paper")`` follows that reading.
+    """
     s = jnp.asarray(singular_values)
     return jnp.sum(s**2)

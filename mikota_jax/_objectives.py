@@ -161,10 +161,13 @@ def integrated_energy(model, horizon: float, x0: Vector | None = None,
                       v0: Vector | None = None, load=None, *, method: str = "exact",
                       rtol: float = 1e-9, atol: float = 1e-11, max_steps: int = 100_000,
                       adjoint: diffrax.AbstractAdjoint | None = None) -> Float[Array, ""]:
-    """int_0^T (x^T K x + x'^T M x') / 2 dt of the response from x(0) = x0, x'(0) = v0.
+    """The integrated energy J = int_0^T (x^T K x + x'^T M x') / 2 dt of a response (eq. 3.1).
 
     ``model`` is a ``SecondOrderSystem`` or a ``ReducedModel`` (x0, v0 and the load in full
-    coordinates, projected). Differentiable in every physical value.
+    coordinates, projected). ``horizon`` T (time units) > 0; ``x0``, ``v0``: (n,) at t = 0
+    (default zero); ``load`` as in ``simulate``. A scalar in energy x time (consistent units).
+    Differentiable in every physical value (masses, springs, damper positions and coefficients,
+    T, x0, v0): the damper-placement objective ``"energy"``.
 
     ``method="exact"`` (free vibration only): a matrix-exponential integral, no tolerance, O(n^3)
     -- the choice for a reduced model. ``method="ode"``: the integral is one more state of an
@@ -207,10 +210,13 @@ def _total_average_energy(model, *, lowest):
 
 @raises_value_error
 def total_average_energy(model, lowest: int | None = None) -> Float[Array, ""]:
-    """trace X, A^T X + X A = -Z in scaled modal coordinates (Veselic's total average energy).
+    """Veselic's total average energy: trace X with A^T X + X A = -Z, a scalar.
 
-    ``lowest=None``: Z = I (every mode); ``lowest=s``: Z selects the s lowest eigenfrequencies.
-    Raises if some mode is undamped (then X does not exist).
+    A is the state matrix of M x'' + D x' + K x = 0 (eq. 3.1) in scaled modal coordinates (see
+    the module docstring); ``model`` a ``SecondOrderSystem`` or ``ReducedModel``. ``lowest=None``:
+    Z = I (every mode); ``lowest=s``: Z selects the s lowest eigenfrequencies (both components of
+    each). Its unit is time: X = int_0^inf exp(A^T t) Z exp(A t) dt. Raises if some mode is
+    undamped (then X does not exist). Differentiable in the physical values.
     """
     check_x64()
     check_problem(model, None, None, None)
@@ -227,7 +233,8 @@ def total_average_energy(model, lowest: int | None = None) -> Float[Array, ""]:
 def smooth_peak(values, order: int = 16) -> Float[Array, ""]:
     """(mean_k values_k^order)^(1/order): a smooth peak of |values|, in [N^(-1/order), 1] x max.
 
-    ``values`` is a saved response (e.g. ``simulate(..., dofs=[d]).displacement``); ``order`` an
+    ``values``: any float64 array of N entries (flattened), e.g. the (N, 1) ``displacement`` of
+    ``simulate(..., dofs=[d])``; a scalar in the units of ``values``. ``order`` an
     even integer >= 2 (higher: closer to the max, less smooth). Scaled by the max, which carries
     no derivative of its own, so large orders do not overflow.
     """

@@ -79,7 +79,12 @@ class DamperProblem(eqx.Module):
     ``ts`` is the time grid: the horizon T = ts[-1] - ts[0] of ``"energy"``, the samples of
     ``"peak"`` and of the snapshots. ``snapshots`` is the window (t0, t1) whose full-model
     displacements build the POD basis, ``energy`` the pseudo-energy fraction that sets its rank
-    (``criterion`` as in ``rank_for_energy``) unless ``rank`` is given.
+    (eq. 3.7; ``criterion`` as in ``rank_for_energy``) unless ``rank`` is given.
+
+    Shapes: ``ts`` (N,), ``x0``, ``v0`` (n,), ``load`` as in ``simulate``; the design is
+    ``positions`` (g,), 1-based in [1, n], and ``coefficients`` (g,), >= 0 in force * time per
+    length, for g grounded dampers. ``dof`` (1-based) and ``order`` are the ``"peak"``
+    objective's (``smooth_peak``), ``lowest`` the ``"average_energy"`` one's.
     """
 
     mass: object
@@ -181,14 +186,17 @@ class DamperProblem(eqx.Module):
 
     @property
     def size(self) -> int:
+        """n, the number of DOFs."""
         return self.mass.size
 
     @property
     def num_dampers(self) -> int:
+        """g, the number of grounded dampers to place."""
         return self.positions.shape[0]
 
     def system(self, positions, coefficients) -> SecondOrderSystem:
-        """The chain with grounded dampers at ``positions`` (in [1, n]) of ``coefficients``."""
+        """The chain with grounded dampers at ``positions`` (g,), in [1, n], of ``coefficients``
+        (g,), plus the fixed relative dampers."""
         grounded = [GroundedDamper(p, c) for p, c in zip(positions, coefficients)]
         return SecondOrderSystem(self.mass, self.stiffness,
                                  Dampers(self.size, [*grounded, *self.fixed]))
@@ -593,7 +601,9 @@ def _default_starts(problem: DamperProblem, starts: int, seed: int):
 class PlacementResult:
     """The optimised damper design, certified on the full model.
 
-    ``positions``/``coefficients``: the design (at DOFs unless ``split``); ``objective``: the full
+    ``positions``/``coefficients``: the design, (g,) each, 1-based positions (at DOFs unless
+    ``split``); ``gradient``: the full model's dJ/dc there, (g,); ``basis``: the final (n, r) POD
+    basis (``rank`` r), e.g. for ``placement_objective``; ``objective``: the full
     model's objective there, ``objective_reduced`` the reduced model's, ``rom_error`` their
     relative difference and ``gradient_error`` that of the logarithmic coefficient sensitivities
     c dJ/dc / J (and dJ/dp / J for split designs). ``full_solves`` counts full-model solves
@@ -707,7 +717,9 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
                      seed: int = 0, progress: bool = False) -> PlacementResult:
     """Place the problem's grounded dampers: gradients through the ROM, certified on the full model.
 
-    See the module docstring for the phases. ``starts``: the number of starts of the relaxed
+    The ROM is the Galerkin model (eq. 3.4) on a POD basis (eqs. 3.5-3.8) of full-model snapshots;
+    returns a ``PlacementResult`` with (g,) positions (1-based) and coefficients. See the module
+    docstring for the phases. ``starts``: the number of starts of the relaxed
     search (the problem's design, then spread over the chain) or an (S, g) array of start
     positions; ``optimizer``: its "adam" (``learning_rate`` on the unconstrained variables) or
     "lbfgs"; ``iterations`` its length. The relaxed search runs for ``split=True`` (dampers may
@@ -980,7 +992,9 @@ def reduced_landscape(problem: DamperProblem, basis, positions, coefficients, *,
                       batch_size: int = 16, progress: bool = False) -> np.ndarray:
     """The reduced model's objective for one damper on a (positions x coefficients) grid.
 
-    ``basis``: e.g. ``PlacementResult.basis``. For plots: far cheaper than ``sweep_dampers``.
+    ``basis``: (n, r), e.g. ``PlacementResult.basis``; ``positions``: (P,), 1-based in [1, n];
+    ``coefficients``: (C,), >= 0. Returns a (P, C) numpy array. For plots: far cheaper than
+    ``sweep_dampers``.
     """
     if problem.num_dampers != 1:
         raise ValueError(MARK + "reduced_landscape places one damper; the problem has "
@@ -994,7 +1008,8 @@ def reduced_landscape(problem: DamperProblem, basis, positions, coefficients, *,
 @dataclasses.dataclass
 class SweepResult:
     """A brute-force sweep of the full model: ``objective[i, j]`` at ``positions[i]``,
-    ``coefficients[j]`` (NaN where a solve failed, counted in ``failed``). ``refined``: for the
+    ``coefficients[j]``, a (P, C) array for (P,) positions (1-based) and (C,) coefficients
+    (NaN where a solve failed, counted in ``failed``). ``refined``: for the
     ``refine`` best DOFs, the coefficient refined by golden-section search between the grid
     neighbours of their best; ``best_*`` is the best of grid and refinement. ``exact``: how many
     points the exact evaluator took (see ``sweep_dampers``)."""
@@ -1014,6 +1029,7 @@ class SweepResult:
     seconds_refine: float
 
     def to_json(self) -> dict:
+        """A JSON-ready dict (arrays as lists, NaN as None)."""
         return {f.name: _plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
 
 
@@ -1022,10 +1038,11 @@ def sweep_dampers(problem: DamperProblem, coefficients, positions=None, *, metho
                   progress: bool = False) -> SweepResult:
     """The full model's objective for one damper at every position x coefficient of a grid.
 
-    ``positions`` defaults to every DOF 1..n. Points are evaluated ``batch_size`` at a time with
-    ``jax.vmap`` (one compiled chunk shape; memory bounded by the chunk), with a progress bar.
-    On a CPU, ``batch_size=1`` is fastest (a vmapped adaptive solve steps every member with the
-    batch's largest step count); on a GPU, use hundreds.
+    ``coefficients``: (C,), >= 0; ``positions``: (P,), 1-based in [1, n], default every DOF 1..n;
+    returns a ``SweepResult`` with a (P, C) ``objective``. Points are evaluated ``batch_size``
+    at a time with ``jax.vmap`` (one compiled chunk shape; memory bounded by the chunk), with a
+    progress bar. On a CPU, ``batch_size=1`` is fastest (a vmapped adaptive solve steps every
+    member with the batch's largest step count); on a GPU, use hundreds.
 
     ``method``: "ode" (Dopri8 with the energy as one more state: what the optimiser certifies
     with), "exact" (the free-vibration energy by matrix exponentials, O(n^3) per point, any
@@ -1097,9 +1114,11 @@ def sweep_dampers(problem: DamperProblem, coefficients, positions=None, *, metho
 def placement_objective(problem: DamperProblem, basis=None):
     """The problem's objective as a pure function (positions, coefficients) -> value.
 
-    Reduced (POD ``basis`` held fixed, n x r) or full (``basis=None``). ``jax.grad``, ``jax.jit``
-    and ``jax.vmap`` pass through it; the value is NaN where a solve failed (never silently
-    finite). Positions in [1, n] (between DOFs a damper is split linearly), coefficients >= 0.
+    Reduced (POD ``basis`` held fixed, (n, r); the Galerkin model of eq. 3.4) or full
+    (``basis=None``). ``jax.grad``, ``jax.jit`` and ``jax.vmap`` pass through it; the value is a
+    scalar, NaN where a solve failed (never silently finite). ``positions``: (g,) (or a scalar for
+    g = 1), 1-based in [1, n] (between DOFs a damper is split linearly); ``coefficients``: (g,),
+    >= 0, in force * time per length.
     """
     if not isinstance(problem, DamperProblem):
         raise ValueError(MARK + f"problem must be a DamperProblem, got {type(problem).__name__}.")

@@ -22,6 +22,9 @@ def problem_from_scene(scene: Scene, *, objective: str = "energy", dof: int | No
                        lowest: int | None = None, energy: float | None = None) -> DamperProblem:
     """A ``DamperProblem`` from a scene (see the module docstring for what is taken from where).
 
+    ``objective``: "energy", "average_energy" (``lowest`` s modes) or "peak" (of the 1-based
+    ``dof``); the design is the scene's grounded dampers, (g,) positions and coefficients.
+
     The first basis keeps at least 99.99 % of the snapshots' pseudo-energy (the scene's fraction
     if higher, its rank if it gives one); ``energy`` overrides both.
     """

@@ -45,7 +45,11 @@ ALL_METHODS = (*METHODS, "randomized")  # plus the truncated one, which needs a 
 
 
 class POD(eqx.Module):
-    """Singular values (descending) and proper orthogonal modes of a snapshot matrix.
+    """Singular values (descending) and proper orthogonal modes of a snapshot matrix (eq. 3.6).
+
+    ``singular_values``: sigma_1 >= ... >= sigma_k, (k,) with k = min(n, m) (or the requested
+    rank of a randomized POD), in snapshot units; ``modes``: the POMs phi_1..phi_k, (n, k) with
+    orthonormal columns (the left singular vectors P of eq. 3.6).
 
     ``rounding_level`` is the sigma_k / sigma_1 at or below which a singular value is rounding
     noise (set by ``pod``; None for a POD built by hand: 4 max(modes.shape) eps). ``total_energy``
@@ -68,7 +72,7 @@ class POD(eqx.Module):
         return 4 * max(self.modes.shape) * float(np.finfo(np.float64).eps)
 
     def basis(self, rank: int) -> Basis:
-        """Phi = [phi_1, ..., phi_r] (eq. 3.8), orthonormal columns.
+        """The projection matrix Phi = [phi_1, ..., phi_r] (eq. 3.8): (n, r), orthonormal columns.
 
         A rank above the numerical rank (``numerical_rank``) is a ``ValueError``: the modes past it
         are rounding noise. Under ``jit`` (traced singular values) the same check is an
@@ -99,15 +103,21 @@ class POD(eqx.Module):
         return self.modes[:, :rank]
 
     def energy_fraction(self, criterion: str = "squared") -> Float[Array, " k"]:
-        """Captured pseudo-energy fraction for r = 1, 2, ... under ``criterion`` (eq. 3.7)."""
+        """Captured pseudo-energy fraction for r = 1..k under ``criterion`` (eq. 3.7): (k,).
+
+        Entry r - 1 is the fraction of the first r modes (see the module docstring's criteria).
+        """
         if self.total_energy is None:
             return energy_fraction(self.singular_values, criterion)
         _check_truncated_criterion(criterion, len(self.singular_values))
         return jnp.cumsum(self.singular_values**2) / self.total_energy
 
     def rank_for_energy(self, energy: float, criterion: str = "squared") -> int:
-        """Smallest r whose captured fraction is at least ``energy`` (0 < energy <= 1), at most
-        the numerical rank (``energy = 1`` gives it).
+        """Smallest rank r whose pseudo-energy fraction (eq. 3.7) is at least ``energy``.
+
+        0 < energy <= 1 (the paper's eq. 5.3: 0.99, and 0.9999); a Python integer, at most the
+        numerical rank (``energy = 1`` gives it). ``criterion``: "squared" (eq. 3.7) or "paper"
+        (the reading that gives the paper's 76 and 98; see the module docstring).
 
         For a truncated (randomized) POD, "squared" only, and an error when the k leading modes
         do not reach ``energy``.
@@ -124,7 +134,10 @@ class POD(eqx.Module):
         return _capped(fraction, energy, slack, self.numerical_rank())
 
     def numerical_rank(self) -> int:
-        """Number of singular values above ``rounding_level`` * sigma_1 (the rest is rounding)."""
+        """Number of singular values above ``rounding_level`` * sigma_1 (the rest is rounding).
+
+        A Python integer; the largest rank ``basis`` accepts.
+        """
         return _count_above(self.singular_values, self._level())
 
 
@@ -210,15 +223,16 @@ def _prng_key(key):
 
 def pod(snapshots: Snapshots, *, method: str = "svd", rank: int | None = None,
         oversampling: int = 10, power_iterations: int = 2, key=None) -> POD:
-    """POD of the (n, m) snapshot matrix Q = [x_1, ..., x_m] (eqs. 3.5-3.6).
+    """POD of the (n, m) snapshot matrix Q = [x_1, ..., x_m] (eqs. 3.5-3.6): a ``POD``.
 
-    ``method="svd"`` (default) is the accurate thin SVD; ``"snapshots"`` uses the eigenvectors of
-    the smaller of Q Q^T and Q^T Q, for snapshot sets much longer (or much taller) than the other
-    side. Returns all min(n, m) singular values and modes; choose the rank with
-    ``POD.rank_for_energy`` or pass it to ``POD.basis``: a rank above the numerical rank (the
-    values above rounding noise, ``POD.numerical_rank``) is a ``ValueError``, never silently
-    capped, and ``energy = 1`` gives the numerical rank. Jit-compiled; may itself be jit-ed,
-    vmap-ed and differentiated.
+    One column per time instant (n DOFs, m snapshots): from a ``Trajectory``, Q =
+    ``displacement.T`` (its rows are times). ``method="svd"`` (default) is the accurate thin SVD;
+    ``"snapshots"`` uses the eigenvectors of the smaller of Q Q^T and Q^T Q, for snapshot sets
+    much longer (or much taller) than the other side. Returns all min(n, m) singular values and
+    modes; choose the rank with ``POD.rank_for_energy`` or pass it to ``POD.basis``: a rank above
+    the numerical rank (the values above rounding noise, ``POD.numerical_rank``) is a
+    ``ValueError``, never silently capped, and ``energy = 1`` gives the numerical rank.
+    Jit-compiled; may itself be jit-ed, vmap-ed and differentiated.
 
     ``"randomized"`` returns only the leading ``rank`` values and modes (1 <= rank <= min(n, m),
     required), from a Gaussian sketch of ``rank + oversampling`` columns (capped at min(n, m);
@@ -253,7 +267,11 @@ def pod(snapshots: Snapshots, *, method: str = "svd", rank: int | None = None,
 
 
 def energy_fraction(singular_values, criterion: str = "squared"):
-    """Captured pseudo-energy fraction for r = 1..k (eq. 3.7), under one of ``CRITERIA``."""
+    """Captured pseudo-energy fraction for r = 1..k (eq. 3.7) of (k,) singular values: (k,).
+
+    ``criterion``: "squared", sum_{j<=r} sigma_j^2 / sum_j sigma_j^2 (eq. 3.7 literally), or
+    "paper", (sum_{j<=r} sigma_j / sum_j sigma_j)^2 (the reading of Section 5, eqs. 5.2-5.3).
+    """
     if criterion not in CRITERIA:
         raise ValueError(MARK + f"criterion must be one of {CRITERIA}, got {criterion!r}.")
     s = jnp.asarray(singular_values)
@@ -277,7 +295,10 @@ def _check_truncated_criterion(criterion: str, k: int) -> None:
 
 
 def rank_for_energy(singular_values, energy: float, criterion: str = "squared") -> int:
-    """Smallest r with captured fraction >= ``energy`` (0 < energy <= 1); a concrete integer.
+    """Smallest rank r whose pseudo-energy fraction (eq. 3.7) is at least ``energy``: an integer.
+
+    ``singular_values``: (k,), descending; 0 < energy <= 1 (eq. 5.3: 0.99); ``criterion`` as in
+    ``energy_fraction`` ("paper" gives the paper's r = 76 and 98 for 0.99 and 0.9999).
 
     Never past the numerical rank (here: values above 4 k eps sigma_1, k of them; ``POD``'s own
     method knows the snapshot shape and method); ``energy = 1`` gives it. ``singular_values`` are

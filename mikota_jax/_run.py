@@ -51,8 +51,12 @@ def _window(ts, window) -> np.ndarray:
 def run_scene(scene: Scene) -> dict:
     """Run ``scene``; return a JSON-ready dict: ``times``, ``full``, ``reduced``, metrics, ``meta``.
 
-    Only the requested DOFs (default all) and quantities appear. Arrays of the internal solves are
-    kept under the key ``"_arrays"`` (numpy, not written to JSON) for figures and further use.
+    ``times``: the N times; ``full``/``reduced``: {quantity: {"DOF": N values}} for the 1-based
+    output DOFs; with a ``[reduction]``: POD of the (n, m) snapshots (eqs. 3.5-3.6), ``rank`` by
+    eq. (3.7), Galerkin model (eq. 3.4), ``phase_error`` by eq. (5.4), ``singular_values`` (k),
+    ``modes`` (r lists of n). Only the requested DOFs (default all) and quantities appear.
+    Arrays of the internal solves are kept under the key ``"_arrays"`` (numpy, not written to
+    JSON) for figures and further use.
     """
     if not isinstance(scene, Scene):
         raise ValueError(f"mikota_jax: scene must be a Scene (see load_scene), got "

@@ -52,7 +52,14 @@ class Output(eqx.Module):
 
 
 class Scene(eqx.Module):
-    """One computation, declaratively: run it with ``run_scene``."""
+    """One computation, declaratively: run it with ``run_scene``; read one with ``load_scene``.
+
+    ``system``: the chain (n DOFs); ``ts``: (N,) output times; ``x0``, ``v0``: (n,) initial
+    state or None (zero); ``load``: a ``Pulse`` (eq. 4.3) or None; ``reduction``: the snapshot
+    window, rank rule and POD method (eqs. 3.5-3.8), or None; ``output``: 1-based DOFs and
+    quantities; ``solver``: "exact" (``exact_solve``) or a ``simulate`` solver with ``rtol``,
+    ``atol``, ``max_steps``. Consistent units, as in the paper's dimensionless scenes.
+    """
 
     system: SecondOrderSystem
     ts: Times
@@ -69,6 +76,7 @@ class Scene(eqx.Module):
 
     @property
     def size(self) -> int:
+        """n, the number of DOFs."""
         return self.system.size
 
 
