@@ -19,9 +19,9 @@ Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/sweep.py [--quick]``. Writes
 ``benchmarks/results/sweep.json`` and ``.png`` (``--quick``: ``sweep_quick.*``).
 """
 
-import _common  # noqa: F401  (sets OPENBLAS_NUM_THREADS before jax)
 import time
 
+import _common  # noqa: F401  (sets OPENBLAS_NUM_THREADS before jax)
 import jax
 import jax.numpy as jnp
 import matplotlib

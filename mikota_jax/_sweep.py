@@ -152,8 +152,8 @@ def sweep(function, points, *, chunk_size: int | None = None, devices=None,
             if MARK not in text:
                 raise
             line = text[text.index(MARK):].splitlines()[0]
-            raise ValueError(f"{line} (at one of the points {start}..{min(start + size, total) - 1})") \
-                from None
+            last = min(start + size, total) - 1
+            raise ValueError(f"{line} (at one of the points {start}..{last})") from None
         stop = min(start + size, total)
         for target, value in zip(jax.tree.leaves(results), jax.tree.leaves(values)):
             target[start:stop] = _gather(value)[: stop - start]

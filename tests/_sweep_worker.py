@@ -10,9 +10,9 @@ jax.distributed.initialize(coordinator_address=f"localhost:{port}", num_processe
                            process_id=process)
 
 import numpy as np  # noqa: E402
+from _sweep_scene import function, points  # noqa: E402
 
 import mikota_jax as mj  # noqa: E402
-from _sweep_scene import function, points  # noqa: E402
 
 assert jax.process_count() == 2 and len(jax.devices()) == 2 and len(jax.local_devices()) == 1
 np.save(out, mj.sweep(function(), points(), chunk_size=4, progress=False))

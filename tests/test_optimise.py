@@ -153,6 +153,7 @@ def test_split_designs_only_on_request():
         full_energy(N, float(result.positions[0]), float(result.coefficients[0])), rel=1e-6)
 
 
+@pytest.mark.slow  # 62 s in CI; certification itself stays in the default run (above)
 def test_certification_enriches_a_poor_basis_until_the_models_agree():
     p = problem(n=20, energy=0.9, criterion="squared")
     result = mj.optimise_dampers(p, starts=2, iterations=10, tolerance=1e-6, max_rounds=6)
@@ -236,6 +237,7 @@ def test_failing_solves_stop_with_a_reason_not_a_nan_optimum():
     assert np.isnan(float(mj.placement_objective(p)(p.positions, p.coefficients)))
 
 
+@pytest.mark.slow  # 34 s in CI: a whole optimisation through the CLI
 def test_cli_optimise_writes_json_and_plot(tmp_path):
     scene = tmp_path / "small.toml"
     scene.write_text(

@@ -66,9 +66,10 @@ LINEARITY = {"energy": 2.0, "displacement": None, "phase_error": 0.0, "singular_
 
 @pytest.mark.parametrize("output,model,mode", [
     ("energy", "full", "forward"), ("energy", "reduced", "forward"),
-    ("displacement", "full", "forward"), ("displacement", "reduced", "forward"),
+    ("displacement", "full", "forward"),
+    pytest.param("displacement", "reduced", "forward", marks=pytest.mark.slow),
     ("phase_error", "reduced", "forward"), ("singular_values", "full", "forward"),
-    ("singular_values", "reduced", "forward")])
+    pytest.param("singular_values", "reduced", "forward", marks=pytest.mark.slow)])
 def test_jacobian_matches_central_differences(scene, output, model, mode, close):
     """Every parameter against central differences; the amplitude against linearity; "auto"
     picks forward mode for a few parameters (reverse for many: the mass and spring vectors)."""
