@@ -67,6 +67,7 @@ def test_gradient_near_zero_coefficient_is_finite_and_matches_differences():
     assert float(gc[0]) == pytest.approx(dc, rel=1e-4)
 
 
+@pytest.mark.slow  # 21 s in CI
 def test_truncated_basis_gradient_differs_from_the_full_one_by_the_rom_error():
     p = problem()
     snapshots = mj.simulate(p.system(p.positions, p.coefficients), p.ts, p.x0).displacement
@@ -166,6 +167,7 @@ def test_certification_enriches_a_poor_basis_until_the_models_agree():
     assert result.rank > first_rank
 
 
+@pytest.mark.slow  # 28 s in CI
 def test_two_dampers_are_placed_at_dofs():
     system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(3.0, 0.5), mj.GroundedDamper(9.0, 0.5)])
     p = mj.DamperProblem(system, jnp.linspace(0.0, HORIZON, 401), jnp.zeros(N).at[2].set(1.0),
