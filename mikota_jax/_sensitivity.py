@@ -49,6 +49,7 @@ from ._integrate import simulate
 from ._metrics import phase_error
 from ._objectives import integrated_energy
 from ._pod import pod
+from ._run import _window as snapshot_window
 from ._scene import Scene
 
 OUTPUTS = ("displacement", "velocity", "energy", "phase_error", "singular_values")
@@ -126,8 +127,7 @@ def _scene_basis(scene: Scene) -> jax.Array:
     velocity = reduction.quantity == "velocity"
     full = _solve(scene.system, scene, None, not velocity, velocity, None)
     states = full.velocity if velocity else full.displacement
-    t = np.asarray(scene.ts)
-    mask = (t >= reduction.window[0] - 1e-9) & (t <= reduction.window[1] + 1e-9)
+    mask = snapshot_window(scene.ts, reduction.window)
     decomposition = pod(np.asarray(states)[mask].T, method=reduction.method)
     rank = reduction.rank
     if rank is None:
@@ -267,12 +267,9 @@ class SceneFunction(eqx.Module):
 
 
 def _snapshot_mask(scene: Scene) -> np.ndarray:
-    t = np.asarray(scene.ts)
     if scene.reduction is None:
-        return np.ones(t.shape, bool)
-    window = scene.reduction.window
-    tol = 1e-9 * max(1.0, float(np.max(np.abs(t))))
-    return (t >= window[0] - tol) & (t <= window[1] + tol)
+        return np.ones(np.shape(scene.ts), bool)
+    return snapshot_window(scene.ts, scene.reduction.window)
 
 
 @eqx.filter_jit
