@@ -24,12 +24,14 @@ from ._pod import pod
 from ._scene import Scene
 
 
-def _solve(model, scene: Scene, dofs, displacement: bool, velocity: bool):
+def solve_scene(model, scene: Scene, dofs, displacement: bool, velocity: bool, adjoint=None):
+    """``model`` solved as ``scene`` says (exactly, or by ``simulate`` with its tolerances)."""
     kwargs = dict(dofs=dofs, displacement=displacement, velocity=velocity)
     if scene.solver == "exact":
         return exact_solve(model, scene.ts, scene.x0, scene.v0, scene.load, **kwargs)
     return simulate(model, scene.ts, scene.x0, scene.v0, scene.load, solver=scene.solver,
-                    rtol=scene.rtol, atol=scene.atol, max_steps=scene.max_steps, **kwargs)
+                    rtol=scene.rtol, atol=scene.atol, max_steps=scene.max_steps,
+                    adjoint=adjoint, **kwargs)
 
 
 def _columns(trajectory, quantity: str, dofs) -> dict[str, list[float]]:
@@ -75,7 +77,7 @@ def run_scene(scene: Scene) -> dict:
     arrays: dict = {"times": np.asarray(scene.ts), "dofs": dofs}
 
     start = time.perf_counter()
-    full = _solve(scene.system, scene, None if need_all else dofs, True,
+    full = solve_scene(scene.system, scene, None if need_all else dofs, True,
                   wants_v or snapshot_v)
     jax.block_until_ready(full)
     timings["full_solve_s"] = time.perf_counter() - start
@@ -96,7 +98,7 @@ def run_scene(scene: Scene) -> dict:
         model = galerkin(scene.system, decomposition.basis(rank))
         timings["reduction_s"] = time.perf_counter() - start
         start = time.perf_counter()
-        reduced = _solve(model, scene, None if wants_phase else dofs, True, wants_v)
+        reduced = solve_scene(model, scene, None if wants_phase else dofs, True, wants_v)
         jax.block_until_ready(reduced)
         timings["reduced_solve_s"] = time.perf_counter() - start
         arrays.update(pod=decomposition, rank=rank, reduced=reduced, snapshots=int(mask.sum()))

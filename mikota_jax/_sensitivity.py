@@ -42,14 +42,13 @@ import numpy as np
 from ._chain import SecondOrderSystem, chain
 from ._dampers import Dampers, GroundedDamper, RelativeDamper
 from ._errors import MARK, as_float
-from ._exact import exact_solve
 from ._excitation import Pulse
 from ._galerkin import galerkin
-from ._integrate import simulate
 from ._metrics import phase_error
 from ._objectives import integrated_energy
 from ._pod import pod
 from ._run import _window as snapshot_window
+from ._run import solve_scene as _solve
 from ._scene import Scene
 
 OUTPUTS = ("displacement", "velocity", "energy", "phase_error", "singular_values")
@@ -133,15 +132,6 @@ def _scene_basis(scene: Scene) -> jax.Array:
     if rank is None:
         rank = decomposition.rank_for_energy(reduction.energy, reduction.criterion)
     return decomposition.basis(rank)
-
-
-def _solve(model, scene: Scene, dofs, displacement: bool, velocity: bool, adjoint):
-    kwargs = dict(dofs=dofs, displacement=displacement, velocity=velocity)
-    if scene.solver == "exact":
-        return exact_solve(model, scene.ts, scene.x0, scene.v0, scene.load, **kwargs)
-    return simulate(model, scene.ts, scene.x0, scene.v0, scene.load, solver=scene.solver,
-                    rtol=scene.rtol, atol=scene.atol, max_steps=scene.max_steps,
-                    adjoint=adjoint, **kwargs)
 
 
 class SceneFunction(eqx.Module):
