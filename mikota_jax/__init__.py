@@ -15,6 +15,7 @@ from ._analytic import mode_shape_coefficients as mode_shape_coefficients
 from ._analytic import paper_mode_shape as paper_mode_shape
 from ._cache import enable_compilation_cache as enable_compilation_cache
 from ._chain import SecondOrderSystem as SecondOrderSystem
+from ._chain import branched_chain as branched_chain
 from ._chain import chain as chain
 from ._chain import mikota_chain as mikota_chain
 from ._dampers import GroundedDamper as GroundedDamper
@@ -26,11 +27,14 @@ from ._excitation import Pulse as Pulse
 from ._excitation import pulse as pulse
 from ._excitation import unit_vector as unit_vector
 from ._galerkin import ReducedModel as ReducedModel
+from ._internal import ModalDamping as ModalDamping
+from ._internal import Rayleigh as Rayleigh
 from ._galerkin import galerkin as galerkin
 from ._implicit import StructuredKvaerno5 as StructuredKvaerno5
 from ._implicit import choose_solver as choose_solver
 from ._integrate import Trajectory as Trajectory
 from ._integrate import simulate as simulate
+from ._matrices import system as system
 from ._metrics import phase_error as phase_error
 from ._metrics import pseudo_energy as pseudo_energy
 from ._metrics import relative_error as relative_error

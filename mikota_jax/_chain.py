@@ -18,40 +18,65 @@ import jax.scipy.linalg as jsl
 from ._custom_types import ScalarLike, Vector
 from ._dampers import Dampers, GroundedDamper, RelativeDamper
 from ._errors import MARK, as_float, check, positive_scalar
-from ._operators import Dense, Diagonal, Operator, SymmetricTridiagonal
+from ._internal import InternalDamping, ModalDamping, Rayleigh, as_internal
+from ._operators import Diagonal, Operator, SymmetricTridiagonal, add
 
 
 class SecondOrderSystem(eqx.Module):
     """A linear second-order system M x'' + D x' + K x = f (eq. 3.1), with structured operators.
 
     ``mass`` M and ``stiffness`` K (force per length) are n x n operators: diagonal and symmetric
-    tridiagonal for a chain (eq. 2.2), dense for a reduced model; ``damping`` D (force * time per
-    length) is the dampers' operator (low rank once projected), ``None`` when undamped. Build with
-    ``mikota_chain`` or ``chain``; ``simulate`` and ``exact_solve`` solve it.
+    tridiagonal for a chain (eq. 2.2), dense for a reduced model, banded or sparse for a user's
+    matrices; ``damping`` is the discrete dampers' operator (low rank once projected), ``internal``
+    the rest of D (a user's matrix, Rayleigh, modal damping), each ``None`` when absent; D (force *
+    time per length) is their sum. Build with ``mikota_chain``, ``chain``, ``branched_chain`` or
+    ``system``; ``simulate`` and ``exact_solve`` solve it.
     """
 
-    mass: Diagonal | Dense
-    stiffness: SymmetricTridiagonal | Dense
-    damping: Dampers | Dense | None = None
+    mass: Operator
+    stiffness: Operator
+    damping: Dampers | Operator | None = None
+    internal: InternalDamping | None = None
 
     @property
     def size(self) -> int:
         """n, the number of DOFs."""
         return self.mass.size
 
+    @property
+    def damped(self) -> bool:
+        """Whether D is present (dampers or internal damping)."""
+        return self.damping is not None or self.internal is not None
+
+    def modes(self):
+        """(omega^2, U): K U = M U diag(omega^2), U^T M U = I, ascending (unchecked)."""
+        return generalized_modes(self)
+
+    def damping_operator(self):
+        """D as one operator (dampers plus internal damping), or None when undamped."""
+        internal = None if self.internal is None else self.internal.operator(
+            self.mass, self.stiffness, self.modes)
+        return add(self.damping, internal)
+
     def dense(self):
         """(M, D, K) as dense (n, n) arrays (D is None when undamped): for small systems, checks."""
-        damping = None if self.damping is None else self.damping.as_matrix()
+        damping = self.damping_operator()
+        damping = None if damping is None else damping.as_matrix()
         return self.mass.as_matrix(), damping, self.stiffness.as_matrix()
 
     def project(self, basis) -> "SecondOrderSystem":
         """The r-DOF system (basis^T M basis, basis^T D basis, basis^T K basis) of eq. (3.4).
 
-        ``basis`` is (n, r); the result has dense r x r mass and stiffness and low-rank dampers.
-        ``galerkin`` checks the basis and keeps it for the lift (eq. 3.2); prefer it.
+        ``basis`` is (n, r); the result has dense r x r mass and stiffness and low-rank dampers;
+        Rayleigh damping stays Rayleigh damping of the projected M and K (exact), modal or a
+        user's damping becomes a dense r x r matrix. ``galerkin`` checks the basis and keeps it
+        for the lift (eq. 3.2); prefer it.
         """
         damping = None if self.damping is None else self.damping.project(basis)
-        return SecondOrderSystem(self.mass.project(basis), self.stiffness.project(basis), damping)
+        internal = None if self.internal is None else self.internal.project(
+            basis, self.mass, self.stiffness, self.modes)
+        return SecondOrderSystem(self.mass.project(basis), self.stiffness.project(basis), damping,
+                                 internal)
 
 
 def _damping(n: int, dampers) -> Dampers | None:
@@ -63,12 +88,14 @@ def _damping(n: int, dampers) -> Dampers | None:
 
 
 def chain(masses: Sequence[float] | Vector, springs: Sequence[float] | Vector,
-          dampers: Sequence[GroundedDamper | RelativeDamper] = ()) -> SecondOrderSystem:
+          dampers: Sequence[GroundedDamper | RelativeDamper] = (), *,
+          internal_damping: Rayleigh | ModalDamping | tuple | None = None) -> SecondOrderSystem:
     """A fixed-free chain (eq. 2.2) from masses m_1..m_n and springs k_1..k_n, each (n,).
 
     Spring k_i ties DOF i to DOF i - 1 (1-based; k_1 ties DOF 1 to the fixed support), DOF n is
     free; all values finite and > 0 (masses, stiffnesses in force per length; consistent units).
     ``dampers``: ``GroundedDamper``/``RelativeDamper`` instances, or none (then ``damping=None``).
+    ``internal_damping``: ``Rayleigh(alpha, beta)``, ``ModalDamping(zeta)``, both, or None.
     """
     masses = as_float(masses, "masses")
     springs = as_float(springs, "springs")
@@ -83,23 +110,90 @@ def chain(masses: Sequence[float] | Vector, springs: Sequence[float] | Vector,
     n = masses.shape[0]
     next_springs = jnp.concatenate([springs[1:], jnp.zeros(1)])  # k_{i+1}, with k_{n+1} = 0
     stiffness = SymmetricTridiagonal(springs + next_springs, -springs[1:], springs)
-    return SecondOrderSystem(Diagonal(masses), stiffness, _damping(n, dampers))
+    return SecondOrderSystem(Diagonal(masses), stiffness, _damping(n, dampers),
+                             as_internal(internal_damping, n))
 
 
 def mikota_chain(n: int, m: ScalarLike = 1.0, k: ScalarLike = 1.0,
-                 dampers: Sequence[GroundedDamper | RelativeDamper] = ()) -> SecondOrderSystem:
+                 dampers: Sequence[GroundedDamper | RelativeDamper] = (), *,
+                 internal_damping: Rayleigh | ModalDamping | tuple | None = None
+                 ) -> SecondOrderSystem:
     """Mikota's chain (eqs. 2.2-2.3): m_i = m / i, k_i = (n - i + 1) k for DOFs i = 1..n.
 
     ``m`` is the first mass and ``k`` the last spring's stiffness (force per length), in consistent
     units (the paper: m = k = 1, dimensionless); the undamped chain's eigenfrequencies are
-    l sqrt(k/m), l = 1..n (eq. 2.4). ``dampers`` as in ``chain``.
+    l sqrt(k/m), l = 1..n (eq. 2.4). ``dampers`` and ``internal_damping`` as in ``chain``.
     """
     if isinstance(n, bool) or not isinstance(n, int | jnp.integer) or n < 1:
         raise ValueError(MARK + f"n must be an integer >= 1, got {n!r}.")
     n = int(n)
     m, k = positive_scalar(m, "m"), positive_scalar(k, "k")
     i = jnp.arange(1, n + 1, dtype=jnp.float64)
-    return chain(m / i, (n - i + 1) * k, dampers)
+    return chain(m / i, (n - i + 1) * k, dampers, internal_damping=internal_damping)
+
+
+def _branch(masses, springs, j: int):
+    masses = as_float(masses, f"masses[{j}]")
+    springs = as_float(springs, f"springs[{j}]")
+    if masses.ndim != 1 or masses.shape[0] < 1:
+        raise ValueError(MARK + f"masses[{j}] must be a 1-d array of length >= 1, got shape "
+                         f"{masses.shape}.")
+    if springs.shape != (masses.shape[0] + 1,):
+        raise ValueError(MARK + f"springs[{j}] must have len(masses[{j}]) + 1 = "
+                         f"{masses.shape[0] + 1} entries (ground, between masses, to the hub), "
+                         f"got shape {springs.shape}.")
+    masses = check(masses, ~(jnp.isfinite(masses) & (masses > 0)),
+                   f"masses[{j}] must be finite and > 0.")
+    springs = check(springs, ~(jnp.isfinite(springs) & (springs > 0)),
+                    f"springs[{j}] must be finite and > 0.")
+    return masses, springs
+
+
+def branched_chain(masses: Sequence[Vector], springs: Sequence[Vector], hub_mass: ScalarLike,
+                   hub_spring: ScalarLike, dampers: Sequence[GroundedDamper | RelativeDamper] = (),
+                   *, internal_damping: Rayleigh | ModalDamping | tuple | None = None
+                   ) -> SecondOrderSystem:
+    """Several fixed-free chains joined to a common mass (the hub), grounded by its own spring.
+
+    Branch j has ``masses[j]`` (L_j,), from its grounded end to the hub, and ``springs[j]``
+    (L_j + 1,): springs[j][0] ties its first mass to the ground, springs[j][i] masses i - 1 and i
+    (0-based), springs[j][L_j] its last mass to the hub. ``hub_mass`` and ``hub_spring`` (to the
+    ground) are scalars. All values finite and > 0. DOFs (1-based): branch 1 is 1..L_1, then
+    branch 2, ..., the hub is DOF n = sum L_j + 1. The multi-chain oscillators of the damping-
+    optimisation literature (e.g. three rows of d masses) are this system.
+
+    Structure: a diagonal mass and a tridiagonal stiffness plus one off-band spring ("link") per
+    branch but the last, so applying K costs O(n) and the stiff solver's stage solve stays O(n)
+    (tridiagonal plus a low-rank correction). ``dampers`` and ``internal_damping`` as in ``chain``.
+    """
+    if len(masses) != len(springs) or len(masses) < 1:
+        raise ValueError(MARK + f"masses and springs must list the same number (>= 1) of "
+                         f"branches, got {len(masses)} and {len(springs)}.")
+    branches = [_branch(m, k, j) for j, (m, k) in enumerate(zip(masses, springs))]
+    hub_mass = positive_scalar(hub_mass, "hub_mass")
+    hub_spring = positive_scalar(hub_spring, "hub_spring")
+    diagonal, off, links, link_springs, offset = [], [], [], [], 0
+    n = sum(m.shape[0] for m, _ in branches) + 1
+    for j, (m, k) in enumerate(branches):
+        length = m.shape[0]
+        diagonal.append(k[:-1] + k[1:])
+        off.append(-k[1:-1])
+        last = offset + length - 1
+        if j == len(branches) - 1:
+            off.append(-k[-1:])  # the last branch's last mass is the hub's neighbour
+        else:
+            off.append(jnp.zeros(1))  # no spring between branches j and j + 1
+            links.append((last, n - 1))
+            link_springs.append(k[-1])
+        offset += length
+    hub_stiffness = hub_spring + sum(k[-1] for _, k in branches)
+    diagonal.append(hub_stiffness[None])
+    stiffness = SymmetricTridiagonal(
+        jnp.concatenate(diagonal), jnp.concatenate(off), None, tuple(links),
+        jnp.stack(link_springs) if links else None)
+    mass = Diagonal(jnp.concatenate([m for m, _ in branches] + [hub_mass[None]]))
+    return SecondOrderSystem(mass, stiffness, _damping(n, dampers),
+                             as_internal(internal_damping, n))
 
 
 def generalized_modes(system: SecondOrderSystem):
@@ -127,6 +221,3 @@ def generalized_modes(system: SecondOrderSystem):
         modes = jsl.solve_triangular(lower.T, vectors, lower=False)
     return omega2, modes
 
-
-def as_operator(x) -> Operator:
-    return x if isinstance(x, Diagonal | SymmetricTridiagonal | Dense) else Dense(x)

@@ -66,9 +66,9 @@ def scaled_modal(system):
     omega2, modes = generalized_modes(system)
     not_definite = jnp.any(omega2 <= 0)
     omega = jnp.sqrt(jnp.where(omega2 > 0, omega2, 1.0))  # no NaN below; flagged instead
-    damping_modal = None
-    if system.damping is not None:
-        damping_modal = modes.T @ jax.vmap(system.damping.mv, in_axes=1, out_axes=1)(modes)
+    damping_modal, damping = None, system.damping_operator()
+    if damping is not None:
+        damping_modal = modes.T @ jax.vmap(damping.mv, in_axes=1, out_axes=1)(modes)
     return omega, modes, damping_modal, not_definite
 
 
@@ -187,13 +187,13 @@ def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = 
         raise ValueError(MARK + "ask for displacement and/or velocity; nothing would be saved.")
     ts = check_times(ts)
     system = model.system if isinstance(model, ReducedModel) else model
-    if ts.shape[0] > 2 and getattr(system, "damping", None) is not None:
+    if ts.shape[0] > 2 and system.damped:
         gaps = jnp.diff(ts)
         ts = check(ts, jnp.max(jnp.abs(gaps - gaps[0])) > 1e-9 * jnp.abs(gaps[0]),
                    "ts must be a uniform grid for exact_solve of a damped system; use simulate "
                    "for other grids.")
     x0, v0, load = check_problem(model, x0, v0, load)
-    damped = getattr(system, "damping", None) is not None
+    damped = system.damped
     check_dense_memory(system.size, 32 if damped else 6, "exact_solve")
     trajectory, failures = _exact(model, ts, x0, v0, load, dofs=check_dofs(dofs, model.size),
                                   displacement=displacement, velocity=velocity)

@@ -8,8 +8,10 @@ linear solve, done exactly. Eliminating x = w_x + s v leaves
     (M + s D + s^2 K) v = M w_v + s (f(t) - K w_x),
 
 a symmetric positive definite n x n system. For a chain it is tridiagonal (diagonal mass and
-grounded dampers, tridiagonal K) plus one rank-one term per relative damper (Woodbury); in modal
-coordinates (a reduced model) it is diagonal plus the low-rank projected dampers. Either way a
+grounded dampers, tridiagonal K, Rayleigh damping) plus one rank-one term per relative damper or
+branched-chain link (Woodbury); in modal coordinates (a reduced model, a non-diagonal mass, modal
+damping) it is diagonal plus the low-rank projected dampers. Banded, sparse or dense user
+matrices with a diagonal mass fall back to a dense solve per step. Either way a
 stage costs O(n) (O(r p) reduced), the method is L-stable and stiffly accurate, and diffrax's
 step-size control, dense output, events and adjoints work unchanged around it.
 """
@@ -25,7 +27,7 @@ from jax.lax.linalg import tridiagonal_solve
 
 from ._dampers import Dampers
 from ._errors import MARK
-from ._operators import Dense, Diagonal, LowRank, SymmetricTridiagonal
+from ._operators import Diagonal, LowRank, SymmetricTridiagonal, abs_row_sums
 
 _TABLEAU = diffrax.Kvaerno5.tableau
 
@@ -55,30 +57,90 @@ def _woodbury(base_solve, factor, weights):
     return solve
 
 
+def _internal_bands(system, s):
+    """s D_internal as (diagonal, off-diagonal, link weights), or None when it is not tridiagonal.
+
+    Rayleigh's alpha M + beta K is as tridiagonal as K (its links scale by beta); a user's
+    diagonal or tridiagonal D adds its bands; modal damping is diagonal only in modal coordinates
+    (where ``unpack`` has turned it into a ``Diagonal`` matrix already).
+    """
+    n, internal, stiffness = system.size, system.internal, system.stiffness
+    diagonal, off, links = jnp.zeros(n), jnp.zeros(max(n - 1, 0)), None
+    if internal is None:
+        return diagonal, off, links
+    if internal.modal is not None:
+        return None
+    matrix = internal.matrix
+    if isinstance(matrix, Diagonal):
+        diagonal = diagonal + s * matrix.diagonal
+    elif isinstance(matrix, SymmetricTridiagonal) and not matrix.links:
+        diagonal, off = diagonal + s * matrix.diagonal, off + s * matrix.off_diagonal
+    elif matrix is not None:
+        return None
+    if internal.rayleigh is not None:
+        alpha, beta = s * internal.rayleigh.alpha, s * internal.rayleigh.beta
+        diagonal = diagonal + alpha * system.mass.diagonal + beta * stiffness.diagonal
+        if isinstance(stiffness, SymmetricTridiagonal):
+            off = off + beta * stiffness.off_diagonal
+            links = None if not stiffness.links else beta * stiffness.link_springs
+    return diagonal, off, links
+
+
+def _dense_solver(system, s):
+    matrix = system.mass.as_matrix() + s**2 * system.stiffness.as_matrix()
+    damping = system.damping_operator()
+    if damping is not None:
+        matrix = matrix + s * damping.as_matrix()
+    return lambda rhs: jnp.linalg.solve(matrix, rhs)
+
+
+def _pair_factor(n: int, pairs):
+    """(n, p) columns e_i - e_j for 0-based pairs (i, j)."""
+    i, j = (jnp.asarray(a) for a in zip(*pairs))
+    columns = jnp.arange(len(pairs))
+    return jnp.zeros((n, len(pairs))).at[i, columns].set(1.0).at[j, columns].add(-1.0)
+
+
 def shifted_solver(system, s):
-    """rhs -> (M + s D + s^2 K)^-1 rhs, prepared once per step (s = h gamma), in O(n) structure."""
+    """rhs -> (M + s D + s^2 K)^-1 rhs, prepared once per step (s = h gamma), in O(n) structure.
+
+    Structured when M is diagonal and K (with D's internal part) tridiagonal or diagonal: a
+    tridiagonal solve, plus Woodbury for relative dampers, a branched chain's links and projected
+    dampers; any other system (banded, sparse or dense matrices) is solved densely.
+    """
     mass, stiffness, damping = system.mass, system.stiffness, system.damping
-    if not isinstance(mass, Diagonal) or isinstance(stiffness, Dense) or isinstance(damping, Dense):
-        matrix = mass.as_matrix() + s**2 * stiffness.as_matrix()
-        if damping is not None:
-            matrix = matrix + s * damping.as_matrix()
-        return lambda rhs: jnp.linalg.solve(matrix, rhs)
-    diagonal = mass.diagonal + s**2 * stiffness.diagonal
+    internal = _internal_bands(system, s)
+    structured = (isinstance(mass, Diagonal) and internal is not None
+                  and isinstance(stiffness, Diagonal | SymmetricTridiagonal)
+                  and isinstance(damping, Dampers | LowRank | None))
+    if not structured:
+        return _dense_solver(system, s)
+    d_internal, off_internal, link_internal = internal
+    diagonal = mass.diagonal + s**2 * stiffness.diagonal + d_internal
     if isinstance(damping, Dampers):
         diagonal = diagonal + s * damping.grounded_diagonal()
+    factors, weights = [], []
     if isinstance(stiffness, SymmetricTridiagonal):
-        off = s**2 * stiffness.off_diagonal
+        off = s**2 * stiffness.off_diagonal + off_internal
+        if stiffness.links:
+            # K's links are -k at (i, j) with +k on the diagonal: k (e_i - e_j)(e_i - e_j)^T
+            # taken out of the tridiagonal part and put back by Woodbury
+            w = s**2 * stiffness.link_springs + (0.0 if link_internal is None else link_internal)
+            i, j = (np.asarray(a) for a in zip(*stiffness.links))
+            diagonal = diagonal.at[i].add(-w).at[j].add(-w)
+            factors.append(_pair_factor(system.size, stiffness.links))
+            weights.append(w)
         solve = lambda rhs: _tridiagonal_solve(diagonal, off, rhs)  # noqa: E731
     else:
         solve = lambda rhs: rhs / (diagonal if rhs.ndim == 1 else diagonal[:, None])  # noqa: E731
     if isinstance(damping, Dampers) and damping.pairs:
-        i, j = (jnp.asarray(a) for a in zip(*damping.pairs))
-        columns = jnp.arange(len(damping.pairs))
-        factor = jnp.zeros((system.size, len(damping.pairs))).at[i, columns].set(1.0)
-        factor = factor.at[j, columns].add(-1.0)  # D_rel = sum c (e_i - e_j)(e_i - e_j)^T
-        solve = _woodbury(solve, factor, s * damping.pair_coefficients)
+        factors.append(_pair_factor(system.size, damping.pairs))
+        weights.append(s * damping.pair_coefficients)
     elif isinstance(damping, LowRank):
-        solve = _woodbury(solve, damping.factor, s * damping.weights)
+        factors.append(damping.factor)
+        weights.append(s * damping.weights)
+    if factors:
+        solve = _woodbury(solve, jnp.concatenate(factors, axis=1), jnp.concatenate(weights))
     return solve
 
 
@@ -157,25 +219,34 @@ STIFF_THRESHOLD = 1e5
 
 def gershgorin_omega(mass_diagonal, stiffness) -> float:
     """Upper bound of the highest eigenfrequency: sqrt(max_i sum_j |K_ij| / M_ii), on the host."""
-    if hasattr(stiffness, "off_diagonal"):
-        off = np.pad(np.abs(np.asarray(stiffness.off_diagonal)), 1)
-        rows = np.abs(np.asarray(stiffness.diagonal)) + off[:-1] + off[1:]
-    else:
-        rows = np.abs(np.asarray(stiffness.as_matrix())).sum(axis=1)
+    rows = np.asarray(abs_row_sums(stiffness))
     return float(np.sqrt(np.max(rows / np.asarray(mass_diagonal))))
+
+
+def _internal_rate(internal, mass_diagonal, omega: float) -> float:
+    """A bound of the internal damping's fastest decay rate (an eigenvalue of M^-1 D)."""
+    rate = 0.0
+    if internal.rayleigh is not None:
+        rate += float(internal.rayleigh.alpha) + float(internal.rayleigh.beta) * omega**2
+    if internal.modal is not None:
+        rate += 2 * float(np.max(np.asarray(internal.modal.zeta))) * omega
+    if internal.matrix is not None:
+        rate += float(np.max(np.asarray(abs_row_sums(internal.matrix)) / mass_diagonal))
+    return rate
 
 
 def stiffness_rate(system) -> float:
     """rho = max(highest eigenfrequency, fastest damper decay rate), Gershgorin bounds on the host.
 
     For a diagonal mass: omega_max^2 <= max_i sum_j |K_ij| / M_ii and the damper rate
-    <= max_i sum_j |D_ij| / M_ii; for a dense mass (a reduced model) the exact values.
+    <= max_i sum_j |D_ij| / M_ii (internal damping: alpha + beta omega_max^2, 2 zeta omega_max);
+    for a non-diagonal mass (a reduced model, a user's) the exact values.
     """
     system = system.system if hasattr(system, "basis") else system
-    mass, stiffness, damping = system.mass, system.stiffness, system.damping
-    if isinstance(mass, Diagonal) and isinstance(stiffness, SymmetricTridiagonal):
+    mass, damping = system.mass, system.damping
+    if isinstance(mass, Diagonal):
         m = np.asarray(mass.diagonal)
-        omega = gershgorin_omega(m, stiffness)
+        omega = gershgorin_omega(m, system.stiffness)
         rate = 0.0
         if isinstance(damping, Dampers):
             rows = np.asarray(damping.grounded_diagonal())
@@ -183,11 +254,16 @@ def stiffness_rate(system) -> float:
                 rows[i] += 2 * c
                 rows[j] += 2 * c
             rate = float(np.max(rows / m))
+        elif damping is not None:
+            rate = float(np.max(np.asarray(abs_row_sums(damping)) / m))
+        if system.internal is not None:
+            rate += _internal_rate(system.internal, m, omega)
         return max(omega, rate)
     m = np.asarray(mass.as_matrix())
-    k = np.asarray(stiffness.as_matrix())
+    k = np.asarray(system.stiffness.as_matrix())
     omega2 = np.max(np.abs(np.linalg.eigvals(np.linalg.solve(m, k))))
     rate = 0.0
+    damping = system.damping_operator()
     if damping is not None:
         d = np.linalg.solve(m, np.asarray(damping.as_matrix()))
         rate = float(np.max(np.abs(np.linalg.eigvals(d))))

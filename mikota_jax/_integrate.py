@@ -31,7 +31,8 @@ from ._errors import (
 from ._excitation import Pulse, as_load
 from ._galerkin import ReducedModel
 from ._implicit import StructuredKvaerno5, choose_solver
-from ._operators import Diagonal
+from ._internal import InternalDamping
+from ._operators import Diagonal, diagonal_of
 
 SOLVERS = {
     "tsit5": diffrax.Tsit5,
@@ -95,25 +96,29 @@ def check_problem(model, x0, v0, load):
 def unpack(model, x0, v0, load):
     """(system, lift or None, initial x, initial v, load) in the coordinates the solvers use.
 
-    A chain (diagonal mass) is solved as it is, in its O(n) structure (lift None). A system with a
-    dense mass -- a reduced model, or a user's dense matrices -- is solved in its M-orthonormal
-    modal coordinates eta: q = U eta with U^T M U = I, U^T K U = diag(omega^2), so M becomes I, K
-    a diagonal and projected dampers stay low rank; ``lift`` (basis U, or U) maps eta back to the
-    full DOFs. The initial state is projected (q0 = basis^T x0, eta0 = U^T M q0).
+    A system with a diagonal mass and no modal damping (a chain, or a user's diagonal-mass
+    system) is solved as it is, in its structure (lift None). Any other -- a reduced model, a
+    non-diagonal mass, modal damping -- is solved in its M-orthonormal modal coordinates eta:
+    q = U eta with U^T M U = I, U^T K U = diag(omega^2), so M becomes I, K a diagonal, Rayleigh
+    and modal damping diagonals, and projected dampers stay low rank; ``lift`` (basis U, or U)
+    maps eta back to the full DOFs. The initial state is projected (q0 = basis^T x0,
+    eta0 = U^T M q0).
     """
     basis = model.basis if isinstance(model, ReducedModel) else None
     system = model.system if basis is not None else model
-    if isinstance(system.mass, Diagonal) and basis is None:
+    modal_damping = system.internal is not None and system.internal.modal is not None
+    if isinstance(system.mass, Diagonal) and basis is None and not modal_damping:
         return system, None, x0, v0, load
     if basis is not None:
         x0, v0 = basis.T @ x0, basis.T @ v0
     omega2, modes = generalized_modes(system)
-    mass = system.mass.as_matrix()
     lift = modes if basis is None else basis @ modes
     damping = None if system.damping is None else system.damping.project(modes)
-    modal = SecondOrderSystem(Diagonal(jnp.ones_like(omega2)), Diagonal(omega2), damping)
+    internal = None if system.internal is None else InternalDamping(
+        system.internal.in_modes(omega2, modes))
+    modal = SecondOrderSystem(Diagonal(jnp.ones_like(omega2)), Diagonal(omega2), damping, internal)
     load = None if load is None else load.project(lift)
-    return modal, lift, modes.T @ (mass @ x0), modes.T @ (mass @ v0), load
+    return modal, lift, modes.T @ system.mass.mv(x0), modes.T @ system.mass.mv(v0), load
 
 
 def acceleration(system: SecondOrderSystem, load):
@@ -121,7 +126,8 @@ def acceleration(system: SecondOrderSystem, load):
 
     The mass is inverted elementwise and a chain's grounded dampers collapse to one diagonal vector,
     K stays a tridiagonal stencil (a chain) or a diagonal (modal coordinates): O(n) per call, plus
-    O(r p) for dampers projected onto r modes (p = DOFs they touch).
+    O(r p) for dampers projected onto r modes (p = DOFs they touch); Rayleigh damping costs one
+    more product with M and K.
     """
     inverse_mass = 1.0 / system.mass.diagonal
     damping = system.damping
@@ -133,6 +139,9 @@ def acceleration(system: SecondOrderSystem, load):
         damp = damping.mv
     else:
         damp = None
+    if system.internal is not None:  # Rayleigh: alpha M v + beta K v, in M's and K's structure
+        internal = system.internal.operator(system.mass, system.stiffness, system.modes).mv
+        damp = internal if damp is None else (lambda v, d=damp: d(v) + internal(v))
 
     def accel(t, x, v):
         force = -system.stiffness.mv(x)
@@ -214,10 +223,6 @@ def check_solve_options(rtol, atol, max_steps, adjoint):
     return rtol, atol, adjoint
 
 
-def _diagonal_of(operator):
-    return operator.diagonal if hasattr(operator, "diagonal") else jnp.diag(operator.as_matrix())
-
-
 def default_atol(rtol, model, ts, x0, v0, load):
     """1e-2 rtol x the excitation's scale: max(|x0|, |v0|, the load's), or 1 when all are zero.
 
@@ -229,9 +234,9 @@ def default_atol(rtol, model, ts, x0, v0, load):
     scale = jnp.maximum(jnp.max(jnp.abs(x0)), jnp.max(jnp.abs(v0)))
     if load is not None:
         system = model.system if isinstance(model, ReducedModel) else model
-        flexibility = 1.0 / jnp.min(jnp.abs(_diagonal_of(system.stiffness)))
+        flexibility = 1.0 / jnp.min(jnp.abs(diagonal_of(system.stiffness)))
         if isinstance(load, Pulse):
-            mobility = load.duration / jnp.min(jnp.abs(_diagonal_of(system.mass)))
+            mobility = load.duration / jnp.min(jnp.abs(diagonal_of(system.mass)))
             force = jnp.max(jnp.abs(load.direction)) * jnp.minimum(flexibility, mobility)
         else:
             force = jnp.max(jnp.abs(jax.vmap(load)(ts))) * flexibility

@@ -2,14 +2,16 @@
 
 The full chain keeps its structure (a diagonal mass, a symmetric tridiagonal stiffness, a handful of
 dampers), so applying an operator costs O(n); a reduced model's mass and stiffness are dense r x r
-and its dampers stay low rank (``LowRank``, r x p with p the DOFs they touch). Every operator
-offers ``mv`` (matrix-vector product), ``as_matrix`` (dense, only on request) and
-``project(basis)`` (the Galerkin product ``basis^T A basis`` of eq. 3.4).
+and its dampers stay low rank (``LowRank``, r x p with p the DOFs they touch). A user's matrices
+keep theirs: ``SymmetricBanded`` (O(n b)) and ``Sparse`` (O(nnz)). Every operator offers ``mv``
+(matrix-vector product), ``as_matrix`` (dense, only on request) and ``project(basis)`` (the
+Galerkin product ``basis^T A basis`` of eq. 3.4).
 """
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._custom_types import Array, Basis, Float, Matrix, Vector
 
@@ -43,11 +45,17 @@ class SymmetricTridiagonal(eqx.Module):
     difference operator (x_i - x_{i-1}, x_0 = 0). The modal decomposition then uses the SVD of the
     bidiagonal factor diag(sqrt k) L M^-1/2, which keeps every eigenfrequency to full relative
     accuracy; eigh of M^-1/2 K M^-1/2 loses the lowest ones when masses span many decades.
+
+    ``links`` (optional, static, 0-based pairs (i, j) with |i - j| > 1) and ``link_springs``
+    (one per link): springs between DOFs that are not neighbours, as in a branched chain. They add
+    -k_ij at (i, j) and (j, i); ``diagonal`` already holds their +k_ij. A stencil plus O(links).
     """
 
     diagonal: Vector
     off_diagonal: Float[Array, " n-1"]
     springs: Vector | None = None
+    links: tuple[tuple[int, int], ...] = eqx.field(static=True, default=())
+    link_springs: Vector | None = None
 
     @property
     def size(self) -> int:
@@ -55,15 +63,31 @@ class SymmetricTridiagonal(eqx.Module):
 
     def mv(self, x: Vector) -> Vector:
         y = self.diagonal * x
-        if self.size == 1:
-            return y
-        upper = self.off_diagonal * x[1:]
-        lower = self.off_diagonal * x[:-1]
-        return y + jnp.pad(upper, (0, 1)) + jnp.pad(lower, (1, 0))
+        if self.size > 1:
+            upper = self.off_diagonal * x[1:]
+            lower = self.off_diagonal * x[:-1]
+            y = y + jnp.pad(upper, (0, 1)) + jnp.pad(lower, (1, 0))
+        if self.links:
+            i, j = (np.asarray(a) for a in zip(*self.links))
+            y = y.at[i].add(-self.link_springs * x[j]).at[j].add(-self.link_springs * x[i])
+        return y
 
     def as_matrix(self) -> Matrix:
-        return (jnp.diag(self.diagonal) + jnp.diag(self.off_diagonal, 1)
-                + jnp.diag(self.off_diagonal, -1))
+        matrix = (jnp.diag(self.diagonal) + jnp.diag(self.off_diagonal, 1)
+                  + jnp.diag(self.off_diagonal, -1))
+        if self.links:
+            i, j = (np.asarray(a) for a in zip(*self.links))
+            matrix = matrix.at[i, j].add(-self.link_springs).at[j, i].add(-self.link_springs)
+        return matrix
+
+    def abs_row_sums(self) -> Vector:
+        """sum_j |A_ij| per row (Gershgorin bounds)."""
+        off = jnp.abs(self.off_diagonal)
+        rows = jnp.abs(self.diagonal) + jnp.pad(off, (0, 1)) + jnp.pad(off, (1, 0))
+        if self.links:
+            i, j = (np.asarray(a) for a in zip(*self.links))
+            rows = rows.at[i].add(jnp.abs(self.link_springs)).at[j].add(jnp.abs(self.link_springs))
+        return rows
 
     def project(self, basis: Basis) -> "Dense":
         return Dense(basis.T @ jax.vmap(self.mv, in_axes=1, out_axes=1)(basis))
@@ -108,4 +132,116 @@ class LowRank(eqx.Module):
         return LowRank(basis.T @ self.factor, self.weights)
 
 
-Operator = Diagonal | SymmetricTridiagonal | Dense | LowRank
+class SymmetricBanded(eqx.Module):
+    """A symmetric banded matrix stored as its upper bands: ``bands[j, i] = A[i, i + j]``.
+
+    ``bands``: (b + 1, n) for half-bandwidth b, zero-padded at the end of band j (its last j
+    entries are unused). Applying it costs O(n b).
+    """
+
+    bands: Float[Array, "b+1 n"]
+
+    @property
+    def size(self) -> int:
+        return self.bands.shape[1]
+
+    def mv(self, x: Vector) -> Vector:
+        n = self.size
+        y = self.bands[0] * x
+        for j in range(1, self.bands.shape[0]):
+            band = self.bands[j, : n - j]
+            y = y + jnp.pad(band * x[j:], (0, j)) + jnp.pad(band * x[: n - j], (j, 0))
+        return y
+
+    def as_matrix(self) -> Matrix:
+        n = self.size
+        matrix = jnp.diag(self.bands[0])
+        for j in range(1, self.bands.shape[0]):
+            band = self.bands[j, : n - j]
+            matrix = matrix + jnp.diag(band, j) + jnp.diag(band, -j)
+        return matrix
+
+    def abs_row_sums(self) -> Vector:
+        """sum_j |A_ij| per row (Gershgorin bounds)."""
+        return SymmetricBanded(jnp.abs(self.bands)).mv(jnp.ones(self.size))
+
+    def project(self, basis: Basis) -> "Dense":
+        return Dense(basis.T @ jax.vmap(self.mv, in_axes=1, out_axes=1)(basis))
+
+
+class Sparse(eqx.Module):
+    """A sparse matrix in coordinate form: entries ``values[k]`` at (``rows[k]``, ``cols[k]``).
+
+    Every stored entry of a symmetric matrix appears (both triangles); 0-based indices. Applying
+    it costs O(nnz) (a gather and a segment sum).
+    """
+
+    rows: Array
+    cols: Array
+    values: Vector
+    size: int = eqx.field(static=True)
+
+    def mv(self, x: Vector) -> Vector:
+        return jax.ops.segment_sum(self.values * x[self.cols], self.rows, num_segments=self.size)
+
+    def as_matrix(self) -> Matrix:
+        return jnp.zeros((self.size, self.size)).at[self.rows, self.cols].add(self.values)
+
+    def abs_row_sums(self) -> Vector:
+        """sum_j |A_ij| per row (Gershgorin bounds)."""
+        return jax.ops.segment_sum(jnp.abs(self.values), self.rows, num_segments=self.size)
+
+    def project(self, basis: Basis) -> "Dense":
+        return Dense(basis.T @ jax.vmap(self.mv, in_axes=1, out_axes=1)(basis))
+
+
+class Sum(eqx.Module):
+    """A sum of operators (a user's damping matrix plus Rayleigh or modal damping, say)."""
+
+    parts: tuple
+
+    @property
+    def size(self) -> int:
+        return self.parts[0].size
+
+    def mv(self, x: Vector) -> Vector:
+        return sum(part.mv(x) for part in self.parts)
+
+    def as_matrix(self) -> Matrix:
+        return sum(part.as_matrix() for part in self.parts)
+
+    def project(self, basis: Basis) -> "Dense":
+        return Dense(sum(part.project(basis).as_matrix() for part in self.parts))
+
+
+def add(*parts):
+    """The sum of the operators that are not None (None when none is)."""
+    parts = tuple(p for p in parts if p is not None)
+    if not parts:
+        return None
+    return parts[0] if len(parts) == 1 else Sum(parts)
+
+
+def diagonal_of(operator) -> Vector:
+    """The main diagonal of any operator, in its structure where it has one."""
+    if hasattr(operator, "diagonal"):
+        return operator.diagonal
+    if isinstance(operator, SymmetricBanded):
+        return operator.bands[0]
+    if isinstance(operator, Sparse):
+        on = operator.rows == operator.cols
+        return jax.ops.segment_sum(jnp.where(on, operator.values, 0.0), operator.rows,
+                                   num_segments=operator.size)
+    return jnp.diag(operator.as_matrix())
+
+
+def abs_row_sums(operator) -> Vector:
+    """sum_j |A_ij| per row of any operator, in its structure where it has one."""
+    if isinstance(operator, Diagonal):
+        return jnp.abs(operator.diagonal)
+    if hasattr(operator, "abs_row_sums"):
+        return operator.abs_row_sums()
+    return jnp.sum(jnp.abs(operator.as_matrix()), axis=1)
+
+
+Operator = Diagonal | SymmetricTridiagonal | SymmetricBanded | Sparse | Dense | LowRank | Sum
