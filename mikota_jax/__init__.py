@@ -27,13 +27,15 @@ from ._excitation import Pulse as Pulse
 from ._excitation import pulse as pulse
 from ._excitation import unit_vector as unit_vector
 from ._galerkin import ReducedModel as ReducedModel
-from ._internal import ModalDamping as ModalDamping
-from ._internal import Rayleigh as Rayleigh
 from ._galerkin import galerkin as galerkin
 from ._implicit import StructuredKvaerno5 as StructuredKvaerno5
 from ._implicit import choose_solver as choose_solver
 from ._integrate import Trajectory as Trajectory
 from ._integrate import simulate as simulate
+from ._internal import ModalDamping as ModalDamping
+from ._internal import Rayleigh as Rayleigh
+from ._io import load_matrix as load_matrix
+from ._io import save_matrix_market as save_matrix_market
 from ._matrices import system as system
 from ._metrics import phase_error as phase_error
 from ._metrics import pseudo_energy as pseudo_energy

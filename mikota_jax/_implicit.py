@@ -78,6 +78,9 @@ def _internal_bands(system, s):
     elif matrix is not None:
         return None
     if internal.rayleigh is not None:
+        if not (isinstance(system.mass, Diagonal)
+                and isinstance(stiffness, Diagonal | SymmetricTridiagonal)):
+            return None
         alpha, beta = s * internal.rayleigh.alpha, s * internal.rayleigh.beta
         diagonal = diagonal + alpha * system.mass.diagonal + beta * stiffness.diagonal
         if isinstance(stiffness, SymmetricTridiagonal):

@@ -89,6 +89,7 @@ class DamperProblem(eqx.Module):
 
     mass: object
     stiffness: object
+    internal: object  # the system's internal damping (Rayleigh, modal, a user's D), or None
     fixed: tuple[RelativeDamper, ...]
     positions: jax.Array
     coefficients: jax.Array
@@ -116,10 +117,11 @@ class DamperProblem(eqx.Module):
         check_x64()
         if not isinstance(system, SecondOrderSystem) or not isinstance(system.damping,
                                                                          Dampers | None):
-            raise ValueError(MARK + "system must be a chain (mikota_chain or chain) with "
-                             "GroundedDamper/RelativeDamper dampers.")
+            raise ValueError(MARK + "system must be a SecondOrderSystem (mikota_chain, chain, "
+                             "branched_chain or system) with GroundedDamper/RelativeDamper "
+                             "dampers.")
         n = system.size
-        self.mass, self.stiffness = system.mass, system.stiffness
+        self.mass, self.stiffness, self.internal = system.mass, system.stiffness, system.internal
         damping = system.damping
         if dampers is None:
             if damping is None or damping.positions.shape[0] == 0:
@@ -199,7 +201,7 @@ class DamperProblem(eqx.Module):
         (g,), plus the fixed relative dampers."""
         grounded = [GroundedDamper(p, c) for p, c in zip(positions, coefficients)]
         return SecondOrderSystem(self.mass, self.stiffness,
-                                 Dampers(self.size, [*grounded, *self.fixed]))
+                                 Dampers(self.size, [*grounded, *self.fixed]), self.internal)
 
 
 class _ModalROM(eqx.Module):
@@ -214,21 +216,27 @@ class _ModalROM(eqx.Module):
     modes: jax.Array  # Psi, n x r
     z0: jax.Array  # (Omega eta0, eta0')
     not_definite: jax.Array
+    internal: jax.Array | None = None  # the internal damping (Rayleigh, modal...), r x r modal
 
 
 def _modal_rom(problem: DamperProblem, basis) -> _ModalROM:
-    reduced = galerkin(SecondOrderSystem(problem.mass, problem.stiffness), basis).system
+    reduced = galerkin(SecondOrderSystem(problem.mass, problem.stiffness, None, problem.internal),
+                       basis).system
     omega2, modes = generalized_modes(reduced)
     not_definite = jnp.any(omega2 <= 0)
     omega = jnp.sqrt(jnp.where(omega2 > 0, omega2, 1.0))
     mass = reduced.mass.as_matrix()
     project = lambda y: modes.T @ (mass @ (basis.T @ y))  # noqa: E731
     z0 = jnp.concatenate([omega * project(problem.x0), project(problem.v0)])
-    return _ModalROM(omega, basis @ modes, z0, not_definite)
+    internal = None if reduced.internal is None else (
+        reduced.internal.in_modes(omega2, modes).as_matrix())
+    return _ModalROM(omega, basis @ modes, z0, not_definite, internal)
 
 
 def _modal_objective(problem: DamperProblem, rom: _ModalROM, positions, coefficients):
     damping = problem.system(positions, coefficients).damping.project(rom.modes).as_matrix()
+    if rom.internal is not None:
+        damping = damping + rom.internal
     a = state_matrix(rom.omega, damping)
     if problem.objective == "energy":
         horizon = problem.ts[-1] - problem.ts[0]

@@ -4,7 +4,9 @@ reduction, outputs), read from TOML or built in Python.
 A scene holds arrays as traced leaves (so ``jax.grad`` sees the physical values) and everything that
 changes a shape or the control flow (n, which outputs, the solver, the rank rule) as static data.
 DOFs are 1-based. ``load_scene`` validates every key: an unknown key, a wrong type or a value out of
-range raises one ``ValueError`` naming the key (``[table] key``) and the allowed values.
+range raises one ``ValueError`` naming the key (``[table] key``) and the allowed values. The tables
+that build the system (``[chain]``, ``[[damper]]``, ``[internal_damping]``) are read by
+``_scene_systems``; the validation helpers live in ``_toml``.
 """
 
 import tomllib
@@ -16,15 +18,18 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from ._analytic import mode_shape
-from ._chain import SecondOrderSystem, chain, mikota_chain
+from ._chain import SecondOrderSystem
 from ._custom_types import Times, Vector
-from ._dampers import GroundedDamper, RelativeDamper
 from ._errors import MARK
 from ._excitation import Pulse, pulse
 from ._integrate import SOLVERS
 from ._metrics import AGGREGATES
 from ._pod import CRITERIA, METHODS
+from ._scene_systems import system_from
+from ._toml import choice as _choice
+from ._toml import fail as _fail
+from ._toml import number as _number
+from ._toml import table as _table
 
 QUANTITIES = ("displacement", "velocity", "singular_values", "rank", "phase_error", "modes",
               "relative_error")
@@ -54,9 +59,9 @@ class Output(eqx.Module):
 class Scene(eqx.Module):
     """One computation, declaratively: run it with ``run_scene``; read one with ``load_scene``.
 
-    ``system``: the chain (n DOFs); ``ts``: (N,) output times; ``x0``, ``v0``: (n,) initial
-    state or None (zero); ``load``: a ``Pulse`` (eq. 4.3) or None; ``reduction``: the snapshot
-    window, rank rule and POD method (eqs. 3.5-3.8), or None; ``output``: 1-based DOFs and
+    ``system``: the chain or system (n DOFs); ``ts``: (N,) output times; ``x0``, ``v0``: (n,)
+    initial state or None (zero); ``load``: a ``Pulse`` (eq. 4.3) or None; ``reduction``: the
+    snapshot window, rank rule and POD method (eqs. 3.5-3.8), or None; ``output``: 1-based DOFs and
     quantities; ``solver``: "exact" (``exact_solve``) or a ``simulate`` solver with ``rtol``,
     ``atol``, ``max_steps``. Consistent units, as in the paper's dimensionless scenes.
     """
@@ -82,126 +87,16 @@ class Scene(eqx.Module):
 
 # --------------------------------------------------------------------------- TOML validation
 
-def _fail(where: str, message: str):
-    raise ValueError(MARK + f"{where}: {message}")
-
-
-def _table(data: Mapping, key: str, allowed: set[str], required: bool = False) -> dict:
-    value = data.get(key)
-    if value is None:
-        if required:
-            _fail(f"[{key}]", "this table is required.")
-        return {}
-    if not isinstance(value, Mapping):
-        _fail(f"[{key}]", f"must be a table, got {type(value).__name__}.")
-    unknown = set(value) - allowed
-    if unknown:
-        _fail(f"[{key}]", f"unknown key(s) {sorted(unknown)}; allowed: {sorted(allowed)}.")
-    return dict(value)
-
-
-def _number(table: dict, where: str, key: str, *, default=None, low=None, high=None,
-            strict_low: bool = False, integer: bool = False):
-    if key not in table:
-        if default is None:
-            _fail(f"{where} {key}", "is required.")
-        return default
-    value = table[key]
-    kinds = (int,) if integer else (int, float)
-    if isinstance(value, bool) or not isinstance(value, kinds) or not np.isfinite(value):
-        _fail(f"{where} {key}", f"must be a finite {'integer' if integer else 'number'}, "
-              f"got {value!r}.")
-    if low is not None and (value <= low if strict_low else value < low):
-        _fail(f"{where} {key}", f"must be {'>' if strict_low else '>='} {low}, got {value!r}.")
-    if high is not None and value > high:
-        _fail(f"{where} {key}", f"must be <= {high}, got {value!r}.")
-    return value
-
-
-def _choice(table: dict, where: str, key: str, choices, default):
-    value = table.get(key, default)
-    if value not in choices:
-        _fail(f"{where} {key}", f"must be one of {list(choices)}, got {value!r}.")
-    return value
-
-
-def _positive_list(table: dict, where: str, key: str) -> list[float]:
-    value = table.get(key)
-    if (not isinstance(value, list) or not value
-            or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
-            or not all(np.isfinite(v) and v > 0 for v in value)):
-        _fail(f"{where} {key}", f"must be a non-empty list of finite numbers > 0, got {value!r}.")
-    return [float(v) for v in value]
-
-
-def _chain_from(data) -> tuple[SecondOrderSystem, int]:
-    table = _table(data, "chain", {"type", "n", "m", "k", "masses", "springs"}, required=True)
-    kind = _choice(table, "[chain]", "type", ("mikota", "custom"), "mikota")
-    if kind == "mikota":
-        extra = set(table) & {"masses", "springs"}
-        if extra:
-            _fail("[chain]", f"{sorted(extra)} belong to type = \"custom\".")
-        n = _number(table, "[chain]", "n", low=1, integer=True)
-        m = _number(table, "[chain]", "m", default=1.0, low=0, strict_low=True)
-        k = _number(table, "[chain]", "k", default=1.0, low=0, strict_low=True)
-        return ("mikota", n, float(m), float(k)), n
-    extra = set(table) & {"n", "m", "k"}
-    if extra:
-        _fail("[chain]", f"{sorted(extra)} belong to type = \"mikota\".")
-    masses = _positive_list(table, "[chain]", "masses")
-    springs = _positive_list(table, "[chain]", "springs")
-    if len(springs) != len(masses):
-        _fail("[chain] springs", f"must have as many entries as masses ({len(masses)}), "
-              f"got {len(springs)}.")
-    return ("custom", masses, springs), len(masses)
-
-
-def _dampers_from(data, n: int) -> list:
-    entries = data.get("damper", [])
-    if isinstance(entries, Mapping):
-        entries = [entries]
-    if not isinstance(entries, list):
-        _fail("[[damper]]", "must be an array of tables.")
-    dampers = []
-    for number, entry in enumerate(entries, start=1):
-        where = f"[[damper]] #{number}"
-        if not isinstance(entry, Mapping):
-            _fail(where, "must be a table.")
-        unknown = set(entry) - {"type", "position", "dofs", "coefficient"}
-        if unknown:
-            _fail(where, f"unknown key(s) {sorted(unknown)}; allowed: "
-                  "['coefficient', 'dofs', 'position', 'type'].")
-        entry = dict(entry)
-        kind = _choice(entry, where, "type", ("grounded", "relative"), "grounded")
-        d = float(_number(entry, where, "coefficient", low=0))
-        if kind == "grounded":
-            if "dofs" in entry:
-                _fail(f"{where} dofs", "belongs to type = \"relative\"; use position.")
-            p = float(_number(entry, where, "position", low=1, high=n))
-            dampers.append(GroundedDamper(p, d))
-        else:
-            if "position" in entry:
-                _fail(f"{where} position", "belongs to type = \"grounded\"; use dofs = [i, j].")
-            dofs = entry.get("dofs")
-            if (not isinstance(dofs, list) or len(dofs) != 2
-                    or not all(isinstance(i, int) and not isinstance(i, bool) for i in dofs)
-                    or not all(1 <= i <= n for i in dofs) or dofs[0] == dofs[1]):
-                _fail(f"{where} dofs", f"must be two different integer DOFs in 1..{n}, "
-                      f"got {dofs!r}.")
-            dampers.append(RelativeDamper(tuple(dofs), d))
-    return dampers
-
-
-def _state_from(value, n: int, where: str) -> Vector | None:
+def _state_from(value, n: int, where: str, mode) -> Vector | None:
     if value is None or value == {} or value == []:
         return None
     if isinstance(value, str):
         words = value.split()
         if len(words) == 2 and words[0] == "mode" and words[1].isdigit():
-            mode = int(words[1])
-            if not 1 <= mode <= n:
-                _fail(where, f"mode number must lie in 1..{n}, got {mode}.")
-            return mode_shape(n, mode)
+            number = int(words[1])
+            if not 1 <= number <= n:
+                _fail(where, f"mode number must lie in 1..{n}, got {number}.")
+            return mode(number)
         _fail(where, f"must be a table {{DOF = value}}, a list of {n} numbers or \"mode l\", "
               f"got {value!r}.")
     if isinstance(value, Mapping):
@@ -312,25 +207,24 @@ def _solver_from(data) -> dict:
         max_steps=_number(table, "[solver]", "max_steps", default=100_000, low=1, integer=True))
 
 
-def scene_from_dict(data: Mapping, name: str = "scene") -> Scene:
-    """Build a ``Scene`` from the parsed TOML mapping (see ``load_scene`` for the keys)."""
-    allowed = {"name", "description", "chain", "damper", "initial", "load", "time", "solver",
-               "reduction", "output"}
+def scene_from_dict(data: Mapping, name: str = "scene", base: str | Path | None = None) -> Scene:
+    """Build a ``Scene`` from the parsed TOML mapping (see ``load_scene`` for the keys).
+
+    ``base``: the directory that relative matrix file names are read from (None: the current one).
+    """
+    allowed = {"name", "description", "chain", "damper", "internal_damping", "initial", "load",
+               "time", "solver", "reduction", "output"}
     unknown = set(data) - allowed
     if unknown:
         _fail("scene", f"unknown top-level key(s) {sorted(unknown)}; allowed: {sorted(allowed)}.")
     name = data.get("name", name)
     if not isinstance(name, str):
         _fail("scene name", f"must be a string, got {name!r}.")
-    spec, n = _chain_from(data)
-    dampers = _dampers_from(data, n)
-    if spec[0] == "mikota":
-        system = mikota_chain(n, spec[2], spec[3], dampers=dampers)
-    else:
-        system = chain(jnp.asarray(spec[1]), jnp.asarray(spec[2]), dampers=dampers)
+    system, mode = system_from(data, None if base is None else Path(base))
+    n = system.size
     initial = _table(data, "initial", {"displacement", "velocity"})
-    x0 = _state_from(initial.get("displacement"), n, "[initial] displacement")
-    v0 = _state_from(initial.get("velocity"), n, "[initial] velocity")
+    x0 = _state_from(initial.get("displacement"), n, "[initial] displacement", mode)
+    v0 = _state_from(initial.get("velocity"), n, "[initial] velocity", mode)
     load = _load_from(data, n)
     ts = _times_from(data)
     reduction = _reduction_from(data, ts, n)
@@ -342,9 +236,16 @@ def load_scene(source: str | Path | Mapping) -> Scene:
     """Read a scene from a TOML file, a TOML string, a mapping, or a packaged paper scene name
     (``section4_first_mode``, ``section4_impulse``, ``section5_damped``).
 
-    Tables: ``[chain]`` (type = "mikota" with n, m, k | "custom" with masses, springs),
-    ``[[damper]]`` (type = "grounded" with position in [1, n] | "relative" with dofs = [i, j];
-    coefficient >= 0), ``[initial]`` (displacement, velocity: {DOF = value}, a list, or "mode l"),
+    Tables: ``[chain]`` (type = "mikota" with n, m, k | "custom" with masses, springs (a
+    fixed-free chain) or with matrices mass, stiffness, damping (each a file name "M.mtx",
+    "M.npz", "system.npz:K" read by ``load_matrix`` relative to the scene file's directory, or
+    inline: a list = diagonal, n rows of n = dense, lists of lengths n, n - 1, ... = symmetric
+    bands) | "branched" with [[chain.branch]] tables (masses, springs: one more spring than masses)
+    or lengths = [L1, ...] with mass, spring; hub_mass, hub_spring), ``[[damper]]`` (type =
+    "grounded" with position in [1, n] | "relative" with dofs = [i, j]; coefficient >= 0),
+    ``[internal_damping]`` (rayleigh = [alpha, beta], modal = zeta or n ratios), ``[initial]``
+    (displacement, velocity: {DOF = value}, a list, or "mode l": Mikota's eq. 2.5, or column l of
+    ``modal_decomposition``, scaled to max |u_i| = 1 with the last DOF positive),
     ``[load]`` (type = "pulse", dof, amplitude, duration, start), ``[time]`` (start, end, step),
     ``[solver]`` (method = "exact" | "auto" | "dopri8" | "tsit5" | "dopri5" | "kvaerno5", rtol,
     atol, max_steps), ``[reduction]`` (snapshots = [t0, t1], energy or rank, criterion = "squared" |
@@ -357,15 +258,16 @@ def load_scene(source: str | Path | Mapping) -> Scene:
         text = resources.files("mikota_jax").joinpath("scenes", f"{source}.toml").read_text()
         return scene_from_dict(tomllib.loads(text), name=source)
     path = Path(source)
+    base = None  # TOML text: matrix files relative to the current directory
     if isinstance(source, str) and ("\n" in source or "=" in source):  # TOML text, not a path
         text, name = source, "scene"
     else:
         if not path.is_file():
             raise ValueError(MARK + f"scene file {str(path)!r} does not exist (or name one of "
                              f"{list(PAPER_SCENES)}).")
-        text, name = path.read_text(), path.stem
+        text, name, base = path.read_text(), path.stem, path.parent
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:
         raise ValueError(MARK + f"scene {name!r} is not valid TOML: {error}") from None
-    return scene_from_dict(data, name=name)
+    return scene_from_dict(data, name=name, base=base)

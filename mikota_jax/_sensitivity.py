@@ -10,6 +10,8 @@ name                        shape    meaning
 ``"positions"``             (g,)     grounded dampers' positions in [1, n] (1-based)
 ``"coefficients"``          (g,)     grounded dampers' coefficients (force x time / length)
 ``"relative_coefficients"`` (p,)     relative dampers' coefficients
+``"alpha"``, ``"beta"``     ()       Rayleigh damping alpha M + beta K (``Rayleigh``)
+``"zeta"``                  () / (n,) modal damping ratios (``ModalDamping``), as the scene has it
 ``"amplitude"``             ()       a factor on the excitation: the load if the scene has one,
                                      else the initial state (x0, v0); nominal value 1
 ==========================  =======  ==========================================================
@@ -44,8 +46,10 @@ from ._dampers import Dampers, GroundedDamper, RelativeDamper
 from ._errors import MARK, as_float
 from ._excitation import Pulse
 from ._galerkin import galerkin
+from ._internal import InternalDamping, ModalDamping, Rayleigh
 from ._metrics import phase_error
 from ._objectives import integrated_energy
+from ._operators import Diagonal
 from ._pod import pod
 from ._run import _window as snapshot_window
 from ._run import solve_scene as _solve
@@ -53,7 +57,7 @@ from ._scene import Scene
 
 OUTPUTS = ("displacement", "velocity", "energy", "phase_error", "singular_values")
 PARAMETERS = ("m", "k", "masses", "springs", "positions", "coefficients", "relative_coefficients",
-              "amplitude")
+              "alpha", "beta", "zeta", "amplitude")
 MODES = ("auto", "forward", "reverse")
 _FEW_PARAMETERS = 8  # "auto" below this count: forward (4.3 s against 11.3 s compile, measured)
 _MIKOTA_TOL = 1e-13  # relative: masses * i and springs / (n - i + 1) constant to rounding
@@ -75,23 +79,28 @@ def mikota_parameters(system: SecondOrderSystem) -> tuple[float, float] | None:
 def scene_parameters(scene: Scene, wrt=None) -> dict[str, jax.Array]:
     """The nominal values of the parameters ``wrt`` of ``scene`` (default: all that apply).
 
-    Default for Mikota's chain: m, k; for another chain: masses, springs; then the dampers'
-    positions and coefficients present, and the amplitude.
+    Default for Mikota's chain: m, k; for another fixed-free chain: masses, springs (a system of
+    a user's matrices or a branched chain has neither); then the dampers' positions and
+    coefficients present, the internal damping's alpha, beta or zeta, and the amplitude.
     """
-    system = scene.system
     if not isinstance(scene, Scene):
         raise ValueError(MARK + f"scene must be a Scene (see load_scene), got "
                          f"{type(scene).__name__}.")
+    system = scene.system
     springs = getattr(system.stiffness, "springs", None)
-    if springs is None or not hasattr(system.mass, "diagonal"):
-        raise ValueError(MARK + "sensitivities need a chain (diagonal masses and springs), as "
-                         "built by chain or mikota_chain.")
+    is_chain = springs is not None and isinstance(system.mass, Diagonal)
     mk = mikota_parameters(system)
     damping = system.damping
-    available = {"masses": system.mass.diagonal, "springs": springs,
-                 "amplitude": jnp.asarray(1.0)}
+    available = {"amplitude": jnp.asarray(1.0)}
+    if is_chain:
+        available.update(masses=system.mass.diagonal, springs=springs)
     if mk is not None:
         available.update(m=jnp.asarray(mk[0]), k=jnp.asarray(mk[1]))
+    internal = system.internal
+    if internal is not None and internal.rayleigh is not None:
+        available.update(alpha=internal.rayleigh.alpha, beta=internal.rayleigh.beta)
+    if internal is not None and internal.modal is not None:
+        available["zeta"] = internal.modal.zeta
     if isinstance(damping, Dampers):
         if damping.positions.shape[0]:
             available.update(positions=damping.positions, coefficients=damping.coefficients)
@@ -106,8 +115,12 @@ def scene_parameters(scene: Scene, wrt=None) -> dict[str, jax.Array]:
             raise ValueError(MARK + f"wrt: unknown parameter {name!r}; allowed: "
                              f"{list(PARAMETERS)}.")
         if name not in available:
-            why = ("the chain is not Mikota's (use 'masses', 'springs')" if name in ("m", "k")
-                   else "the scene has no such damper")
+            why = {"m": "the chain is not Mikota's (use 'masses', 'springs')",
+                   "masses": "the system is not a fixed-free chain (masses and springs)",
+                   "alpha": "the system has no Rayleigh damping",
+                   "zeta": "the system has no modal damping"}
+            why = why.get({"k": "m", "springs": "masses", "beta": "alpha"}.get(name, name),
+                          "the scene has no such damper")
             raise ValueError(MARK + f"wrt: {name!r} does not apply: {why}.")
     if {"m", "masses"} <= set(wrt) or {"k", "springs"} <= set(wrt):
         raise ValueError(MARK + "wrt: give 'm'/'k' (Mikota's scalars) or 'masses'/'springs' "
@@ -185,17 +198,30 @@ class SceneFunction(eqx.Module):
         self.count, self.forward = count, bool(forward)
 
     def system(self, parameters: dict) -> SecondOrderSystem:
-        """The chain and dampers at ``parameters`` (missing names keep the scene's values)."""
+        """The system and dampers at ``parameters`` (missing names keep the scene's values)."""
         base = self.scene.system
         n = base.size
-        i = jnp.arange(1, n + 1, dtype=jnp.float64)
-        masses = parameters.get("masses", base.mass.diagonal)
-        springs = parameters.get("springs", base.stiffness.springs)
-        if "m" in parameters:
-            masses = parameters["m"] / i
-        if "k" in parameters:
-            springs = (n - i + 1) * parameters["k"]
-        dampers = []
+        mass, stiffness = base.mass, base.stiffness
+        if {"m", "k", "masses", "springs"} & set(parameters):
+            i = jnp.arange(1, n + 1, dtype=jnp.float64)
+            masses = parameters.get("masses", base.mass.diagonal)
+            springs = parameters.get("springs", base.stiffness.springs)
+            if "m" in parameters:
+                masses = parameters["m"] / i
+            if "k" in parameters:
+                springs = (n - i + 1) * parameters["k"]
+            rebuilt = chain(masses, springs)
+            mass, stiffness = rebuilt.mass, rebuilt.stiffness
+        internal = base.internal
+        if internal is not None:
+            rayleigh, modal = internal.rayleigh, internal.modal
+            if {"alpha", "beta"} & set(parameters):
+                rayleigh = Rayleigh(parameters.get("alpha", rayleigh.alpha),
+                                    parameters.get("beta", rayleigh.beta))
+            if "zeta" in parameters:
+                modal = ModalDamping(parameters["zeta"])
+            internal = InternalDamping(internal.matrix, rayleigh, modal)
+        damping = base.damping
         if isinstance(base.damping, Dampers):
             damping = base.damping
             positions = parameters.get("positions", damping.positions)
@@ -204,7 +230,8 @@ class SceneFunction(eqx.Module):
             dampers = [GroundedDamper(p, c) for p, c in zip(positions, coefficients)]
             dampers += [RelativeDamper((a + 1, b + 1), c) for (a, b), c in
                         zip(damping.pairs, pairs)]
-        return chain(masses, springs, dampers)
+            damping = Dampers(n, dampers) if dampers else None
+        return SecondOrderSystem(mass, stiffness, damping, internal)
 
     def excitation(self, parameters: dict):
         """(x0, v0, load) scaled by the amplitude: the load if there is one, else x0 and v0."""
