@@ -64,9 +64,10 @@ def _from_scipy(matrix, name: str):
         raise ValueError(MARK + f"{name} must be finite.")
     n = coo.shape[0]
     scale = np.max(np.abs(values), initial=0.0)
-    asymmetry = abs(matrix - matrix.T)
-    if asymmetry.nnz and asymmetry.max() > SYMMETRY * scale:
-        raise ValueError(MARK + f"{name} must be symmetric: max |A - A^T| = {asymmetry.max():.3g} "
+    difference = (coo - coo.T).tocoo()
+    asymmetry = np.max(np.abs(difference.data), initial=0.0)
+    if asymmetry > SYMMETRY * scale:
+        raise ValueError(MARK + f"{name} must be symmetric: max |A - A^T| = {asymmetry:.3g} "
                          f"against max |A| = {scale:.3g}.")
     width = int(np.max(np.abs(rows - cols), initial=0))
     if width == 0:

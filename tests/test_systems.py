@@ -367,3 +367,19 @@ def test_damper_problem_keeps_the_internal_damping():
     reduced = mj.placement_objective(problem, jnp.eye(N))(jnp.array([3.0]), jnp.array([0.4]))
     np.testing.assert_allclose(full, expected, rtol=1e-9)
     np.testing.assert_allclose(reduced, expected, rtol=1e-9)
+
+
+def test_readme_beyond_mikota_snippet_runs_and_its_gradient_is_right(capsys):
+    from pathlib import Path
+
+    text = (Path(__file__).parents[1] / "README.md").read_text()
+    section = text[text.index("## Beyond Mikota"):]
+    start = section.index("```python\n") + len("```python\n")
+    namespace = {}
+    exec(compile(section[start:section.index("```", start)], "README Beyond Mikota", "exec"),
+         namespace)
+    printed = float(capsys.readouterr().out.split()[-1])
+    energy, h = namespace["energy"], 1e-7
+    np.testing.assert_allclose(printed, (energy(1e-3 + h) - energy(1e-3 - h)) / (2 * h), rtol=1e-5)
+    assert isinstance(namespace["system"].stiffness, SymmetricTridiagonal)  # dia -> tridiagonal
+    assert namespace["tree"].size == 31 and len(namespace["tree"].stiffness.links) == 2
