@@ -90,11 +90,13 @@ def _internal_bands(system, s):
 
 
 def _dense_solver(system, s):
+    """rhs -> (M + s D + s^2 K)^-1 rhs by one Cholesky factorization per step (it is SPD)."""
     matrix = system.mass.as_matrix() + s**2 * system.stiffness.as_matrix()
     damping = system.damping_operator()
     if damping is not None:
         matrix = matrix + s * damping.as_matrix()
-    return lambda rhs: jnp.linalg.solve(matrix, rhs)
+    factor = jax.scipy.linalg.cho_factor((matrix + matrix.T) / 2)
+    return lambda rhs: jax.scipy.linalg.cho_solve(factor, rhs)
 
 
 def _pair_factor(n: int, pairs):

@@ -6,8 +6,11 @@ Accepted forms of M, K and D, and the operator each becomes (what structure it k
 - a tuple of 1-d arrays ``(main, first super-diagonal, second, ...)`` of lengths n, n - 1, ...:
   symmetric banded (``SymmetricTridiagonal`` for two bands, ``SymmetricBanded`` beyond: O(n b));
 - a scipy.sparse matrix or array: ``Diagonal``/``SymmetricTridiagonal`` when its entries lie on
-  those bands, else coordinate ``Sparse`` (O(nnz) products); scipy is needed only to hand one in;
-- a 2-d (n, n) array: ``Dense`` (O(n^2) products);
+  those bands (a tridiagonal may carry up to 32 off-band springs, entries <= 0, as "links": a
+  branched chain), else coordinate ``Sparse`` (O(nnz) products); scipy is needed only to hand
+  one in;
+- a 2-d (n, n) array: the same detection when its values are concrete, else ``Dense`` (O(n^2)
+  products; a traced matrix, e.g. one being differentiated, stays dense);
 - an operator of this package, as it is.
 
 A non-diagonal mass (any form) is solved in modal coordinates, after one dense n x n
@@ -24,13 +27,14 @@ import numpy as np
 
 from ._chain import SecondOrderSystem, _damping
 from ._dampers import GroundedDamper, RelativeDamper
-from ._errors import MARK, as_float, check
+from ._errors import MARK, as_float, check, is_traced
 from ._internal import ModalDamping, Rayleigh, as_internal
 from ._operators import Dense, Diagonal, Sparse, SymmetricBanded, SymmetricTridiagonal
 
 # definiteness of a non-tridiagonal matrix is checked densely (Cholesky / eigvalsh) up to this n
 DENSE_CHECK_LIMIT = 4000
 SYMMETRY = 1e-12  # relative to the largest |entry|
+MAX_LINKS = 32  # off-band springs a tridiagonal operator carries (Woodbury rank in stiff solves)
 _STRUCTURED = (Diagonal, SymmetricTridiagonal, SymmetricBanded, Sparse, Dense)
 
 
@@ -69,16 +73,40 @@ def _from_scipy(matrix, name: str):
     if asymmetry > SYMMETRY * scale:
         raise ValueError(MARK + f"{name} must be symmetric: max |A - A^T| = {asymmetry:.3g} "
                          f"against max |A| = {scale:.3g}.")
-    width = int(np.max(np.abs(rows - cols), initial=0))
-    if width == 0:
-        return Diagonal(jnp.asarray(np.zeros(n)).at[rows].add(values))
-    if width == 1:
-        main = np.zeros(n)
-        np.add.at(main, rows[rows == cols], values[rows == cols])
-        upper = np.zeros(n - 1)
-        np.add.at(upper, rows[cols == rows + 1], values[cols == rows + 1])
-        return SymmetricTridiagonal(jnp.asarray(main), jnp.asarray(upper))
+    structured = _banded_structure(rows, cols, values, n)
+    if structured is not None:
+        return structured
     return Sparse(jnp.asarray(rows), jnp.asarray(cols), jnp.asarray(values), n)
+
+
+def _banded_structure(rows, cols, values, n: int):
+    """``Diagonal``, or ``SymmetricTridiagonal`` (with links: at most ``MAX_LINKS`` off-band
+    pairs, each <= 0 like a spring's) for symmetric entries at 0-based (rows, cols); else None."""
+    main = np.zeros(n)
+    np.add.at(main, rows[rows == cols], values[rows == cols])
+    if np.all(rows == cols):
+        return Diagonal(jnp.asarray(main))
+    upper = np.zeros(max(n - 1, 0))
+    np.add.at(upper, rows[cols == rows + 1], values[cols == rows + 1])
+    far = (cols > rows + 1) & (values != 0)
+    if far.sum() > MAX_LINKS or np.any(values[far] > 0):
+        return None
+    links = tuple((int(i), int(j)) for i, j in zip(rows[far], cols[far]))
+    springs = jnp.asarray(-values[far]) if links else None
+    return SymmetricTridiagonal(jnp.asarray(main), jnp.asarray(upper), None, links, springs)
+
+
+def _from_dense(array, name: str):
+    """A concrete dense matrix that is diagonal or tridiagonal (with a few links) in that
+    structure; anything else, or a traced one, stays ``Dense``."""
+    if is_traced(array):
+        return Dense(array)
+    host = np.asarray(array)
+    rows, cols = np.nonzero(host)
+    if not (np.all(np.isfinite(host)) and np.array_equal(host, host.T)):
+        return Dense(array)  # the checks name what is wrong
+    structured = _banded_structure(rows, cols, host[rows, cols], host.shape[0])
+    return Dense(array) if structured is None else structured
 
 
 def as_matrix_operator(x, name: str):
@@ -93,7 +121,7 @@ def as_matrix_operator(x, name: str):
     if array.ndim == 1 and array.shape[0] >= 1:
         return Diagonal(array)
     if array.ndim == 2 and array.shape[0] == array.shape[1] and array.shape[0] >= 1:
-        return Dense(array)
+        return _from_dense(array, name)
     raise ValueError(MARK + f"{name} must be an (n, n) matrix, an (n,) diagonal, a tuple of bands "
                      f"or a scipy.sparse matrix, got shape {array.shape}.")
 

@@ -255,7 +255,7 @@ BAD_CUSTOM = '[chain]\ntype = "custom"\n'
     (BAD_CUSTOM + "mass = [1.0, -1.0]\nstiffness = [1.0, 1.0]\n",
      r"\[chain\]: mass must be finite and positive definite"),
     (BAD_CUSTOM + "mass = [1.0, 1.0]\nstiffness = [[1.0, 2.0], [2.0, 1.0]]\n",
-     r"\[chain\]: stiffness must be positive definite"),
+     r"\[chain\]: stiffness must be (finite and )?positive definite"),
     (MIKOTA + "masses = [1.0]\n",
      r"\[chain\]: unknown key\(s\) \['masses'\] for type = \"mikota\""),
     ('[chain]\ntype = "branched"\nn = 3\n',

@@ -130,18 +130,21 @@ def mikota_matrices():
 
 def mikota_as(form):
     m, k = mikota_matrices()
-    if form == "dense":
+    if form == "dense":  # operators as they are: no structure detected
+        return Dense(jnp.asarray(m)), Dense(jnp.asarray(k))
+    if form == "arrays":  # concrete dense arrays: their diagonal / tridiagonal structure is found
         return m, k
     if form == "bands":
         return np.diag(m), (np.diag(k), np.diag(k, 1))
     if form == "scipy":
         return sp.csr_matrix(m), sp.csr_matrix(k)
-    return np.diag(m), k  # diagonal mass, dense stiffness
+    return np.diag(m), Dense(jnp.asarray(k))  # diagonal mass, dense stiffness
 
 
 @pytest.mark.parametrize("form,structure", [
-    ("dense", (Dense, Dense)), ("bands", (Diagonal, SymmetricTridiagonal)),
-    ("scipy", (Diagonal, SymmetricTridiagonal)), ("mixed", (Diagonal, Dense))])
+    ("dense", (Dense, Dense)), ("arrays", (Diagonal, SymmetricTridiagonal)),
+    ("bands", (Diagonal, SymmetricTridiagonal)), ("scipy", (Diagonal, SymmetricTridiagonal)),
+    ("mixed", (Diagonal, Dense))])
 def test_mikota_chain_as_user_matrices_gives_the_same_solution(form, structure):
     reference = mj.mikota_chain(N, dampers=[DAMPER], internal_damping=mj.Rayleigh(0.05, 0.002))
     mass, stiffness = mikota_as(form)
@@ -160,12 +163,14 @@ def test_mikota_chain_as_user_matrices_gives_the_same_solution(form, structure):
 # ------------------------------------------------------------ banded, sparse and dense agree
 
 def formats_of(k):
-    return {"dense": k, "bands": (np.diag(k), np.diag(k, 1), np.diag(k, 2)),
+    return {"dense": Dense(jnp.asarray(k)), "bands": (np.diag(k), np.diag(k, 1), np.diag(k, 2)),
             "scipy": sp.coo_matrix(k)}
 
 
 def test_banded_sparse_and_dense_stiffness_give_the_same_solutions():
     k = pentadiagonal_stiffness(N)
+    k = k + 0.6 * (np.abs(np.subtract.outer(np.arange(N), np.arange(N))) == 2) + 0.5 * np.eye(N)
+    assert np.all(np.linalg.eigvalsh(k) > 0.1)  # positive off-band entries: no spring "links"
     mass = np.linspace(1.0, 2.0, N)
     x0 = jnp.zeros(N).at[0].set(1.0)
     solutions = {}
@@ -211,6 +216,10 @@ def test_branched_chain_stiffness_and_frequencies_match_the_assembled_system():
     np.testing.assert_allclose(system.stiffness.as_matrix(), k, atol=1e-15)
     np.testing.assert_allclose(system.mass.as_matrix(), m, atol=0)
     assert system.stiffness.links == ((2, 8), (4, 8))  # 0-based: branch ends 1, 2 to the hub
+    for given in (k, sp.csr_matrix(k)):  # the same structure is found in a user's matrices
+        found = mj.system(m, given).stiffness
+        assert isinstance(found, SymmetricTridiagonal) and found.links == ((2, 8), (4, 8))
+        np.testing.assert_allclose(found.as_matrix(), k, atol=1e-15)
     omega = np.sqrt(scipy.linalg.eigh(k, m, eigvals_only=True))
     np.testing.assert_allclose(mj.modal_decomposition(system)[0], omega, rtol=1e-12)
     v = jnp.arange(1.0, 10.0)
@@ -251,11 +260,17 @@ def test_branched_chain_refuses_bad_branches():
     ((np.ones(3), np.array([[2.0, 1.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 2.0]])),
      "stiffness must be symmetric"),
     ((np.array([1.0, -1.0, 1.0]), np.eye(3)), "mass must be finite and positive definite"),
-    ((np.ones(3), np.diag([1.0, 1.0, -1.0])), "stiffness must be positive definite"),
+    ((np.ones(3), np.diag([1.0, 1.0, -1.0])), r"stiffness must be finite and positive definite "
+     r"\(a diagonal > 0\)"),
     ((np.ones(3), (np.ones(3), np.full(2, 2.0))), "stiffness must be finite and positive definite"),
-    ((np.ones(3), np.array([[1.0, 2, 0], [2, 1, 0], [0, 0, 1]])), "stiffness must be positive "
-     "definite"),
-    ((np.ones(3), np.eye(3), -np.eye(3)), "damping must be positive semi-definite"),
+    ((np.ones(3), np.array([[1.0, 2, 0], [2, 1, 0], [0, 0, 1]])), "stiffness must be finite and "
+     "positive definite"),  # tridiagonal: O(n) pivots
+    ((np.ones(3), np.array([[1.0, 0, 2], [0, 1, 0], [2, 0, 1]])), "stiffness must be positive "
+     "definite"),  # dense: Cholesky
+    ((np.ones(3), np.eye(3), -np.eye(3)), r"damping must be finite and positive semi-definite "
+     r"\(a diagonal >= 0\)"),
+    ((np.ones(3), np.eye(3), np.array([[1.0, 2, 0], [2, 1, 0], [0, 0, 1]])),
+     "damping must be positive semi-definite"),
     ((np.ones(3), np.eye(3), np.full((3, 3), np.nan)), "damping must be finite"),
     ((np.ones(3), sp.csr_matrix(np.triu(np.ones((3, 3))) + 2 * np.eye(3))),
      "stiffness must be symmetric"),
@@ -275,6 +290,16 @@ def test_semi_definite_damping_and_bad_internal_damping():
         mj.system(np.ones(3), np.eye(3), internal_damping=mj.ModalDamping(np.ones(2)))
     with pytest.raises(ValueError, match="at most one Rayleigh"):
         mj.chain(np.ones(3), np.ones(3), internal_damping=(mj.Rayleigh(1, 0), mj.Rayleigh(0, 1)))
+
+
+def test_a_traced_dense_matrix_stays_dense_and_differentiable():
+    m, k = mikota_matrices()
+
+    def lowest(scale):
+        return mj.modal_decomposition(mj.system(m, scale * jnp.asarray(k)))[0][0]
+
+    assert isinstance(jax.jit(lambda a: mj.system(m, a * k).stiffness)(1.0), Dense)
+    np.testing.assert_allclose(jax.grad(lowest)(4.0), 0.25, rtol=1e-10)  # omega = sqrt(a) l
 
 
 def test_checks_hold_under_jit():

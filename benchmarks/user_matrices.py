@@ -1,0 +1,346 @@
+"""User matrices keep their structure: one branched chain handed in four ways, solved the same.
+
+Problem: three equal branches of L unit masses (springs 1, the last of each tied to a hub of mass
+1, itself grounded by a spring 1), n = 3 L + 1 DOFs (hub last) for L in {100, 333, 1000}: n = 301,
+1000, 3001. A grounded damper c = 1 at DOF L (branch 1's mass next to the hub, tied to it by a
+link spring), Rayleigh damping alpha = 1e-3, beta = 1e-4, v_hub(0) = 1 (so the hub's three links
+carry the motion into every branch), x(0) = 0, no load, displacements at all DOFs at t = 0, 0.1,
+..., 20 (201 outputs).
+
+M (an (n,) diagonal) and K (scipy.sparse) are assembled here in numpy, as a user's own code would,
+and checked against ``mj.branched_chain``'s. The same system, four ways:
+
+* ``branched``: ``mj.branched_chain`` (diagonal M, tridiagonal K + 2 link springs);
+* ``sparse``: ``mj.system(csr(M), csr(K))``: M becomes ``Diagonal``, K ``Sparse`` (COO, O(nnz));
+* ``dense``: ``mj.system(np.diag(m), K.toarray())``: ``Dense`` M and K. A non-diagonal mass is
+  solved in M-orthonormal modal coordinates, so every call starts with a dense n x n generalized
+  eigendecomposition (O(n^3)) and lifts the outputs with the n x n modes;
+* ``dense_k``: ``mj.system(m, K.toarray())``: diagonal M, ``Dense`` K, solved in physical
+  coordinates (O(n^2) per product).
+
+Each with ``mj.simulate(solver="dopri8", rtol=1e-8)`` and ``solver="kvaerno5"`` (rtol 1e-8; the
+structured ESDIRK: tridiagonal solve + Woodbury for the links for ``branched``, diagonal + Woodbury
+for the projected damper in modal coordinates for ``dense``, a dense solve per stage for
+``sparse`` and ``dense_k``). Default atol (1e-2 rtol x max|v0| = 1e-10).
+
+Correctness before timing, per n and solver: each format's first call against ``branched``'s,
+max |x - x_branched| / max |x_branched| over all DOFs and times. Formats solved in the same
+(physical) coordinates take the same steps, so must agree to SAME_COORDINATES = 1e-10; ``dense``
+is solved in modal coordinates, where the step-size controller sees other components, so it
+agrees only to the integration error, MODAL_COORDINATES = 1e-5 (at n = 301 every row is also
+checked against ``mj.exact_solve``, EXACT_CHECK = 1e-5, which measures that error: 2e-7 to 1e-6
+at rtol 1e-8). At the smallest n the Dopri8 executables are also called at rtol 1e-11 (the
+tolerance is traced: no recompile), where every format must agree with ``branched`` to
+TIGHT_CHECK = 1e-8: the modal path's gap at rtol 1e-8 is integration error, not a wrong system.
+
+Compile time apart (``jax.jit(f).lower(...).compile()``); run time the median of 5 calls (3 when
+one takes over 2 s), each ended by ``block_until_ready``; building the system (``branched_chain``
+/ ``system``, with its symmetry and definiteness checks) is timed too (a second build, after the
+first compiled the eager kernels). A combination whose predicted call (the previous size's, scaled
+by n^p with p its asymptotic cost exponent) exceeds ``--budget`` seconds (20: three repeats ~ a
+minute) is skipped and recorded with the reason.
+
+Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/user_matrices.py [--quick]`` (quick: L = 10, 33,
+three repeats). Writes ``benchmarks/results/user_matrices[_quick].{json,png}``.
+"""
+
+# _common first: it sets OPENBLAS_NUM_THREADS before numpy and jax load.
+from _common import (  # noqa: I001
+    Compiled, elapsed, figure, fit_exponent, parse_args, print_table, save_figure, subtitle, timed,
+    write_json)
+
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse as sp
+
+import mikota_jax as mj
+
+NAME = "user_matrices"
+BRANCHES = 3
+LENGTHS = (100, 333, 1000)  # n = 3 L + 1 = 301, 1000, 3001
+QUICK_LENGTHS = (10, 33)
+ALPHA, BETA = 1e-3, 1e-4
+DAMPER_COEFFICIENT = 1.0
+RTOL = 1e-8
+HORIZON, OUTPUTS = 20.0, 201
+SOLVERS = ("dopri8", "kvaerno5")
+FORMATS = ("branched", "sparse", "dense", "dense_k")
+SAME_COORDINATES = 1e-10  # relative agreement with branched, physical coordinates
+MODAL_COORDINATES = 1e-5  # relative agreement with branched, the dense (modal) path
+EXACT_CHECK = 1e-5  # relative error against exact_solve at the smallest n (rtol 1e-8: ~1e-6)
+EXACT_MAX_N = 400
+TIGHT_RTOL, TIGHT_CHECK = 1e-11, 1e-8  # smallest n, Dopri8: every format, branched vs the others
+# asymptotic cost exponent of one call in n (skip prediction): O(n) stencils and O(nnz) products,
+# O(n^2) dense products, O(n^3) dense factorizations (eigh of the modal path, LU per stage)
+EXPONENT = {("branched", "dopri8"): 1, ("sparse", "dopri8"): 1, ("dense", "dopri8"): 3,
+            ("dense_k", "dopri8"): 2, ("branched", "kvaerno5"): 1, ("sparse", "kvaerno5"): 3,
+            ("dense", "kvaerno5"): 3, ("dense_k", "kvaerno5"): 3}
+PATHS = {
+    ("branched", "dopri8"): "physical: tridiagonal stencil + 2 links",
+    ("sparse", "dopri8"): "physical: COO gather + segment sum",
+    ("dense", "dopri8"): "modal: dense eigh per call, diagonal K, low-rank damper, dense lift",
+    ("dense_k", "dopri8"): "physical: dense K matvec",
+    ("branched", "kvaerno5"): "physical: tridiagonal solve + Woodbury (links)",
+    ("sparse", "kvaerno5"): "physical: dense solve per stage",
+    ("dense", "kvaerno5"): "modal: dense eigh per call, diagonal + Woodbury (damper)",
+    ("dense_k", "kvaerno5"): "physical: dense solve per stage",
+}
+
+
+def assemble(length: int):
+    """(m (n,), K scipy csr): the branched chain written out by hand, hub = DOF n (1-based)."""
+    n = BRANCHES * length + 1
+    hub = n - 1
+    rows, cols, values = [], [], []
+
+    def spring(i, j, k=1.0):  # 0-based DOFs; j = None: to the ground
+        rows.append(i), cols.append(i), values.append(k)
+        if j is not None:
+            rows.extend([j, i, j]), cols.extend([j, j, i]), values.extend([k, -k, -k])
+
+    spring(hub, None)
+    for b in range(BRANCHES):
+        first = b * length
+        spring(first, None)
+        for i in range(first, first + length - 1):
+            spring(i, i + 1)
+        spring(first + length - 1, hub)
+    stiffness = sp.coo_array((values, (rows, cols)), shape=(n, n)).tocsr()
+    return np.ones(n), stiffness
+
+
+def build(name: str, length: int, m, k):
+    """The system in format ``name`` (see the module docstring)."""
+    dampers = [mj.GroundedDamper(float(length), DAMPER_COEFFICIENT)]
+    rayleigh = mj.Rayleigh(ALPHA, BETA)
+    if name == "branched":
+        masses = [np.ones(length)] * BRANCHES
+        springs = [np.ones(length + 1)] * BRANCHES
+        return mj.branched_chain(masses, springs, 1.0, 1.0, dampers, internal_damping=rayleigh)
+    if name == "sparse":
+        return mj.system(sp.csr_matrix(sp.diags(m)), k, dampers=dampers,
+                         internal_damping=rayleigh)
+    mass = np.diag(m) if name == "dense" else m
+    return mj.system(mass, k.toarray(), dampers=dampers, internal_damping=rayleigh)
+
+
+def operators(system) -> dict:
+    return {"mass": type(system.mass).__name__, "stiffness": type(system.stiffness).__name__,
+            "damping": type(system.damping).__name__,
+            "internal": None if system.internal is None else (
+                "Rayleigh" if system.internal.rayleigh is not None else
+                type(system.internal.matrix).__name__)}
+
+
+def compile_solve(system, solver: str, ts, v0):
+    """The solve, compiled once; rtol is traced (an argument), so ``TIGHT_RTOL`` reuses it."""
+    return Compiled(lambda s, v, rtol: mj.simulate(s, ts, None, v, solver=solver, rtol=rtol),
+                    system, v0, RTOL)
+
+
+def measure_size(length: int, quick: bool, budget: float, last: dict, say) -> list[dict]:
+    """Every (format, solver) row at one n; ``last`` maps (format, solver) -> (n, run_s)."""
+    m, k = assemble(length)
+    n = m.shape[0]
+    ts = jnp.linspace(0.0, HORIZON, OUTPUTS)
+    v0 = mj.unit_vector(n, n)  # the hub
+    rows = []
+    start = time.perf_counter()
+    systems, build_s = {}, {}
+    for name in FORMATS:  # the second build is timed: the first compiles the eager checks
+        jax.block_until_ready(build(name, length, m, k))
+        begin = time.perf_counter()
+        systems[name] = jax.block_until_ready(build(name, length, m, k))
+        build_s[name] = elapsed(begin)
+    # the hand-assembled K is the branched chain's (an independent check of both)
+    k_chain = np.asarray(systems["branched"].stiffness.as_matrix())
+    if not np.array_equal(k_chain, k.toarray()):
+        raise SystemExit(f"n = {n}: branched_chain's K differs from the assembled K by "
+                         f"{np.max(np.abs(k_chain - k.toarray())):.3g}")
+    reference = None
+    if n <= EXACT_MAX_N:
+        reference = np.asarray(mj.exact_solve(systems["branched"], ts, None, v0).displacement)
+    say(f"n = {n}: systems built")
+
+    for solver in SOLVERS:
+        firsts, calls = {}, {}
+        for name in FORMATS:
+            row = dict(n=n, format=name, solver=solver, path=PATHS[name, solver],
+                       operators=operators(systems[name]), build_s=build_s[name],
+                       compile_s=None, run_s=None,
+                       run_times_s=[], steps=None, skipped=None)
+            rows.append(row)
+            previous = last.get((name, solver))
+            if previous is None and n != _first_n(quick):
+                row["skipped"] = "skipped at a smaller n"
+                say(f"n = {n}: {name} {solver} skipped ({row['skipped']})")
+                continue
+            if previous is not None:
+                predicted = previous[1] * (n / previous[0]) ** EXPONENT[name, solver]
+                if predicted > budget:
+                    row["predicted_s"] = predicted
+                    row["skipped"] = (f"predicted {predicted:.0f} s per call (n = {previous[0]}: "
+                                      f"{previous[1]:.2g} s, times (n ratio)^"
+                                      f"{EXPONENT[name, solver]}) > budget {budget:g} s")
+                    say(f"n = {n}: {name} {solver} skipped ({row['skipped']})")
+                    continue
+            system = systems[name]
+            call = compile_solve(system, solver, ts, v0)
+            row["compile_s"] = call.compile_s
+            first, _, times = timed(call, system, v0, RTOL, repeats=1)
+            firsts[name], calls[name] = np.asarray(first.displacement), (call, system, times)
+            row["steps"] = int(first.num_steps)
+        # correctness before timing
+        here = [r for r in rows if r["solver"] == solver and r["format"] in firsts]
+        for row in here:
+            x = firsts[row["format"]]
+            row["max_abs_x"] = float(np.max(np.abs(x)))
+            limit = MODAL_COORDINATES if row["format"] == "dense" else SAME_COORDINATES
+            row["vs_branched_limit"] = limit
+            require(row, "vs_branched", relative(x, firsts["branched"]), limit)
+            if reference is not None:
+                require(row, "vs_exact", relative(x, reference), EXACT_CHECK)
+        if solver == "dopri8" and n == _first_n(quick):
+            # the modal path's gap is integration error: it closes at a tight tolerance
+            tight = {name: np.asarray(call(system, v0, TIGHT_RTOL).displacement)
+                     for name, (call, system, _) in calls.items()}
+            for row in here:
+                x = tight[row["format"]]
+                require(row, "vs_branched_at_tight_rtol", relative(x, tight["branched"]),
+                        TIGHT_CHECK)
+                if reference is not None:
+                    row["vs_exact_at_tight_rtol"] = relative(x, reference)
+        say(f"n = {n}: {solver} checks passed")
+        for row in rows:
+            if row["solver"] != solver or row["format"] not in calls:
+                continue
+            call, system, times = calls[row["format"]]
+            repeats = 3 if quick or times[0] > 2.0 else 5
+            times = times + timed(call, system, v0, RTOL, repeats=repeats - 1)[2]
+            row["run_times_s"] = times
+            row["run_s"] = float(np.median(times))
+            last[row["format"], solver] = (n, row["run_s"])
+        say(f"n = {n}: {solver} timed ({elapsed(start):.0f} s at this n)")
+    return rows
+
+
+def relative(x, reference) -> float:
+    """max |x - reference| / max |reference| over every DOF and time."""
+    return float(np.max(np.abs(x - reference))) / float(np.max(np.abs(reference)))
+
+
+def require(row: dict, key: str, value: float, limit: float) -> None:
+    """Store ``row[key] = value``; stop the script unless value <= limit."""
+    row[key] = value
+    if not value <= limit:
+        raise SystemExit(f"check failed: n = {row['n']}, {row['format']} {row['solver']}: "
+                         f"{key} = {value:.2e} > {limit:g}")
+
+
+def _first_n(quick: bool) -> int:
+    return BRANCHES * (QUICK_LENGTHS if quick else LENGTHS)[0] + 1
+
+
+def plot(rows: list[dict], quick: bool, meta_line: str):
+    fig, axes = figure(ncols=3, figsize=(15, 6.2))
+    sizes = sorted({r["n"] for r in rows})
+    colours = dict(zip(FORMATS, ("C0", "C1", "C2", "C3")))
+    for ax, solver in zip(axes[:2], SOLVERS):
+        for name in FORMATS:
+            done = [r for r in rows if r["solver"] == solver and r["format"] == name
+                    and r["run_s"] is not None]
+            skipped = [r for r in rows if r["solver"] == solver and r["format"] == name
+                       and r.get("predicted_s")]
+            note = " (x: skipped, predicted)" if skipped else ""
+            if done:
+                ax.loglog([r["n"] for r in done], [r["run_s"] for r in done], "o-",
+                          color=colours[name], label=f"{name}: {PATHS[name, solver]}{note}")
+            if done and skipped:
+                ax.loglog([done[-1]["n"]] + [r["n"] for r in skipped],
+                          [done[-1]["run_s"]] + [r["predicted_s"] for r in skipped], "x:",
+                          color=colours[name])
+        ax.set_title(f"{solver} (rtol {RTOL:g}): run time, median")
+        ax.set_xlabel("n (DOFs)")
+        ax.set_ylabel("seconds per call")
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14))
+        ax.grid(True, which="both", alpha=0.3)
+    ax = axes[2]
+    for solver, marker in zip(SOLVERS, ("o", "s")):
+        for name in FORMATS:
+            done = [r for r in rows if r["solver"] == solver and r["format"] == name
+                    and r["compile_s"] is not None]
+            if done:
+                ax.semilogx([r["n"] for r in done], [r["compile_s"] for r in done],
+                            marker + ("-" if solver == "dopri8" else "--"), color=colours[name],
+                            label=f"{name} {solver}")
+    ax.set_title("compile time (trace + lower + XLA)")
+    ax.set_xlabel("n (DOFs)")
+    ax.set_ylabel("seconds")
+    ax.set_ylim(bottom=0)
+    ax.legend(fontsize=7, ncol=2, loc="upper center", bbox_to_anchor=(0.5, -0.14))
+    ax.grid(True, which="both", alpha=0.3)
+    for ax in axes:
+        ax.set_xticks(sizes, [str(n) for n in sizes])
+        ax.minorticks_off()
+    fig.suptitle(f"One branched chain (3 branches + hub) as branched_chain / scipy.sparse / dense: "
+                 f"{meta_line}", fontsize=9)
+    return save_figure(fig, NAME, quick)
+
+
+def main(argv=None) -> dict:
+    args = parse_args(__doc__, argv, budget=dict(
+        type=float, default=20.0, help="skip a combination whose predicted call exceeds this (s)"))
+    quick, budget = args.quick, args.budget
+    lengths = QUICK_LENGTHS if quick else LENGTHS
+    wall = time.perf_counter()
+    say = lambda text: print(f"{text} [{elapsed(wall):.0f} s]", flush=True)  # noqa: E731
+    rows, last = [], {}
+    for length in lengths:
+        rows += measure_size(length, quick, budget, last, say)
+
+    print_table(rows, [("n", "n", "d"), ("format", "format", "s"), ("solver", "solver", "s"),
+                       ("build_s", "build s", ".3f"), ("compile_s", "compile s", ".2f"),
+                       ("run_s", "run s (median)", ".4f"), ("steps", "steps", "d"),
+                       ("vs_branched", "vs branched", ".1e"), ("vs_exact", "vs exact", ".1e")])
+    for r in rows:
+        if r["skipped"]:
+            print(f"skipped: n = {r['n']} {r['format']} {r['solver']}: {r['skipped']}")
+    exponents = {f"{name} {solver}": fit_exponent(
+        [r["n"] for r in rows if r["format"] == name and r["solver"] == solver],
+        [r["run_s"] for r in rows if r["format"] == name and r["solver"] == solver])
+        for name in FORMATS for solver in SOLVERS}
+    data = {
+        "problem": {"branches": BRANCHES, "lengths": list(lengths),
+                    "n": [BRANCHES * L + 1 for L in lengths], "masses": 1.0, "springs": 1.0,
+                    "hub_mass": 1.0, "hub_spring": 1.0,
+                    "damper": {"kind": "grounded", "dof": "L (branch 1's mass next to the hub)",
+                               "coefficient": DAMPER_COEFFICIENT},
+                    "rayleigh": {"alpha": ALPHA, "beta": BETA},
+                    "initial": "v(0) = 1 at the hub (DOF n), x(0) = 0", "load": None,
+                    "ts": f"linspace(0, {HORIZON:g}, {OUTPUTS})", "rtol": RTOL,
+                    "atol": "default: 1e-2 rtol max|v0| = 1e-10"},
+        "checks": {"same_coordinates_vs_branched": SAME_COORDINATES,
+                   "modal_coordinates_vs_branched": MODAL_COORDINATES,
+                   "vs_exact_solve": EXACT_CHECK, "exact_max_n": EXACT_MAX_N,
+                   "tight_rtol": TIGHT_RTOL, "all_vs_branched_at_tight_rtol": TIGHT_CHECK,
+                   "measure": "max |x - x_ref| / max |x_ref| over all DOFs and 201 times"},
+        "budget_s_per_call": budget,
+        "cost_exponents": {f"{name} {solver}": p for (name, solver), p in EXPONENT.items()},
+        "paths": {
+            f"{name} {solver}": PATHS[name, solver] for name, solver in PATHS},
+        "fitted_run_time_exponents": exponents, "rows": rows,
+        "skipped": [f"n = {r['n']} {r['format']} {r['solver']}: {r['skipped']}" for r in rows
+                    if r["skipped"]],
+        "wall_s": elapsed(wall),
+    }
+    path = write_json(NAME, quick, data)
+    png = plot(rows, quick, subtitle())
+    print(f"\nwrote {path} and {png} in {elapsed(wall):.0f} s")
+    return data
+
+
+if __name__ == "__main__":
+    main()
