@@ -1,4 +1,4 @@
-"""Second-order systems M x'' + D x' + K x = f, and fixed-free chains (eqs. 2.1-2.3, 3.1).
+"""Second-order systems M x'' + D x' + K x = f, fixed-free and branched chains (eqs. 2.1-2.3, 3.1).
 
 Chain conventions: DOF i = 1..n (1-based) carries mass m_i and is tied to DOF i-1 by spring k_i;
 DOF 0 is the fixed support, DOF n is free. So K = tridiag(-k_i, k_i + k_{i+1}, -k_{i+1}) with

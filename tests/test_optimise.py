@@ -146,6 +146,7 @@ def test_sweep_refinement_and_its_two_evaluators(small_sweep):
     assert (ode.exact, exact.exact) == (0, 2) and 0 < sweep.exact < sweep.objective.size
 
 
+@pytest.mark.slow  # 14 s in CI
 def test_split_designs_only_on_request():
     p = problem()
     result = mj.optimise_dampers(p, starts=3, iterations=30, split=True)
@@ -178,6 +179,7 @@ def test_two_dampers_are_placed_at_dofs():
     assert result.objective < result.initial_objective
 
 
+@pytest.mark.slow  # 22 s in CI; certification stays in the default run (the sweep test)
 def test_average_energy_objective_is_certified():
     p = problem(objective="average_energy", lowest=3)
     objective = mj.placement_objective(p, full_basis())

@@ -131,6 +131,7 @@ def test_undamped_energy_sensitivities_are_analytic(close):
     close(history.jacobian["k"], -history.jacobian["m"], atol=1e-10 * scale)
 
 
+@pytest.mark.slow  # 11 s in CI; the chain rule (m from masses)
 def test_mikota_scalars_are_the_sum_of_the_vector_sensitivities(scene, close):
     """Chain rule: d/d ln m = sum_i d/d ln m_i for m_i = m / i, likewise for k and the springs."""
     scalars = mj.sensitivities(scene, "energy", wrt=["m", "k"])

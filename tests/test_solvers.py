@@ -331,8 +331,10 @@ def damped_tip_energy(coefficient, adjoint):
     return jnp.sum(out.displacement ** 2)
 
 
-@pytest.mark.parametrize("adjoint", [diffrax.ForwardMode(), diffrax.RecursiveCheckpointAdjoint(),
-                                     diffrax.DirectAdjoint()], ids=lambda a: type(a).__name__)
+@pytest.mark.parametrize("adjoint", [
+    diffrax.ForwardMode(), diffrax.RecursiveCheckpointAdjoint(),
+    pytest.param(diffrax.DirectAdjoint(), marks=pytest.mark.slow)],  # 13 s in CI
+    ids=lambda a: type(a).__name__)
 def test_each_adjoint_gives_the_central_difference_derivative(adjoint, close):
     c, h = 0.7, 1e-5
     differentiate = jax.jacfwd if isinstance(adjoint, diffrax.ForwardMode) else jax.grad

@@ -128,6 +128,7 @@ def test_sharded_over_two_host_devices_equals_unbatched(unbatched, tmp_path):
     np.testing.assert_array_equal(np.load(out), unbatched)
 
 
+@pytest.mark.slow  # 11 s in CI; sharding is checked by the two-device test
 def test_jax_distributed_with_two_local_processes_equals_unbatched(unbatched, tmp_path):
     with socket.socket() as probe:
         probe.bind(("localhost", 0))
