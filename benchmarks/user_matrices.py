@@ -1,4 +1,4 @@
-"""User matrices keep their structure: one branched chain handed in four ways, solved the same.
+"""User matrices keep their structure: one branched chain handed in five ways, solved the same.
 
 Problem: three equal branches of L unit masses (springs 1, the last of each tied to a hub of mass
 1, itself grounded by a spring 1), n = 3 L + 1 DOFs (hub last) for L in {100, 333, 1000}: n = 301,
@@ -8,29 +8,39 @@ carry the motion into every branch), x(0) = 0, no load, displacements at all DOF
 ..., 20 (201 outputs).
 
 M (an (n,) diagonal) and K (scipy.sparse) are assembled here in numpy, as a user's own code would,
-and checked against ``mj.branched_chain``'s. The same system, four ways:
+and checked against ``mj.branched_chain``'s. The same system, five ways, each checked to become
+the operators it names (``EXPECTED``; the script stops otherwise):
 
-* ``branched``: ``mj.branched_chain`` (diagonal M, tridiagonal K + 2 link springs);
-* ``sparse``: ``mj.system(csr(M), csr(K))``: M becomes ``Diagonal``, K ``Sparse`` (COO, O(nnz));
-* ``dense``: ``mj.system(np.diag(m), K.toarray())``: ``Dense`` M and K. A non-diagonal mass is
-  solved in M-orthonormal modal coordinates, so every call starts with a dense n x n generalized
-  eigendecomposition (O(n^3)) and lifts the outputs with the n x n modes;
-* ``dense_k``: ``mj.system(m, K.toarray())``: diagonal M, ``Dense`` K, solved in physical
-  coordinates (O(n^2) per product).
+* ``branched``: ``mj.branched_chain``: ``Diagonal`` M, ``SymmetricTridiagonal`` K + 2 link
+  springs (branch 3's last mass is the hub's neighbour: its spring lies on the band);
+* ``scipy_csr``: ``mj.system(csr(M), csr(K))``: ``system`` finds the structure in the user's
+  sparse matrices: ``Diagonal`` M, ``SymmetricTridiagonal`` K + 2 links, the very operators of
+  ``branched`` (checked equal);
+* ``sparse_coo``: ``mj.system(Diagonal(m), Sparse(rows, cols, values, n))``, K an explicit
+  coordinate operator from the csr's COO arrays (operators passed in are kept as they are): the
+  O(nnz) gather + segment-sum product, and a dense Cholesky per step in Kvaerno5;
+* ``dense_k``: ``mj.system(Diagonal(m), Dense(K))``: dense K (O(n^2) products), diagonal M,
+  physical coordinates, a dense Cholesky per step in Kvaerno5;
+* ``dense_mass``: ``mj.system(Dense(diag(m)), Dense(K))``: a non-diagonal mass *operator* is solved
+  in M-orthonormal modal coordinates, so every call starts with a dense n x n generalized
+  eigendecomposition (O(n^3)) and lifts the outputs with the n x n modes. (A concrete dense
+  ``np.diag(m)`` array would now be recognised as ``Diagonal``; the explicit ``Dense`` operator
+  keeps the modal path measurable.)
 
 Each with ``mj.simulate(solver="dopri8", rtol=1e-8)`` and ``solver="kvaerno5"`` (rtol 1e-8; the
-structured ESDIRK: tridiagonal solve + Woodbury for the links for ``branched``, diagonal + Woodbury
-for the projected damper in modal coordinates for ``dense``, a dense solve per stage for
-``sparse`` and ``dense_k``). Default atol (1e-2 rtol x max|v0| = 1e-10).
+structured ESDIRK: tridiagonal solve + Woodbury for the links for ``branched`` and ``scipy_csr``,
+diagonal + Woodbury for the projected damper in modal coordinates for ``dense_mass``, one dense
+Cholesky factorization of M + s D + s^2 K per step for ``sparse_coo`` and ``dense_k``). Default
+atol (1e-2 rtol x max|v0| = 1e-10).
 
 Correctness before timing, per n and solver: each format's first call against ``branched``'s,
 max |x - x_branched| / max |x_branched| over all DOFs and times. Formats solved in the same
-(physical) coordinates take the same steps, so must agree to SAME_COORDINATES = 1e-10; ``dense``
-is solved in modal coordinates, where the step-size controller sees other components, so it
-agrees only to the integration error, MODAL_COORDINATES = 1e-5 (at n = 301 every row is also
-checked against ``mj.exact_solve``, EXACT_CHECK = 1e-5, which measures that error: 2e-7 to 1e-6
-at rtol 1e-8). At the smallest n the Dopri8 executables are also called at rtol 1e-11 (the
-tolerance is traced: no recompile), where every format must agree with ``branched`` to
+(physical) coordinates take the same steps, so must agree to SAME_COORDINATES = 1e-10;
+``dense_mass`` is solved in modal coordinates, where the step-size controller sees other
+components, so it agrees only to the integration error, MODAL_COORDINATES = 1e-5 (at n = 301 every
+row is also checked against ``mj.exact_solve``, EXACT_CHECK = 1e-5, which measures that error:
+~1e-7 to 1e-6 at rtol 1e-8). At the smallest n the Dopri8 executables are also called at rtol 1e-11
+(the tolerance is traced: no recompile), where every format must agree with ``branched`` to
 TIGHT_CHECK = 1e-8: the modal path's gap at rtol 1e-8 is integration error, not a wrong system.
 
 Compile time apart (``jax.jit(f).lower(...).compile()``); run time the median of 5 calls (3 when
@@ -57,6 +67,7 @@ import numpy as np
 import scipy.sparse as sp
 
 import mikota_jax as mj
+from mikota_jax._operators import Dense, Diagonal, Sparse
 
 NAME = "user_matrices"
 BRANCHES = 3
@@ -67,26 +78,37 @@ DAMPER_COEFFICIENT = 1.0
 RTOL = 1e-8
 HORIZON, OUTPUTS = 20.0, 201
 SOLVERS = ("dopri8", "kvaerno5")
-FORMATS = ("branched", "sparse", "dense", "dense_k")
+FORMATS = ("branched", "scipy_csr", "sparse_coo", "dense_k", "dense_mass")
+MODAL_FORMATS = ("dense_mass",)  # solved in modal coordinates (a non-diagonal mass operator)
+# what each format must become: (mass, stiffness, number of K's links; None: no links field)
+EXPECTED = {"branched": ("Diagonal", "SymmetricTridiagonal", 2),
+            "scipy_csr": ("Diagonal", "SymmetricTridiagonal", 2),
+            "sparse_coo": ("Diagonal", "Sparse", None),
+            "dense_k": ("Diagonal", "Dense", None),
+            "dense_mass": ("Dense", "Dense", None)}
 SAME_COORDINATES = 1e-10  # relative agreement with branched, physical coordinates
-MODAL_COORDINATES = 1e-5  # relative agreement with branched, the dense (modal) path
+MODAL_COORDINATES = 1e-5  # relative agreement with branched, the modal path
 EXACT_CHECK = 1e-5  # relative error against exact_solve at the smallest n (rtol 1e-8: ~1e-6)
 EXACT_MAX_N = 400
 TIGHT_RTOL, TIGHT_CHECK = 1e-11, 1e-8  # smallest n, Dopri8: every format, branched vs the others
 # asymptotic cost exponent of one call in n (skip prediction): O(n) stencils and O(nnz) products,
-# O(n^2) dense products, O(n^3) dense factorizations (eigh of the modal path, LU per stage)
-EXPONENT = {("branched", "dopri8"): 1, ("sparse", "dopri8"): 1, ("dense", "dopri8"): 3,
-            ("dense_k", "dopri8"): 2, ("branched", "kvaerno5"): 1, ("sparse", "kvaerno5"): 3,
-            ("dense", "kvaerno5"): 3, ("dense_k", "kvaerno5"): 3}
+# O(n^2) dense products, O(n^3) dense factorizations (eigh of the modal path, Cholesky per step)
+EXPONENT = {("branched", "dopri8"): 1, ("scipy_csr", "dopri8"): 1, ("sparse_coo", "dopri8"): 1,
+            ("dense_k", "dopri8"): 2, ("dense_mass", "dopri8"): 3,
+            ("branched", "kvaerno5"): 1, ("scipy_csr", "kvaerno5"): 1,
+            ("sparse_coo", "kvaerno5"): 3, ("dense_k", "kvaerno5"): 3,
+            ("dense_mass", "kvaerno5"): 3}
 PATHS = {
     ("branched", "dopri8"): "physical: tridiagonal stencil + 2 links",
-    ("sparse", "dopri8"): "physical: COO gather + segment sum",
-    ("dense", "dopri8"): "modal: dense eigh per call, diagonal K, low-rank damper, dense lift",
+    ("scipy_csr", "dopri8"): "physical: detected tridiagonal stencil + 2 links",
+    ("sparse_coo", "dopri8"): "physical: COO gather + segment sum",
     ("dense_k", "dopri8"): "physical: dense K matvec",
+    ("dense_mass", "dopri8"): "modal: dense eigh per call, diagonal K, low-rank damper, dense lift",
     ("branched", "kvaerno5"): "physical: tridiagonal solve + Woodbury (links)",
-    ("sparse", "kvaerno5"): "physical: dense solve per stage",
-    ("dense", "kvaerno5"): "modal: dense eigh per call, diagonal + Woodbury (damper)",
-    ("dense_k", "kvaerno5"): "physical: dense solve per stage",
+    ("scipy_csr", "kvaerno5"): "physical: detected tridiagonal solve + Woodbury (links)",
+    ("sparse_coo", "kvaerno5"): "physical: dense Cholesky per step",
+    ("dense_k", "kvaerno5"): "physical: dense Cholesky per step",
+    ("dense_mass", "kvaerno5"): "modal: dense eigh per call, diagonal + Woodbury (damper)",
 }
 
 
@@ -120,19 +142,42 @@ def build(name: str, length: int, m, k):
         masses = [np.ones(length)] * BRANCHES
         springs = [np.ones(length + 1)] * BRANCHES
         return mj.branched_chain(masses, springs, 1.0, 1.0, dampers, internal_damping=rayleigh)
-    if name == "sparse":
-        return mj.system(sp.csr_matrix(sp.diags(m)), k, dampers=dampers,
-                         internal_damping=rayleigh)
-    mass = np.diag(m) if name == "dense" else m
-    return mj.system(mass, k.toarray(), dampers=dampers, internal_damping=rayleigh)
+    if name == "scipy_csr":
+        mass, stiffness = sp.csr_matrix(sp.diags(m)), k
+    elif name == "sparse_coo":
+        coo = k.tocoo()
+        mass = Diagonal(jnp.asarray(m))
+        stiffness = Sparse(jnp.asarray(coo.row.astype(np.int64)),
+                           jnp.asarray(coo.col.astype(np.int64)), jnp.asarray(coo.data),
+                           k.shape[0])
+    elif name == "dense_k":
+        mass, stiffness = Diagonal(jnp.asarray(m)), Dense(jnp.asarray(k.toarray()))
+    elif name == "dense_mass":
+        mass, stiffness = Dense(jnp.asarray(np.diag(m))), Dense(jnp.asarray(k.toarray()))
+    else:
+        raise ValueError(name)
+    return mj.system(mass, stiffness, dampers=dampers, internal_damping=rayleigh)
 
 
 def operators(system) -> dict:
-    return {"mass": type(system.mass).__name__, "stiffness": type(system.stiffness).__name__,
+    stiffness = system.stiffness
+    return {"mass": type(system.mass).__name__, "stiffness": type(stiffness).__name__,
+            "stiffness_links": (None if not hasattr(stiffness, "links") else
+                                [list(pair) for pair in stiffness.links]),
             "damping": type(system.damping).__name__,
             "internal": None if system.internal is None else (
                 "Rayleigh" if system.internal.rayleigh is not None else
                 type(system.internal.matrix).__name__)}
+
+
+def check_operators(name: str, system, n: int) -> dict:
+    """The operators ``system`` holds; stop unless they are the ones format ``name`` claims."""
+    found = operators(system)
+    got = (found["mass"], found["stiffness"],
+           None if found["stiffness_links"] is None else len(found["stiffness_links"]))
+    if got != EXPECTED[name]:
+        raise SystemExit(f"n = {n}: format {name} became {got}, expected {EXPECTED[name]}")
+    return found
 
 
 def compile_solve(system, solver: str, ts, v0):
@@ -160,6 +205,17 @@ def measure_size(length: int, quick: bool, budget: float, last: dict, say) -> li
     if not np.array_equal(k_chain, k.toarray()):
         raise SystemExit(f"n = {n}: branched_chain's K differs from the assembled K by "
                          f"{np.max(np.abs(k_chain - k.toarray())):.3g}")
+    found = {name: check_operators(name, systems[name], n) for name in FORMATS}
+    # detection: the csr's K became branched_chain's very operator (same bands, links, springs)
+    ours, theirs = systems["scipy_csr"].stiffness, systems["branched"].stiffness
+    if not (ours.links == theirs.links and all(
+            np.array_equal(np.asarray(getattr(ours, f)), np.asarray(getattr(theirs, f)))
+            for f in ("diagonal", "off_diagonal", "link_springs"))):
+        raise SystemExit(f"n = {n}: scipy_csr's detected K differs from branched_chain's")
+    say(f"n = {n}: operators " + ", ".join(
+        f"{name}: M {f['mass']}, K {f['stiffness']}"
+        + (f" + links {f['stiffness_links']}" if f["stiffness_links"] else "")
+        for name, f in found.items()))
     reference = None
     if n <= EXACT_MAX_N:
         reference = np.asarray(mj.exact_solve(systems["branched"], ts, None, v0).displacement)
@@ -169,7 +225,7 @@ def measure_size(length: int, quick: bool, budget: float, last: dict, say) -> li
         firsts, calls = {}, {}
         for name in FORMATS:
             row = dict(n=n, format=name, solver=solver, path=PATHS[name, solver],
-                       operators=operators(systems[name]), build_s=build_s[name],
+                       operators=found[name], build_s=build_s[name],
                        compile_s=None, run_s=None,
                        run_times_s=[], steps=None, skipped=None)
             rows.append(row)
@@ -198,7 +254,8 @@ def measure_size(length: int, quick: bool, budget: float, last: dict, say) -> li
         for row in here:
             x = firsts[row["format"]]
             row["max_abs_x"] = float(np.max(np.abs(x)))
-            limit = MODAL_COORDINATES if row["format"] == "dense" else SAME_COORDINATES
+            limit = (MODAL_COORDINATES if row["format"] in MODAL_FORMATS
+                     else SAME_COORDINATES)
             row["vs_branched_limit"] = limit
             require(row, "vs_branched", relative(x, firsts["branched"]), limit)
             if reference is not None:
@@ -247,7 +304,7 @@ def _first_n(quick: bool) -> int:
 def plot(rows: list[dict], quick: bool, meta_line: str):
     fig, axes = figure(ncols=3, figsize=(15, 6.2))
     sizes = sorted({r["n"] for r in rows})
-    colours = dict(zip(FORMATS, ("C0", "C1", "C2", "C3")))
+    colours = dict(zip(FORMATS, ("C0", "C4", "C1", "C3", "C2")))
     for ax, solver in zip(axes[:2], SOLVERS):
         for name in FORMATS:
             done = [r for r in rows if r["solver"] == solver and r["format"] == name
@@ -285,7 +342,8 @@ def plot(rows: list[dict], quick: bool, meta_line: str):
     for ax in axes:
         ax.set_xticks(sizes, [str(n) for n in sizes])
         ax.minorticks_off()
-    fig.suptitle(f"One branched chain (3 branches + hub) as branched_chain / scipy.sparse / dense: "
+    fig.suptitle("One branched chain (3 branches + hub) as branched_chain / scipy csr (detected) / "
+                 f"Sparse / Dense K / Dense M and K: "
                  f"{meta_line}", fontsize=9)
     return save_figure(fig, NAME, quick)
 
@@ -329,6 +387,9 @@ def main(argv=None) -> dict:
                    "measure": "max |x - x_ref| / max |x_ref| over all DOFs and 201 times"},
         "budget_s_per_call": budget,
         "cost_exponents": {f"{name} {solver}": p for (name, solver), p in EXPONENT.items()},
+        "expected_operators": {name: dict(zip(("mass", "stiffness", "stiffness_links"), v))
+                               for name, v in EXPECTED.items()},
+        "operators_found": {r["format"]: r["operators"] for r in rows if r["n"] == rows[-1]["n"]},
         "paths": {
             f"{name} {solver}": PATHS[name, solver] for name, solver in PATHS},
         "fitted_run_time_exponents": exponents, "rows": rows,

@@ -153,11 +153,19 @@ def _check(operator, name: str, definite: bool, check_definite: bool):
         bad = ~jnp.all(jnp.isfinite(d) & ((d > 0) if definite else (d >= 0)))
         return _attach(operator, bad, f"{name} must be finite and {what} (a diagonal "
                                       f"{'> 0' if definite else '>= 0'}).")
-    if isinstance(operator, SymmetricTridiagonal) and not operator.links and definite:
+    if isinstance(operator, SymmetricTridiagonal) and definite:
+        # with links k (e_i - e_j)(e_i - e_j)^T, k >= 0: the tridiagonal rest positive definite
+        # is enough (O(n)); a branched chain's is (each branch is grounded)
         d, e = operator.diagonal, operator.off_diagonal
         finite = jnp.all(jnp.isfinite(d)) & jnp.all(jnp.isfinite(e))
+        if operator.links:
+            k = operator.link_springs
+            i, j = (np.asarray(a) for a in zip(*operator.links))
+            d = d.at[i].add(-k).at[j].add(-k)
+            finite = finite & jnp.all(jnp.isfinite(k)) & jnp.all(k >= 0)
         bad = ~finite | ~(_smallest_pivot(d, e) > 0)
-        return _attach(operator, bad, f"{name} must be finite and {what}.")
+        if not operator.links or is_traced(bad) or not bool(bad):
+            return _attach(operator, bad, f"{name} must be finite and {what}.")
     if not check_definite:
         return operator
     if operator.size > DENSE_CHECK_LIMIT:

@@ -408,3 +408,25 @@ def test_readme_beyond_mikota_snippet_runs_and_its_gradient_is_right(capsys):
     np.testing.assert_allclose(printed, (energy(1e-3 + h) - energy(1e-3 - h)) / (2 * h), rtol=1e-5)
     assert isinstance(namespace["system"].stiffness, SymmetricTridiagonal)  # dia -> tridiagonal
     assert namespace["tree"].size == 31 and len(namespace["tree"].stiffness.links) == 2
+
+
+def test_definiteness_of_a_tridiagonal_with_links_is_checked_in_o_n(monkeypatch):
+    import mikota_jax._matrices as matrices
+
+    masses, springs = branched()
+    m, k = assembled_branched(masses, springs, 2.0, 1.0)
+    monkeypatch.setattr(matrices, "DENSE_CHECK_LIMIT", 4)  # no dense check possible at n = 9
+    found = mj.system(sp.csr_matrix(m), sp.csr_matrix(k)).stiffness
+    assert found.links == ((2, 8), (4, 8))
+    with pytest.raises(ValueError, match="refused above n = 4 .* check_definite=False"):
+        mj.system(np.diag(m), Sparse(*(jnp.asarray(a) for a in np.nonzero(k)), k[k != 0], 9))
+    assert isinstance(mj.system(np.diag(m), Sparse(*(jnp.asarray(a) for a in np.nonzero(k)),
+                                                   k[k != 0], 9), check_definite=False).stiffness,
+                      Sparse)
+    bad = k.copy()
+    bad[8, 8] = 0.5  # less than the springs to the hub: indefinite
+    with pytest.raises(ValueError, match="stiffness: checking that it is positive definite"):
+        mj.system(np.diag(m), bad)  # the O(n) sufficient test fails, the dense one is refused
+    monkeypatch.undo()
+    with pytest.raises(ValueError, match="stiffness must be positive definite"):
+        mj.system(np.diag(m), bad)
