@@ -78,15 +78,24 @@ def _internal_bands(system, s):
     elif matrix is not None:
         return None
     if internal.rayleigh is not None:
-        if not (isinstance(system.mass, Diagonal)
-                and isinstance(stiffness, Diagonal | SymmetricTridiagonal)):
+        mass = system.mass
+        if not (physical_mass(mass) and isinstance(stiffness, Diagonal | SymmetricTridiagonal)):
             return None
         alpha, beta = s * internal.rayleigh.alpha, s * internal.rayleigh.beta
-        diagonal = diagonal + alpha * system.mass.diagonal + beta * stiffness.diagonal
+        diagonal = diagonal + alpha * mass.diagonal + beta * stiffness.diagonal
+        if isinstance(mass, SymmetricTridiagonal):
+            off = off + alpha * mass.off_diagonal
         if isinstance(stiffness, SymmetricTridiagonal):
             off = off + beta * stiffness.off_diagonal
             links = None if not stiffness.links else beta * stiffness.link_springs
     return diagonal, off, links
+
+
+def physical_mass(mass) -> bool:
+    """A mass solved in physical coordinates: diagonal, or tridiagonal without links (a
+    consistent finite-element mass of a bar, say)."""
+    return isinstance(mass, Diagonal) or (isinstance(mass, SymmetricTridiagonal)
+                                           and not mass.links)
 
 
 def _dense_solver(system, s):
@@ -109,13 +118,13 @@ def _pair_factor(n: int, pairs):
 def shifted_solver(system, s):
     """rhs -> (M + s D + s^2 K)^-1 rhs, prepared once per step (s = h gamma), in O(n) structure.
 
-    Structured when M is diagonal and K (with D's internal part) tridiagonal or diagonal: a
-    tridiagonal solve, plus Woodbury for relative dampers, a branched chain's links and projected
-    dampers; any other system (banded, sparse or dense matrices) is solved densely.
+    Structured when M is diagonal or tridiagonal and K (with D's internal part) tridiagonal or
+    diagonal: a tridiagonal solve, plus Woodbury for relative dampers, a branched chain's links
+    and projected dampers; any other system (banded, sparse or dense matrices) is solved densely.
     """
     mass, stiffness, damping = system.mass, system.stiffness, system.damping
     internal = _internal_bands(system, s)
-    structured = (isinstance(mass, Diagonal) and internal is not None
+    structured = (physical_mass(mass) and internal is not None
                   and isinstance(stiffness, Diagonal | SymmetricTridiagonal)
                   and isinstance(damping, Dampers | LowRank | None))
     if not structured:
@@ -125,9 +134,15 @@ def shifted_solver(system, s):
     if isinstance(damping, Dampers):
         diagonal = diagonal + s * damping.grounded_diagonal()
     factors, weights = [], []
-    if isinstance(stiffness, SymmetricTridiagonal):
-        off = s**2 * stiffness.off_diagonal + off_internal
-        if stiffness.links:
+    tridiagonal = isinstance(stiffness, SymmetricTridiagonal) or isinstance(
+        mass, SymmetricTridiagonal)
+    if tridiagonal:
+        off = off_internal
+        if isinstance(mass, SymmetricTridiagonal):
+            off = off + mass.off_diagonal
+        if isinstance(stiffness, SymmetricTridiagonal):
+            off = off + s**2 * stiffness.off_diagonal
+        if isinstance(stiffness, SymmetricTridiagonal) and stiffness.links:
             # K's links are -k at (i, j) with +k on the diagonal: k (e_i - e_j)(e_i - e_j)^T
             # taken out of the tridiagonal part and put back by Woodbury
             w = s**2 * stiffness.link_springs + (0.0 if link_internal is None else link_internal)

@@ -30,7 +30,7 @@ from ._errors import (
 )
 from ._excitation import Pulse, as_load
 from ._galerkin import ReducedModel
-from ._implicit import StructuredKvaerno5, choose_solver
+from ._implicit import StructuredKvaerno5, _tridiagonal_solve, choose_solver, physical_mass
 from ._internal import InternalDamping
 from ._operators import Diagonal, diagonal_of
 
@@ -96,18 +96,18 @@ def check_problem(model, x0, v0, load):
 def unpack(model, x0, v0, load):
     """(system, lift or None, initial x, initial v, load) in the coordinates the solvers use.
 
-    A system with a diagonal mass and no modal damping (a chain, or a user's diagonal-mass
-    system) is solved as it is, in its structure (lift None). Any other -- a reduced model, a
-    non-diagonal mass, modal damping -- is solved in its M-orthonormal modal coordinates eta:
-    q = U eta with U^T M U = I, U^T K U = diag(omega^2), so M becomes I, K a diagonal, Rayleigh
-    and modal damping diagonals, and projected dampers stay low rank; ``lift`` (basis U, or U)
-    maps eta back to the full DOFs. The initial state is projected (q0 = basis^T x0,
-    eta0 = U^T M q0).
+    A system with a diagonal or tridiagonal mass and no modal damping (a chain, a user's
+    lumped or consistent 1-d mass) is solved as it is, in its structure (lift None). Any other
+    -- a reduced model, another non-diagonal mass, modal damping -- is solved in its
+    M-orthonormal modal coordinates eta: q = U eta with U^T M U = I, U^T K U = diag(omega^2), so
+    M becomes I, K a diagonal, Rayleigh and modal damping diagonals, and projected dampers stay
+    low rank; ``lift`` (basis U, or U) maps eta back to the full DOFs. The initial state is
+    projected (q0 = basis^T x0, eta0 = U^T M q0).
     """
     basis = model.basis if isinstance(model, ReducedModel) else None
     system = model.system if basis is not None else model
     modal_damping = system.internal is not None and system.internal.modal is not None
-    if isinstance(system.mass, Diagonal) and basis is None and not modal_damping:
+    if physical_mass(system.mass) and basis is None and not modal_damping:
         return system, None, x0, v0, load
     if basis is not None:
         x0, v0 = basis.T @ x0, basis.T @ v0
@@ -122,14 +122,20 @@ def unpack(model, x0, v0, load):
 
 
 def acceleration(system: SecondOrderSystem, load):
-    """a(t, x, v) = M^-1 (f(t) - D v - K x) for a diagonal M; what does not change is prepared once.
+    """a(t, x, v) = M^-1 (f(t) - D v - K x) for a diagonal (or tridiagonal) M, prepared once.
 
     The mass is inverted elementwise and a chain's grounded dampers collapse to one diagonal vector,
     K stays a tridiagonal stencil (a chain) or a diagonal (modal coordinates): O(n) per call, plus
     O(r p) for dampers projected onto r modes (p = DOFs they touch); Rayleigh damping costs one
     more product with M and K.
     """
-    inverse_mass = 1.0 / system.mass.diagonal
+    mass = system.mass
+    if isinstance(mass, Diagonal):
+        inverse_mass = 1.0 / mass.diagonal
+        solve_mass = lambda force: inverse_mass * force  # noqa: E731
+    else:  # tridiagonal (a consistent mass): one O(n) solve per evaluation
+        def solve_mass(force):
+            return _tridiagonal_solve(mass.diagonal, mass.off_diagonal, force)
     damping = system.damping
     if isinstance(damping, Dampers):
         grounded = damping.grounded_diagonal()
@@ -149,7 +155,7 @@ def acceleration(system: SecondOrderSystem, load):
             force = force - damp(v)
         if load is not None:
             force = force + load(t)
-        return inverse_mass * force
+        return solve_mass(force)
 
     return accel
 

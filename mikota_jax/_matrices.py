@@ -13,9 +13,11 @@ Accepted forms of M, K and D, and the operator each becomes (what structure it k
   products; a traced matrix, e.g. one being differentiated, stays dense);
 - an operator of this package, as it is.
 
-A non-diagonal mass (any form) is solved in modal coordinates, after one dense n x n
-eigendecomposition. Checks on construction: shapes, finite entries, symmetry (to 1e-12 of the
-largest entry), M and K positive definite, D positive semi-definite; each error names the matrix.
+A tridiagonal mass (a consistent finite-element mass of a bar) is solved in its structure, one
+O(n) tridiagonal solve per evaluation; any other non-diagonal mass in modal coordinates, after one
+dense n x n eigendecomposition per solve. Checks on construction: shapes, finite entries, symmetry
+(to 1e-12 of the largest entry), M and K positive definite, D positive semi-definite; each error
+names the matrix.
 """
 
 from collections.abc import Sequence

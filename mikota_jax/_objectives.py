@@ -132,11 +132,11 @@ def _integrated_energy_ode(model, horizon, x0, v0, load, rtol, atol, *, max_step
     """The energy integral as one more state of the diffrax solve (Dopri8), O(n) per stage."""
     system, _, y0x, y0v, load = unpack(model, x0, v0, load)
     accel = acceleration(system, load)
-    m, mass = system.size, system.mass.diagonal
+    m = system.size
 
     def field(t, y, args):
         x, v = y[:m], y[m:2 * m]
-        power = (x @ system.stiffness.mv(x) + v @ (mass * v)) / 2
+        power = (x @ system.stiffness.mv(x) + v @ system.mass.mv(v)) / 2
         return jnp.concatenate([v, accel(t, x, v), power[None]])
 
     controller = diffrax.PIDController(rtol=rtol, atol=atol)

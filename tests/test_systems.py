@@ -192,7 +192,7 @@ def test_banded_sparse_and_dense_stiffness_give_the_same_solutions():
         np.testing.assert_allclose(solution, exact.displacement, atol=1e-8)
 
 
-def test_a_non_diagonal_mass_from_every_format_is_solved_in_modal_coordinates():
+def test_a_non_diagonal_mass_from_every_format_gives_the_same_solutions():
     m, k = spd(N, 3), pentadiagonal_stiffness(N)
     m = m * (np.abs(np.subtract.outer(np.arange(N), np.arange(N))) <= 1)  # tridiagonal mass
     m = m + N * np.eye(N)  # still SPD
@@ -430,3 +430,39 @@ def test_definiteness_of_a_tridiagonal_with_links_is_checked_in_o_n(monkeypatch)
     monkeypatch.undo()
     with pytest.raises(ValueError, match="stiffness must be positive definite"):
         mj.system(np.diag(m), bad)
+
+
+def bar(n):
+    """A fixed-free bar of unit length in n linear finite elements: consistent (tridiagonal) M."""
+    h, edge = 1.0 / n, np.ones(n - 1)
+    main = np.full(n, 4.0)
+    main[-1] = 2.0
+    stiff = np.full(n, 2.0)
+    stiff[-1] = 1.0
+    return (h / 6 * (np.diag(main) + np.diag(edge, 1) + np.diag(edge, -1)),
+            (np.diag(stiff) - np.diag(edge, 1) - np.diag(edge, -1)) / h)
+
+
+def test_a_consistent_mass_is_solved_in_its_tridiagonal_structure():
+    n = 20
+    m, k = bar(n)
+    theta = (2 * np.arange(1, n + 1) - 1) * np.pi / (2 * n)  # the discrete bar's modes
+    omega = np.sqrt(6 * n**2 * (1 - np.cos(theta)) / (2 + np.cos(theta)))
+    system = mj.system(m, k, dampers=[mj.GroundedDamper(10, 0.3)],
+                       internal_damping=mj.Rayleigh(0.1, 1e-3))
+    assert isinstance(system.mass, SymmetricTridiagonal)
+    np.testing.assert_allclose(mj.modal_decomposition(system)[0], omega, rtol=1e-12)
+    from mikota_jax._implicit import _dense_solver, shifted_solver
+    from mikota_jax._integrate import unpack
+
+    assert unpack(system, jnp.zeros(n), jnp.zeros(n), None)[1] is None  # no modal lift
+    rhs = jnp.linspace(0.0, 1.0, n)
+    np.testing.assert_allclose(shifted_solver(system, 0.01)(rhs), _dense_solver(system, 0.01)(rhs),
+                               rtol=1e-12)
+    v0 = jnp.zeros(n).at[-1].set(1.0)
+    exact = mj.exact_solve(system, TS, v0=v0).displacement
+    for solver in ("dopri8", "kvaerno5"):
+        simulated = mj.simulate(system, TS, v0=v0, solver=solver, rtol=1e-10).displacement
+        np.testing.assert_allclose(simulated, exact, atol=1e-9)
+    np.testing.assert_allclose(mj.integrated_energy(system, 6.0, v0=v0, method="ode", rtol=1e-10),
+                               mj.integrated_energy(system, 6.0, v0=v0), rtol=1e-8)
