@@ -127,7 +127,7 @@ def acceleration(system: SecondOrderSystem, load):
     The mass is inverted elementwise and a chain's grounded dampers collapse to one diagonal vector,
     K stays a tridiagonal stencil (a chain) or a diagonal (modal coordinates): O(n) per call, plus
     O(r p) for dampers projected onto r modes (p = DOFs they touch); Rayleigh damping costs one
-    more product with M and K.
+    more product with M (K (x + beta v) takes its K part).
     """
     mass = system.mass
     if isinstance(mass, Diagonal):
@@ -145,12 +145,19 @@ def acceleration(system: SecondOrderSystem, load):
         damp = damping.mv
     else:
         damp = None
-    if system.internal is not None:  # Rayleigh: alpha M v + beta K v, in M's and K's structure
-        internal = system.internal.operator(system.mass, system.stiffness, system.modes).mv
-        damp = internal if damp is None else (lambda v, d=damp: d(v) + internal(v))
+    internal, rayleigh = system.internal, None
+    if internal is not None:
+        rayleigh = internal.rayleigh  # folded into the K and M products below
+        rest = InternalDamping(internal.matrix, None, internal.modal).operator(
+            system.mass, system.stiffness, system.modes)
+        if rest is not None:
+            damp = rest.mv if damp is None else (lambda v, d=damp: d(v) + rest.mv(v))
 
     def accel(t, x, v):
-        force = -system.stiffness.mv(x)
+        if rayleigh is None:
+            force = -system.stiffness.mv(x)
+        else:  # K x + (alpha M + beta K) v = K (x + beta v) + alpha M v: one K product
+            force = -system.stiffness.mv(x + rayleigh.beta * v) - rayleigh.alpha * mass.mv(v)
         if damp is not None:
             force = force - damp(v)
         if load is not None:
