@@ -16,6 +16,11 @@ import numpy as np
 from ._custom_types import Array, Basis, Float, Matrix, Vector
 
 
+def project_by_products(operator, basis: Basis) -> "Dense":
+    """basis^T A basis from r structured products A basis[:, j] (no dense A is formed)."""
+    return Dense(basis.T @ jax.vmap(operator.mv, in_axes=1, out_axes=1)(basis))
+
+
 class Diagonal(eqx.Module):
     """A diagonal matrix stored as its diagonal."""
 
@@ -90,7 +95,7 @@ class SymmetricTridiagonal(eqx.Module):
         return rows
 
     def project(self, basis: Basis) -> "Dense":
-        return Dense(basis.T @ jax.vmap(self.mv, in_axes=1, out_axes=1)(basis))
+        return project_by_products(self, basis)
 
 
 class Dense(eqx.Module):
@@ -166,7 +171,7 @@ class SymmetricBanded(eqx.Module):
         return SymmetricBanded(jnp.abs(self.bands)).mv(jnp.ones(self.size))
 
     def project(self, basis: Basis) -> "Dense":
-        return Dense(basis.T @ jax.vmap(self.mv, in_axes=1, out_axes=1)(basis))
+        return project_by_products(self, basis)
 
 
 class Sparse(eqx.Module):
@@ -192,7 +197,7 @@ class Sparse(eqx.Module):
         return jax.ops.segment_sum(jnp.abs(self.values), self.rows, num_segments=self.size)
 
     def project(self, basis: Basis) -> "Dense":
-        return Dense(basis.T @ jax.vmap(self.mv, in_axes=1, out_axes=1)(basis))
+        return project_by_products(self, basis)
 
 
 class Sum(eqx.Module):
