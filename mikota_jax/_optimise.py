@@ -64,7 +64,7 @@ from ._objectives import (
     _total_average_energy,
     smooth_peak,
 )
-from ._pod import pod
+from ._reduction import Reduction, reduce
 
 OBJECTIVES = ("energy", "average_energy", "peak")
 OPTIMIZERS = ("adam", "lbfgs")
@@ -515,13 +515,9 @@ def _snapshot_modes(problem, positions, coefficients):
                          "non-finite states) at the design "
                          f"positions={np.asarray(positions)}, "
                          f"coefficients={np.asarray(coefficients)}; increase max_steps.")
-    first = np.asarray(ts) >= problem.snapshots[0] - 1e-12
-    result = pod(displacement[jnp.asarray(first)].T)
-    if problem.rank is not None:
-        rank = min(problem.rank, result.numerical_rank())
-    else:
-        rank = result.rank_for_energy(problem.energy, problem.criterion)
-    return result.basis(rank)
+    request = Reduction(problem.snapshots, energy=problem.energy, rank=problem.rank,
+                        criterion=problem.criterion)
+    return reduce(displacement, ts, request, cap_rank=True).basis
 
 
 def _enrich(basis, modes, tol: float = 1e-8):

@@ -20,7 +20,7 @@ from ._exact import exact_solve
 from ._galerkin import galerkin
 from ._integrate import simulate
 from ._metrics import phase_error, relative_error
-from ._pod import pod
+from ._reduction import reduce
 from ._scene import Scene
 
 
@@ -38,16 +38,6 @@ def _columns(trajectory, quantity: str, dofs) -> dict[str, list[float]]:
     values = np.asarray(getattr(trajectory, quantity))
     index = {d: k for k, d in enumerate(trajectory.dofs)}
     return {str(d): values[:, index[d]].tolist() for d in dofs}
-
-
-def _window(ts, window) -> np.ndarray:
-    t = np.asarray(ts)
-    tol = 1e-9 * max(1.0, float(np.max(np.abs(t))))
-    mask = (t >= window[0] - tol) & (t <= window[1] + tol)
-    if not mask.any():
-        raise ValueError(f"mikota_jax: [reduction] snapshots window {window} holds no time of "
-                         "the grid.")
-    return mask
 
 
 def run_scene(scene: Scene) -> dict:
@@ -87,21 +77,17 @@ def run_scene(scene: Scene) -> dict:
 
     if reduction is not None:
         start = time.perf_counter()
-        mask = _window(scene.ts, reduction.window)
         states = full.velocity if snapshot_v else full.displacement
-        snapshots = np.asarray(states)[mask].T  # (n, m), eq. (3.5)
-        decomposition = pod(snapshots, method=reduction.method)
-        if reduction.rank is not None:
-            rank = reduction.rank
-        else:
-            rank = decomposition.rank_for_energy(reduction.energy, reduction.criterion)
-        model = galerkin(scene.system, decomposition.basis(rank))
+        reduced_basis = reduce(states, scene.ts, reduction)
+        decomposition, rank = reduced_basis.pod, reduced_basis.rank
+        model = galerkin(scene.system, reduced_basis.basis)
         timings["reduction_s"] = time.perf_counter() - start
         start = time.perf_counter()
         reduced = solve_scene(model, scene, None if wants_phase else dofs, True, wants_v)
         jax.block_until_ready(reduced)
         timings["reduced_solve_s"] = time.perf_counter() - start
-        arrays.update(pod=decomposition, rank=rank, reduced=reduced, snapshots=int(mask.sum()))
+        arrays.update(pod=decomposition, rank=rank, reduced=reduced,
+                      snapshots=reduced_basis.snapshots)
         result["reduced"] = {q: _columns(reduced, q, dofs) for q in ("displacement", "velocity")
                              if q in quantities}
         if "singular_values" in quantities:

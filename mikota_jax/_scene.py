@@ -25,6 +25,7 @@ from ._excitation import Pulse, pulse
 from ._integrate import SOLVERS
 from ._metrics import AGGREGATES
 from ._pod import CRITERIA, METHODS
+from ._reduction import Reduction
 from ._scene_systems import system_from
 from ._toml import choice as _choice
 from ._toml import fail as _fail
@@ -34,17 +35,6 @@ from ._toml import table as _table
 QUANTITIES = ("displacement", "velocity", "singular_values", "rank", "phase_error", "modes",
               "relative_error")
 PAPER_SCENES = ("section4_first_mode", "section4_impulse", "section5_damped")
-
-
-class Reduction(eqx.Module):
-    """How to reduce: snapshot window, snapshot quantity, and the rank rule (energy or rank)."""
-
-    window: tuple[float, float]
-    quantity: str = "displacement"
-    energy: float | None = None
-    rank: int | None = None
-    criterion: str = "squared"
-    method: str = "svd"
 
 
 class Output(eqx.Module):

@@ -50,8 +50,7 @@ from ._internal import InternalDamping, ModalDamping, Rayleigh
 from ._metrics import phase_error
 from ._objectives import integrated_energy
 from ._operators import Diagonal
-from ._pod import pod
-from ._run import _window as snapshot_window
+from ._reduction import reduce, snapshot_window
 from ._run import solve_scene as _solve
 from ._scene import Scene
 
@@ -138,13 +137,7 @@ def _scene_basis(scene: Scene) -> jax.Array:
                          "give basis=... or a scene with a [reduction] table.")
     velocity = reduction.quantity == "velocity"
     full = _solve(scene.system, scene, None, not velocity, velocity, None)
-    states = full.velocity if velocity else full.displacement
-    mask = snapshot_window(scene.ts, reduction.window)
-    decomposition = pod(np.asarray(states)[mask].T, method=reduction.method)
-    rank = reduction.rank
-    if rank is None:
-        rank = decomposition.rank_for_energy(reduction.energy, reduction.criterion)
-    return decomposition.basis(rank)
+    return reduce(full.velocity if velocity else full.displacement, scene.ts, reduction).basis
 
 
 class SceneFunction(eqx.Module):
