@@ -56,6 +56,9 @@ from ._pod import POD as POD
 from ._pod import energy_fraction as energy_fraction
 from ._pod import pod as pod
 from ._pod import rank_for_energy as rank_for_energy
+from ._reduction import ReducedBasis as ReducedBasis
+from ._reduction import Reduction as Reduction
+from ._reduction import reduce as reduce
 from ._reproduce import reproduce as reproduce
 from ._run import run_scene as run_scene
 from ._scene import Scene as Scene

@@ -64,6 +64,7 @@ from ._objectives import (
     _total_average_energy,
     smooth_peak,
 )
+from ._plain import to_plain
 from ._reduction import Reduction, reduce
 
 OBJECTIVES = ("energy", "average_energy", "peak")
@@ -640,23 +641,8 @@ class PlacementResult:
 
     def to_json(self) -> dict:
         """A JSON-ready dict (arrays as lists, NaN as None), without the basis."""
-        return {f.name: _plain(getattr(self, f.name)) for f in dataclasses.fields(self)
+        return {f.name: to_plain(getattr(self, f.name)) for f in dataclasses.fields(self)
                 if f.name != "basis"}
-
-
-def _plain(x):
-    """Arrays and numpy scalars as lists and floats; non-finite numbers as None (JSON null)."""
-    if isinstance(x, np.ndarray):
-        return _plain(x.tolist())
-    if isinstance(x, np.generic):
-        x = x.item()
-    if isinstance(x, float) and not np.isfinite(x):
-        return None
-    if isinstance(x, dict):
-        return {k: _plain(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_plain(v) for v in x]
-    return x
 
 
 def _phase_record(phase: str, round_: int, search: _Search) -> dict:
@@ -1034,7 +1020,7 @@ class SweepResult:
 
     def to_json(self) -> dict:
         """A JSON-ready dict (arrays as lists, NaN as None)."""
-        return {f.name: _plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
+        return {f.name: to_plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
 
 
 def sweep_dampers(problem: DamperProblem, coefficients, positions=None, *, method: str = "auto",
