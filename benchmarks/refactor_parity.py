@@ -1,0 +1,146 @@
+"""Restructuring parity: today's package against a reference revision, in one process.
+
+Issue 22 (one house) asks that restructuring costs no speed: the Section 5 Dopri8 solve, the ROM
+energy gradient and the placement optimiser within 10 % of their figures before it. Both packages
+are loaded into this process (the reference from ``git archive REV`` as ``mikota_jax_reference``)
+and timed in turns (reference, current, reference, current, ...), so machine load affects both
+alike:
+
+* ``simulate``: the README's Section 5 solve (n = 300, damper d = 1 at DOF 7, x_3(0) = 1,
+  N = 2001 times on [0, 20], Dopri8 at the default tolerances, DOF 150 saved);
+* ``rom_energy_gradient``: value and gradient of the exact integrated energy of the r = 76 ROM
+  in (position, coefficient) (the README's third snippet), jitted;
+* ``placement_gradient``: value and gradient of ``placement_objective`` on the same basis;
+* ``optimise_dampers``: the whole optimiser on ``section5_damped`` (warm: after one run that
+  compiles).
+
+Compile time is measured apart (first call); run time is the median of the repeats.
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/refactor_parity.py [--reference REV] [--quick]
+"""
+
+import importlib
+import statistics
+import subprocess
+import sys
+import tarfile
+import tempfile
+import time
+from io import BytesIO
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from _common import figure, parse_args, print_table, save_figure, subtitle, write_json
+
+import mikota_jax as mj
+
+REPO = Path(__file__).resolve().parent.parent
+REFERENCE = "a202197"  # main before the restructuring of issue 22
+NAME = "mikota_jax_reference"
+
+
+def load_reference(revision: str, where: Path):
+    """The package at ``revision`` imported as ``mikota_jax_reference`` (its own scenes)."""
+    archive = subprocess.run(["git", "-C", str(REPO), "archive", revision, "mikota_jax"],
+                             check=True, capture_output=True).stdout
+    with tarfile.open(fileobj=BytesIO(archive)) as tar:
+        tar.extractall(where, filter="data")
+    (where / "mikota_jax").rename(where / NAME)
+    for path in (where / NAME).rglob("*.py"):  # resources by the package's own name
+        text = path.read_text().replace('resources.files("mikota_jax")',
+                                        "resources.files(__package__)")
+        path.write_text(text)
+    sys.path.insert(0, str(where))
+    return importlib.import_module(NAME)
+
+
+def cases(pkg, basis: np.ndarray, quick: bool) -> dict:
+    """name -> a zero-argument callable that blocks until its result is ready."""
+    n = 300
+    system = pkg.mikota_chain(n, dampers=[pkg.GroundedDamper(7.0, 1.0)])
+    ts = jnp.linspace(0.0, 20.0, 2001)
+    x0 = pkg.unit_vector(n, 3)
+    basis = jnp.asarray(basis)
+
+    def energy(position, coefficient):
+        damped = pkg.mikota_chain(n, dampers=[pkg.GroundedDamper(position, coefficient)])
+        return pkg.integrated_energy(pkg.galerkin(damped, basis), 20.0, x0)
+
+    gradient = jax.jit(jax.value_and_grad(energy, argnums=(0, 1)))
+    problem = pkg.problem_from_scene(pkg.load_scene("section5_damped"))
+    objective = pkg.placement_objective(problem, basis)
+    step = jax.jit(jax.value_and_grad(objective, argnums=(0, 1)))
+    p, c = problem.positions, problem.coefficients
+    out = {
+        "simulate": lambda: jax.block_until_ready(
+            pkg.simulate(system, ts, x0, dofs=[150]).displacement),
+        "rom_energy_gradient": lambda: jax.block_until_ready(gradient(7.5, 1.0)),
+        "placement_gradient": lambda: jax.block_until_ready(step(p, c)),
+    }
+    if not quick:
+        out["optimise_dampers"] = lambda: pkg.optimise_dampers(problem).objective
+    return out
+
+
+def main(argv=None) -> None:
+    args = parse_args(__doc__, argv, reference=dict(default=REFERENCE),
+                      repeats=dict(type=int, default=5))
+    repeats = 2 if args.quick else args.repeats
+    with tempfile.TemporaryDirectory() as tmp:
+        reference = load_reference(args.reference, Path(tmp))
+        full = mj.exact_solve(mj.mikota_chain(300, dampers=[mj.GroundedDamper(7.0, 1.0)]),
+                              jnp.linspace(0.0, 20.0, 2001), mj.unit_vector(300, 3))
+        decomposition = mj.pod(full.displacement[:1001].T)
+        basis = np.asarray(decomposition.basis(decomposition.rank_for_energy(0.99, "paper")))
+        packages = {"reference": reference, "current": mj}
+        work = {label: cases(pkg, basis, args.quick) for label, pkg in packages.items()}
+        compile_s, samples, values = {}, {}, {}
+        for name in work["current"]:
+            for label in packages:  # first calls: trace + compile (+ one run)
+                start = time.perf_counter()
+                values[label, name] = work[label][name]()
+                compile_s[label, name] = time.perf_counter() - start
+            runs = 1 if name == "optimise_dampers" and repeats > 2 else repeats
+            for _ in range(runs + (name == "optimise_dampers")):
+                for label in packages:
+                    start = time.perf_counter()
+                    work[label][name]()
+                    samples.setdefault((label, name), []).append(time.perf_counter() - start)
+            print(f"{name}: reference {statistics.median(samples['reference', name]):.4f} s, "
+                  f"current {statistics.median(samples['current', name]):.4f} s", flush=True)
+
+    rows = []
+    for name in work["current"]:
+        ref = statistics.median(samples["reference", name])
+        cur = statistics.median(samples["current", name])
+        same = jax.tree.map(lambda a, b: float(np.max(np.abs(np.asarray(a) - np.asarray(b)))),
+                            values["reference", name], values["current", name])
+        rows.append(dict(case=name, reference_s=ref, current_s=cur, ratio=cur / ref,
+                         reference_compile_s=compile_s["reference", name],
+                         current_compile_s=compile_s["current", name],
+                         max_difference=max(jax.tree.leaves(same)),
+                         reference_samples=samples["reference", name],
+                         current_samples=samples["current", name]))
+    print_table(rows, [("case", "case", "s"), ("reference_s", "reference s", ".4f"),
+                       ("current_s", "current s", ".4f"), ("ratio", "current/ref", ".3f"),
+                       ("reference_compile_s", "ref first call s", ".2f"),
+                       ("current_compile_s", "cur first call s", ".2f"),
+                       ("max_difference", "max |diff|", ".1e")])
+    path = write_json("refactor_parity", args.quick, dict(reference=args.reference, rows=rows))
+    fig, ax = figure(figsize=(7, 3.2))
+    y = np.arange(len(rows))
+    ax.barh(y, [r["ratio"] for r in rows], color="tab:blue")
+    ax.axvline(1.0, color="k", lw=0.8)
+    ax.axvline(1.1, color="tab:red", ls="--", lw=0.8, label="10 % budget")
+    ax.set_yticks(y, [r["case"] for r in rows])
+    ax.set_xlabel("run time, current / reference (dimensionless)")
+    ax.set_title(f"restructuring parity vs {args.reference}\n{subtitle()}", fontsize=9)
+    ax.legend(loc="lower right", fontsize=8)
+    save_figure(fig, "refactor_parity", args.quick)
+    print(f"\nwrote {path}")
+
+
+if __name__ == "__main__":
+    main()
