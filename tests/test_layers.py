@@ -2,6 +2,7 @@
 mikota_jax`` stays light: the app's names are there (``dir``, attribute access) but load on use."""
 
 import ast
+import json
 import os
 import subprocess
 import sys
@@ -73,3 +74,28 @@ def test_the_app_layers_names_are_listed_and_resolve_to_the_app():
     assert load_scene is app.load_scene
     with pytest.raises(AttributeError, match="no_such_name"):
         mj.no_such_name  # noqa: B018
+
+
+def private_imports(code: str, where: str) -> list[str]:
+    """The ``mikota_jax._private`` modules ``code`` imports."""
+    found = []
+    for node in ast.walk(ast.parse(code, where)):
+        names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                 [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+        found += [n for n in names if n.startswith("mikota_jax._")]
+    return found
+
+
+def test_benchmarks_and_notebooks_use_only_public_names():
+    root = PACKAGE.parent
+    offenders = {}
+    for path in sorted((root / "benchmarks").glob("*.py")):
+        offenders[path.name] = private_imports(path.read_text(), str(path))
+    for path in sorted((root / "notebooks").glob("*.ipynb")):
+        cells = json.loads(path.read_text())["cells"]
+        code = "\n".join("".join(c["source"]) for c in cells if c["cell_type"] == "code")
+        code = "\n".join(line for line in code.splitlines()  # no IPython magics
+                         if not line.lstrip().startswith(("%", "!")))
+        offenders[path.name] = private_imports(code, str(path))
+    assert len(offenders) > 8
+    assert not {name: found for name, found in offenders.items() if found}
