@@ -17,7 +17,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse
 import datetime
-import json
 import platform
 import statistics
 import sys
@@ -28,6 +27,7 @@ import jax
 import numpy as np
 
 import mikota_jax as mj
+from mikota_jax.app import write_json as write_json_file
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -110,19 +110,14 @@ def result_stem(name: str, quick: bool) -> Path:
 
 
 def write_json(name: str, quick: bool, data: dict) -> Path:
-    """Write ``data`` (with metadata added) atomically to ``results/NAME[_quick].json``."""
+    """Write ``data`` (with metadata added) atomically to ``results/NAME[_quick].json``.
+
+    The package's one JSON writer (``mikota_jax.app.write_json``: arrays by ``to_plain``, NaN or
+    inf refused).
+    """
     path = result_stem(name, quick).with_suffix(".json")
     payload = {"benchmark": name, "quick": quick, "metadata": metadata(), **data}
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(payload, indent=1, allow_nan=False, default=_plain) + "\n")
-    tmp.replace(path)
-    return path
-
-
-def _plain(value):
-    if isinstance(value, np.generic | jax.Array | np.ndarray):
-        return np.asarray(value).tolist()
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+    return write_json_file(payload, path, newline=True)
 
 
 def print_table(rows: list[dict], columns: list[tuple[str, str, str]]) -> None:

@@ -338,8 +338,9 @@ def scene_dict(position, coefficient, x3, rank=None) -> dict:
 
 def digest(value) -> float:
     """One number per result, to check that cached executables compute what fresh ones do."""
-    if isinstance(value, dict):  # run_scene
-        return float(value["phase_error"] + value["rank"] + np.sum(value["singular_values"]))
+    if isinstance(value, mj.SceneResult):  # run_scene
+        return float(value.metrics["phase_error"] + value.rank
+                     + np.sum(value.basis.pod.singular_values))
     leaves = [np.asarray(x) for x in jax.tree.leaves(value) if isinstance(x, jax.Array)]
     return float(sum(np.sum(np.abs(x)) for x in leaves if x.dtype.kind in "fi"))
 

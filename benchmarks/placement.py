@@ -16,11 +16,25 @@ import json
 import time
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from _common import figure, parse_args, save_figure, subtitle, write_json
 
 import mikota_jax as mj
-from mikota_jax._optimise import _snapshot_modes
+
+
+def snapshot_basis(problem) -> np.ndarray:
+    """The optimiser's first POD basis, by public names: a Dopri8 solve of the problem's design
+    up to the end of its snapshot window (``simulate``), reduced by its window and rank rule
+    (``reduce``, the rank capped at the numerical rank as the optimiser caps it)."""
+    ts = np.asarray(problem.ts)
+    ts = jnp.asarray(ts[ts <= problem.snapshots[1] + 1e-12])
+    model = problem.system(problem.positions, problem.coefficients)
+    full = mj.simulate(model, ts, problem.x0, problem.v0, problem.load, solver="dopri8",
+                       rtol=problem.rtol, atol=problem.rtol * 1e-2, max_steps=problem.max_steps)
+    request = mj.Reduction(problem.snapshots, energy=problem.energy, rank=problem.rank,
+                           criterion=problem.criterion)
+    return mj.reduce(full.displacement, ts, request, cap_rank=True).basis
 
 
 def main(argv=None) -> None:
@@ -30,7 +44,7 @@ def main(argv=None) -> None:
     n = problem.size
 
     # one reduced evaluation vs one gradient step (same basis, compiled apart)
-    basis = _snapshot_modes(problem, problem.positions, problem.coefficients)
+    basis = snapshot_basis(problem)
     objective = mj.placement_objective(problem, basis)
     rom = jax.jit(lambda p, c: objective(p, c))
     step = jax.jit(jax.value_and_grad(objective, argnums=(0, 1)))

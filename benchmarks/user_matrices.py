@@ -67,7 +67,7 @@ import numpy as np
 import scipy.sparse as sp
 
 import mikota_jax as mj
-from mikota_jax._operators import Dense, Diagonal, Sparse
+from mikota_jax.testing import Dense, Diagonal, Sparse
 
 NAME = "user_matrices"
 BRANCHES = 3

@@ -50,8 +50,6 @@ from ._optimise import optimise_dampers as optimise_dampers
 from ._optimise import placement_objective as placement_objective
 from ._optimise import reduced_landscape as reduced_landscape
 from ._optimise import sweep_dampers as sweep_dampers
-from ._placement import optimise_scene as optimise_scene
-from ._placement import problem_from_scene as problem_from_scene
 from ._pod import POD as POD
 from ._pod import energy_fraction as energy_fraction
 from ._pod import pod as pod
@@ -59,10 +57,9 @@ from ._pod import rank_for_energy as rank_for_energy
 from ._reduction import ReducedBasis as ReducedBasis
 from ._reduction import Reduction as Reduction
 from ._reduction import reduce as reduce
-from ._reproduce import reproduce as reproduce
+from ._run import SceneResult as SceneResult
 from ._run import run_scene as run_scene
 from ._scene import Scene as Scene
-from ._scene import load_scene as load_scene
 from ._sensitivity import SceneFunction as SceneFunction
 from ._sensitivity import Sensitivities as Sensitivities
 from ._sensitivity import scene_parameters as scene_parameters
@@ -71,3 +68,23 @@ from ._sweep import grid as grid
 from ._sweep import sweep as sweep
 
 __version__ = "0.1.0"
+
+# Names of the application layer (``mikota_jax.app``: scene files, the paper's reproduction,
+# damper placement for a scene), imported on first use: ``import mikota_jax`` stays light (no
+# TOML parser, no figures, no progress bars), and the core never imports the app layer.
+_APP_NAMES = {"load_scene": "scene_file", "reproduce": "reproduction",
+              "optimise_scene": "placement", "problem_from_scene": "placement"}
+
+
+def __getattr__(name: str):
+    if name in _APP_NAMES:
+        import importlib
+
+        value = getattr(importlib.import_module(f"mikota_jax.app.{_APP_NAMES[name]}"), name)
+        globals()[name] = value  # later look-ups skip this hook
+        return value
+    raise AttributeError(f"module 'mikota_jax' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_APP_NAMES))

@@ -1,27 +1,28 @@
-"""``run_scene``: compute exactly what a scene asks for, and write it as ``results.json``.
+"""``run_scene``: compute exactly what a scene asks for, as a typed ``SceneResult``.
 
 Lazy by construction: velocities are integrated and saved only when an output reads them (the
 velocity itself, or the phase error of eq. 5.4); all DOFs are saved only when the reduction or a
 whole-chain metric needs them; POD and Galerkin run only with a ``[reduction]`` table. The paper's
 reduced initial state is the projection q(0) = Phi^T x(0), q'(0) = Phi^T x'(0).
+
+Nothing here writes files: ``results.json`` is the application layer's view of a ``SceneResult``
+(``mikota_jax.app.results``).
 """
 
-import json
-import os
-import platform
-import tempfile
 import time
-from pathlib import Path
+from collections.abc import Callable
 
+import equinox as eqx
 import jax
-import numpy as np
 
+from ._custom_types import Array, Float, Times
+from ._errors import MARK
 from ._exact import exact_solve
 from ._galerkin import galerkin
-from ._integrate import simulate
+from ._integrate import Trajectory, simulate
 from ._metrics import phase_error, relative_error
-from ._reduction import reduce
-from ._scene import Scene
+from ._reduction import ReducedBasis, reduce
+from ._scene import Output, Scene
 
 
 def solve_scene(model, scene: Scene, dofs, displacement: bool, velocity: bool, adjoint=None):
@@ -34,113 +35,89 @@ def solve_scene(model, scene: Scene, dofs, displacement: bool, velocity: bool, a
                     adjoint=adjoint, **kwargs)
 
 
-def _columns(trajectory, quantity: str, dofs) -> dict[str, list[float]]:
-    values = np.asarray(getattr(trajectory, quantity))
-    index = {d: k for k, d in enumerate(trajectory.dofs)}
-    return {str(d): values[:, index[d]].tolist() for d in dofs}
+# Scene metrics: [output] quantity -> function of (full, reduced, output) -> a scalar. Computed
+# only when requested, on every DOF (the full and the reduced solve then save all of them).
+METRICS: dict[str, Callable[[Trajectory, Trajectory, Output], Float[Array, ""]]] = {
+    "phase_error": lambda full, reduced, out: phase_error(  # eq. (5.4)
+        full.displacement, full.velocity, reduced.displacement, reduced.velocity,
+        aggregate=out.phase_error),
+    "relative_error": lambda full, reduced, out: relative_error(full.displacement,
+                                                                reduced.displacement),
+}
+# quantities whose values are read from the velocities
+_READS_VELOCITY = ("velocity", "phase_error")
 
 
-def run_scene(scene: Scene) -> dict:
-    """Run ``scene``; return a JSON-ready dict: ``times``, ``full``, ``reduced``, metrics, ``meta``.
+class SceneResult(eqx.Module):
+    """What ``run_scene`` computed for ``scene``: the full solve and, with a ``[reduction]``, the
+    POD basis (eqs. 3.5-3.8), the reduced solve (eq. 3.4) and the requested metrics (eq. 5.4).
 
-    ``times``: the N times; ``full``/``reduced``: {quantity: {"DOF": N values}} for the 1-based
-    output DOFs; with a ``[reduction]``: POD of the (n, m) snapshots (eqs. 3.5-3.6), ``rank`` by
-    eq. (3.7), Galerkin model (eq. 3.4), ``phase_error`` by eq. (5.4), ``singular_values`` (k),
-    ``modes`` (r lists of n). Only the requested DOFs (default all) and quantities appear.
-    Arrays of the internal solves are kept under the key ``"_arrays"`` (numpy, not written to
-    JSON) for figures and further use.
+    ``times``: the (N,) output times; ``full``: the full model's ``Trajectory`` (every DOF when a
+    reduction needs the snapshots, else the 1-based output DOFs; velocities only when read);
+    ``basis``: the ``ReducedBasis`` (``pod``, ``rank``, (n, r) ``basis``, ``snapshots``) or None;
+    ``reduced``: the reduced model's ``Trajectory`` (lifted to the full DOFs) or None; ``metrics``:
+    {"phase_error", "relative_error"}: scalars, the requested ones; ``timings``: wall seconds of
+    the stages ("full_solve_s", "reduction_s", "reduced_solve_s").
+    """
+
+    scene: Scene
+    times: Times
+    full: Trajectory
+    basis: ReducedBasis | None
+    reduced: Trajectory | None
+    metrics: dict[str, Float[Array, ""]]
+    timings: dict[str, float]
+
+    @property
+    def dofs(self) -> tuple[int, ...]:
+        """The 1-based output DOFs (``[output] dofs``; all n by default)."""
+        dofs = self.scene.output.dofs
+        return dofs if dofs is not None else tuple(range(1, self.scene.size + 1))
+
+    @property
+    def rank(self) -> int | None:
+        """r, the rank of the reduced model (None without a reduction)."""
+        return None if self.basis is None else self.basis.rank
+
+
+def run_scene(scene: Scene) -> SceneResult:
+    """Run ``scene``; return a ``SceneResult``: the full solve, and with a ``[reduction]`` the POD
+    of the (n, m) snapshots (eqs. 3.5-3.6), ``rank`` by eq. (3.7), the Galerkin model (eq. 3.4) and
+    its solve, and the requested metrics (``phase_error`` by eq. 5.4, ``relative_error``).
+
+    Only the requested DOFs (default all) and quantities are computed;
+    ``mikota_jax.app.result_dict`` turns the result into the layout of ``results.json``.
     """
     if not isinstance(scene, Scene):
-        raise ValueError(f"mikota_jax: scene must be a Scene (see load_scene), got "
+        raise ValueError(MARK + f"scene must be a Scene (see load_scene), got "
                          f"{type(scene).__name__}.")
     out = scene.output
     quantities = set(out.quantities)
     n = scene.size
     dofs = out.dofs if out.dofs is not None else tuple(range(1, n + 1))
     reduction = scene.reduction
-    wants_phase = "phase_error" in quantities or "relative_error" in quantities
-    wants_v = "velocity" in quantities or "phase_error" in quantities
+    metrics = [name for name in METRICS if name in quantities]
+    wants_v = any(q in quantities for q in _READS_VELOCITY)
     snapshot_v = reduction is not None and reduction.quantity == "velocity"
     need_all = reduction is not None  # snapshots (and whole-chain metrics) need every DOF
     timings = {}
-    result: dict = {"name": scene.name, "times": np.asarray(scene.ts).tolist()}
-    arrays: dict = {"times": np.asarray(scene.ts), "dofs": dofs}
 
     start = time.perf_counter()
     full = solve_scene(scene.system, scene, None if need_all else dofs, True,
-                  wants_v or snapshot_v)
+                       wants_v or snapshot_v)
     jax.block_until_ready(full)
     timings["full_solve_s"] = time.perf_counter() - start
-    arrays["full"] = full
-    result["full"] = {q: _columns(full, q, dofs) for q in ("displacement", "velocity")
-                      if q in quantities}
-
+    basis = reduced = None
+    values = {}
     if reduction is not None:
         start = time.perf_counter()
         states = full.velocity if snapshot_v else full.displacement
-        reduced_basis = reduce(states, scene.ts, reduction)
-        decomposition, rank = reduced_basis.pod, reduced_basis.rank
-        model = galerkin(scene.system, reduced_basis.basis)
+        basis = reduce(states, scene.ts, reduction)
+        model = galerkin(scene.system, basis.basis)
         timings["reduction_s"] = time.perf_counter() - start
         start = time.perf_counter()
-        reduced = solve_scene(model, scene, None if wants_phase else dofs, True, wants_v)
+        reduced = solve_scene(model, scene, None if metrics else dofs, True, wants_v)
         jax.block_until_ready(reduced)
         timings["reduced_solve_s"] = time.perf_counter() - start
-        arrays.update(pod=decomposition, rank=rank, reduced=reduced,
-                      snapshots=reduced_basis.snapshots)
-        result["reduced"] = {q: _columns(reduced, q, dofs) for q in ("displacement", "velocity")
-                             if q in quantities}
-        if "singular_values" in quantities:
-            result["singular_values"] = np.asarray(decomposition.singular_values).tolist()
-        if "rank" in quantities:
-            result["rank"] = rank
-        if "modes" in quantities:
-            result["modes"] = np.asarray(decomposition.basis(rank)).T.tolist()
-        if "phase_error" in quantities:
-            result["phase_error"] = float(phase_error(
-                full.displacement, full.velocity, reduced.displacement, reduced.velocity,
-                aggregate=out.phase_error))
-            result["phase_error_aggregate"] = out.phase_error
-        if "relative_error" in quantities:
-            result["relative_error"] = float(relative_error(full.displacement,
-                                                            reduced.displacement))
-    result["meta"] = _meta(scene, timings)
-    result["_arrays"] = arrays
-    return result
-
-
-def _meta(scene: Scene, timings: dict) -> dict:
-    import diffrax
-    import equinox
-
-    from . import __version__
-
-    solver = {"method": scene.solver}
-    if scene.solver != "exact":
-        solver.update(rtol=scene.rtol, atol=scene.atol, max_steps=scene.max_steps)
-    return {
-        "mikota_jax": __version__, "jax": jax.__version__, "diffrax": diffrax.__version__,
-        "equinox": equinox.__version__, "numpy": np.__version__,
-        "python": platform.python_version(),
-        "backend": jax.default_backend(), "x64": bool(jax.config.read("jax_enable_x64")),
-        "solver": solver, "wall_times_s": timings,
-        "reduction": None if scene.reduction is None else {
-            "window": list(scene.reduction.window), "quantity": scene.reduction.quantity,
-            "energy": scene.reduction.energy, "rank": scene.reduction.rank,
-            "criterion": scene.reduction.criterion, "method": scene.reduction.method},
-    }
-
-
-def write_json(data: dict, path: Path) -> None:
-    """Write ``data`` atomically (a failed run leaves no partial file), without ``_`` keys."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    clean = {k: v for k, v in data.items() if not k.startswith("_")}
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as handle:
-            json.dump(clean, handle, indent=1, allow_nan=False)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        values = {name: METRICS[name](full, reduced, out) for name in metrics}
+    return SceneResult(scene, scene.ts, full, basis, reduced, values, timings)

@@ -1,40 +1,24 @@
 """Scenes: a declarative description of one computation (chain, dampers, excitation, time grid,
-reduction, outputs), read from TOML or built in Python.
+reduction, outputs), built in Python or read from TOML (``mikota_jax.app.scene_file``).
 
 A scene holds arrays as traced leaves (so ``jax.grad`` sees the physical values) and everything that
 changes a shape or the control flow (n, which outputs, the solver, the rank rule) as static data.
-DOFs are 1-based. ``load_scene`` validates every key: an unknown key, a wrong type or a value out of
-range raises one ``ValueError`` naming the key (``[table] key``) and the allowed values. The tables
-that build the system (``[chain]``, ``[[damper]]``, ``[internal_damping]``) are read by
-``_scene_systems``; the validation helpers live in ``_toml``.
+DOFs are 1-based. This module is data only: reading and validating scene files is the application
+layer's job (``load_scene``), so the core library never parses TOML.
 """
 
-import tomllib
-from collections.abc import Mapping
-from importlib import resources
-from pathlib import Path
-
 import equinox as eqx
-import jax.numpy as jnp
-import numpy as np
 
 from ._chain import SecondOrderSystem
 from ._custom_types import Times, Vector
-from ._errors import MARK
-from ._excitation import Pulse, pulse
-from ._integrate import SOLVERS
-from ._metrics import AGGREGATES
-from ._pod import CRITERIA, METHODS
+from ._excitation import Pulse
 from ._reduction import Reduction
-from ._scene_systems import system_from
-from ._toml import choice as _choice
-from ._toml import fail as _fail
-from ._toml import number as _number
-from ._toml import table as _table
 
+# what [output] quantities may name: histories ("full"/"reduced" columns), POD outputs, metrics
 QUANTITIES = ("displacement", "velocity", "singular_values", "rank", "phase_error", "modes",
               "relative_error")
-PAPER_SCENES = ("section4_first_mode", "section4_impulse", "section5_damped")
+# the quantities that need a [reduction]
+REDUCED_QUANTITIES = ("singular_values", "rank", "phase_error", "modes", "relative_error")
 
 
 class Output(eqx.Module):
@@ -73,191 +57,3 @@ class Scene(eqx.Module):
     def size(self) -> int:
         """n, the number of DOFs."""
         return self.system.size
-
-
-# --------------------------------------------------------------------------- TOML validation
-
-def _state_from(value, n: int, where: str, mode) -> Vector | None:
-    if value is None or value == {} or value == []:
-        return None
-    if isinstance(value, str):
-        words = value.split()
-        if len(words) == 2 and words[0] == "mode" and words[1].isdigit():
-            number = int(words[1])
-            if not 1 <= number <= n:
-                _fail(where, f"mode number must lie in 1..{n}, got {number}.")
-            return mode(number)
-        _fail(where, f"must be a table {{DOF = value}}, a list of {n} numbers or \"mode l\", "
-              f"got {value!r}.")
-    if isinstance(value, Mapping):
-        x = np.zeros(n)
-        for dof, v in value.items():
-            if not str(dof).isdigit() or not 1 <= int(dof) <= n:
-                _fail(where, f"DOF keys must be integers in 1..{n}, got {dof!r}.")
-            if isinstance(v, bool) or not isinstance(v, int | float) or not np.isfinite(v):
-                _fail(where, f"value at DOF {dof} must be a finite number, got {v!r}.")
-            x[int(dof) - 1] = v
-        return jnp.asarray(x)
-    if isinstance(value, list):
-        if len(value) != n or not all(isinstance(v, int | float) and not isinstance(v, bool)
-                                      and np.isfinite(v) for v in value):
-            _fail(where, f"a list must hold {n} finite numbers.")
-        return jnp.asarray(np.asarray(value, dtype=np.float64))
-    _fail(where, f"unsupported value {value!r}.")
-
-
-def _load_from(data, n: int) -> Pulse | None:
-    table = _table(data, "load", {"type", "dof", "amplitude", "duration", "start"})
-    if not table:
-        return None
-    _choice(table, "[load]", "type", ("pulse",), "pulse")
-    dof = _number(table, "[load]", "dof", low=1, high=n, integer=True)
-    amplitude = _number(table, "[load]", "amplitude", default=1.0)
-    duration = _number(table, "[load]", "duration", low=0, strict_low=True)
-    start = _number(table, "[load]", "start", default=0.0)
-    return pulse(n, dof, float(amplitude), float(duration), float(start))
-
-
-def _times_from(data) -> Times:
-    table = _table(data, "time", {"start", "end", "step"}, required=True)
-    start = float(_number(table, "[time]", "start", default=0.0))
-    end = float(_number(table, "[time]", "end"))
-    step = float(_number(table, "[time]", "step", low=0, strict_low=True))
-    if end <= start:
-        _fail("[time] end", f"must be greater than start = {start}, got {end}.")
-    count = (end - start) / step
-    if abs(count - round(count)) > 1e-9 * max(1.0, count):
-        _fail("[time] step", f"must divide end - start = {end - start} into whole steps.")
-    return start + step * jnp.arange(round(count) + 1, dtype=jnp.float64)
-
-
-def _reduction_from(data, ts, n: int) -> Reduction | None:
-    table = _table(data, "reduction", {"snapshots", "energy", "rank", "criterion", "quantity",
-                                       "method"})
-    if not table:
-        return None
-    window = table.get("snapshots", [float(ts[0]), float(ts[-1])])
-    if (not isinstance(window, list) or len(window) != 2
-            or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in window)
-            or not window[0] <= window[1]):
-        _fail("[reduction] snapshots", f"must be a time window [start, end] with start <= end, "
-              f"got {window!r}.")
-    first, last = float(ts[0]), float(ts[-1])
-    if not first - 1e-12 <= window[0] <= last + 1e-12 or window[1] > last + 1e-9:
-        _fail("[reduction] snapshots", f"must lie within the time grid [{float(ts[0])}, "
-              f"{float(ts[-1])}], got {window!r}.")
-    if ("energy" in table) == ("rank" in table):
-        _fail("[reduction]", "give exactly one of energy (a fraction in (0, 1]) or rank.")
-    energy = rank = None
-    if "energy" in table:
-        energy = float(_number(table, "[reduction]", "energy", low=0, high=1, strict_low=True))
-    else:
-        rank = _number(table, "[reduction]", "rank", low=1, high=n, integer=True)
-    return Reduction(
-        window=(float(window[0]), float(window[1])),
-        quantity=_choice(table, "[reduction]", "quantity", ("displacement", "velocity"),
-                         "displacement"),
-        energy=energy, rank=rank,
-        criterion=_choice(table, "[reduction]", "criterion", CRITERIA, "squared"),
-        method=_choice(table, "[reduction]", "method", METHODS, "svd"))
-
-
-def _output_from(data, n: int, reduced: bool) -> Output:
-    table = _table(data, "output", {"dofs", "quantities", "phase_error", "figures"})
-    dofs = table.get("dofs")
-    if dofs is not None:
-        if (not isinstance(dofs, list) or not dofs
-                or not all(isinstance(d, int) and not isinstance(d, bool) and 1 <= d <= n
-                           for d in dofs)):
-            _fail("[output] dofs", f"must be a non-empty list of integer DOFs in 1..{n}, "
-                  f"got {dofs!r}.")
-        dofs = tuple(dofs)
-    quantities = table.get("quantities", ["displacement"])
-    if not isinstance(quantities, list) or not all(q in QUANTITIES for q in quantities):
-        _fail("[output] quantities", f"must be a list drawn from {list(QUANTITIES)}, "
-              f"got {quantities!r}.")
-    needs_rom = {"singular_values", "rank", "phase_error", "modes", "relative_error"}
-    if not reduced and needs_rom & set(quantities):
-        _fail("[output] quantities", f"{sorted(needs_rom & set(quantities))} need a [reduction] "
-              "table.")
-    aggregate = _choice(table, "[output]", "phase_error", AGGREGATES[:3], "sum")
-    figures = table.get("figures", False)
-    if not isinstance(figures, bool):
-        _fail("[output] figures", f"must be true or false, got {figures!r}.")
-    return Output(dofs, tuple(dict.fromkeys(quantities)), aggregate, figures)
-
-
-def _solver_from(data) -> dict:
-    table = _table(data, "solver", {"method", "rtol", "atol", "max_steps"})
-    method = _choice(table, "[solver]", "method", ("exact", "auto", *SOLVERS), "exact")
-    return dict(
-        solver=method,
-        rtol=float(_number(table, "[solver]", "rtol", default=1e-10, low=0, strict_low=True)),
-        atol=float(_number(table, "[solver]", "atol", default=1e-12, low=0, strict_low=True)),
-        max_steps=_number(table, "[solver]", "max_steps", default=100_000, low=1, integer=True))
-
-
-def scene_from_dict(data: Mapping, name: str = "scene", base: str | Path | None = None) -> Scene:
-    """Build a ``Scene`` from the parsed TOML mapping (see ``load_scene`` for the keys).
-
-    ``base``: the directory that relative matrix file names are read from (None: the current one).
-    """
-    allowed = {"name", "description", "chain", "damper", "internal_damping", "initial", "load",
-               "time", "solver", "reduction", "output"}
-    unknown = set(data) - allowed
-    if unknown:
-        _fail("scene", f"unknown top-level key(s) {sorted(unknown)}; allowed: {sorted(allowed)}.")
-    name = data.get("name", name)
-    if not isinstance(name, str):
-        _fail("scene name", f"must be a string, got {name!r}.")
-    system, mode = system_from(data, None if base is None else Path(base))
-    n = system.size
-    initial = _table(data, "initial", {"displacement", "velocity"})
-    x0 = _state_from(initial.get("displacement"), n, "[initial] displacement", mode)
-    v0 = _state_from(initial.get("velocity"), n, "[initial] velocity", mode)
-    load = _load_from(data, n)
-    ts = _times_from(data)
-    reduction = _reduction_from(data, ts, n)
-    output = _output_from(data, n, reduction is not None)
-    return Scene(system, ts, x0, v0, load, reduction, output, name=name, **_solver_from(data))
-
-
-def load_scene(source: str | Path | Mapping) -> Scene:
-    """Read a scene from a TOML file, a TOML string, a mapping, or a packaged paper scene name
-    (``section4_first_mode``, ``section4_impulse``, ``section5_damped``).
-
-    Tables: ``[chain]`` (type = "mikota" with n, m, k | "custom" with masses, springs (a
-    fixed-free chain) or with matrices mass, stiffness, damping (each a file name "M.mtx",
-    "M.npz", "system.npz:K" read by ``load_matrix`` relative to the scene file's directory, or
-    inline: a list = diagonal, n rows of n = dense, lists of lengths n, n - 1, ... = symmetric
-    bands) | "branched" with [[chain.branch]] tables (masses, springs: one more spring than masses)
-    or lengths = [L1, ...] with mass, spring; hub_mass, hub_spring), ``[[damper]]`` (type =
-    "grounded" with position in [1, n] | "relative" with dofs = [i, j]; coefficient >= 0),
-    ``[internal_damping]`` (rayleigh = [alpha, beta], modal = zeta or n ratios), ``[initial]``
-    (displacement, velocity: {DOF = value}, a list, or "mode l": Mikota's eq. 2.5, or column l of
-    ``modal_decomposition``, scaled to max |u_i| = 1 with the last DOF positive),
-    ``[load]`` (type = "pulse", dof, amplitude, duration, start), ``[time]`` (start, end, step),
-    ``[solver]`` (method = "exact" | "auto" | "dopri8" | "tsit5" | "dopri5" | "kvaerno5", rtol,
-    atol, max_steps), ``[reduction]`` (snapshots = [t0, t1], energy or rank, criterion = "squared" |
-    "paper", quantity, method = "svd" | "snapshots"), ``[output]`` (dofs, quantities, phase_error =
-    "sum" | "max" | "mean", figures).
-    """
-    if isinstance(source, Mapping):
-        return scene_from_dict(source)
-    if isinstance(source, str) and source in PAPER_SCENES:
-        text = resources.files("mikota_jax").joinpath("scenes", f"{source}.toml").read_text()
-        return scene_from_dict(tomllib.loads(text), name=source)
-    path = Path(source)
-    base = None  # TOML text: matrix files relative to the current directory
-    if isinstance(source, str) and ("\n" in source or "=" in source):  # TOML text, not a path
-        text, name = source, "scene"
-    else:
-        if not path.is_file():
-            raise ValueError(MARK + f"scene file {str(path)!r} does not exist (or name one of "
-                             f"{list(PAPER_SCENES)}).")
-        text, name, base = path.read_text(), path.stem, path.parent
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as error:
-        raise ValueError(MARK + f"scene {name!r} is not valid TOML: {error}") from None
-    return scene_from_dict(data, name=name, base=base)

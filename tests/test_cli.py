@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from mikota_jax.__main__ import main
+from mikota_jax.app.cli import main
 
 SCENE = """
 [chain]

@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
-from mikota_jax._run import write_json
+from mikota_jax._scene import QUANTITIES
+from mikota_jax.app import result_dict, write_json
+from mikota_jax.app.results import HISTORIES, OUTPUTS
 
 SMALL = """
 [chain]
@@ -95,13 +97,18 @@ def test_a_missing_scene_file_is_a_clear_error(tmp_path):
 def test_a_scene_without_reduction_or_velocity_computes_neither():
     scene = mj.load_scene(scene_text(output="dofs = [2, 5]"))
     result = mj.run_scene(scene)
-    full = result["_arrays"]["full"]
-    assert full.velocity is None and full.dofs == (2, 5)
-    assert set(result["full"]) == {"displacement"} and "reduced" not in result
-    assert "singular_values" not in result and "pod" not in result["_arrays"]
+    assert isinstance(result, mj.SceneResult)
+    full = result.full
+    assert full.velocity is None and full.dofs == (2, 5) and result.dofs == (2, 5)
+    assert result.basis is None and result.reduced is None and result.metrics == {}
+    data = result_dict(result)
+    assert set(data["full"]) == {"displacement"} and "reduced" not in data
+    assert "singular_values" not in data
     reference = mj.exact_solve(scene.system, scene.ts, scene.x0, dofs=[2, 5])
-    np.testing.assert_allclose(result["full"]["displacement"]["5"],
+    np.testing.assert_allclose(data["full"]["displacement"]["5"],
                                np.asarray(reference.displacement)[:, 1], rtol=0, atol=1e-14)
+    np.testing.assert_allclose(np.asarray(full.displacement), np.asarray(reference.displacement),
+                               rtol=0, atol=1e-14)
 
 
 def test_a_reduced_scene_reports_rank_singular_values_and_phase_error():
@@ -110,28 +117,37 @@ def test_a_reduced_scene_reports_rank_singular_values_and_phase_error():
         output='dofs = [12]\nquantities = ["displacement", "velocity", "rank", '
                '"singular_values", "phase_error", "relative_error"]\nphase_error = "sum"'))
     result = mj.run_scene(scene)
-    arrays = result["_arrays"]
-    assert arrays["snapshots"] == 41  # t = 0, 0.05, ..., 2.0
-    s = np.asarray(result["singular_values"])
-    assert result["rank"] == mj.rank_for_energy(s, 0.999) and 1 <= result["rank"] < 12
-    full, reduced = arrays["full"], arrays["reduced"]
+    assert result.basis.snapshots == 41  # t = 0, 0.05, ..., 2.0
+    s = np.asarray(result.basis.pod.singular_values)
+    assert result.rank == mj.rank_for_energy(s, 0.999) and 1 <= result.rank < 12
+    full, reduced = result.full, result.reduced
     expected = mj.phase_error(full.displacement, full.velocity, reduced.displacement,
                               reduced.velocity, aggregate="sum")
-    assert result["phase_error"] == pytest.approx(float(expected), rel=1e-12)
-    assert 0 < result["phase_error"] < 0.2
-    assert set(result["full"]) == set(result["reduced"]) == {"displacement", "velocity"}
-    assert list(result["reduced"]["velocity"]) == ["12"]
+    phase = float(result.metrics["phase_error"])
+    assert phase == pytest.approx(float(expected), rel=1e-12)
+    assert 0 < phase < 0.2
+    data = result_dict(result)  # the layout of results.json
+    assert data["rank"] == result.rank and data["phase_error"] == phase
+    assert data["phase_error_aggregate"] == "sum"
+    assert data["relative_error"] == float(result.metrics["relative_error"])
+    np.testing.assert_array_equal(data["singular_values"], s)
+    assert set(data["full"]) == set(data["reduced"]) == {"displacement", "velocity"}
+    assert list(data["reduced"]["velocity"]) == ["12"]
 
 
 def test_a_diffrax_scene_matches_the_exact_scene():
     exact = mj.run_scene(mj.load_scene(scene_text(output="dofs = [1, 12]")))
     dopri = mj.run_scene(mj.load_scene(scene_text(
         output="dofs = [1, 12]", solver='method = "dopri8"\nrtol = 1e-11\natol = 1e-13')))
-    for dof in ("1", "12"):
-        np.testing.assert_allclose(dopri["full"]["displacement"][dof],
-                                   exact["full"]["displacement"][dof], rtol=0, atol=1e-8)
-    assert dopri["meta"]["solver"] == {"method": "dopri8", "rtol": 1e-11, "atol": 1e-13,
-                                       "max_steps": 100_000}
+    assert exact.full.dofs == dopri.full.dofs == (1, 12)
+    np.testing.assert_allclose(np.asarray(dopri.full.displacement),
+                               np.asarray(exact.full.displacement), rtol=0, atol=1e-8)
+    assert result_dict(dopri)["meta"]["solver"] == {"method": "dopri8", "rtol": 1e-11,
+                                                    "atol": 1e-13, "max_steps": 100_000}
+
+
+def test_every_output_quantity_has_one_place_in_results_json():
+    assert set(HISTORIES).isdisjoint(OUTPUTS) and set(HISTORIES) | set(OUTPUTS) == set(QUANTITIES)
 
 
 def test_a_rank_above_the_numerical_rank_of_the_snapshots_is_refused():

@@ -35,7 +35,8 @@ def toml_list(values) -> str:
 
 
 def displacement(result) -> np.ndarray:
-    return np.array([result["full"]["displacement"][str(d)] for d in range(1, N + 1)]).T
+    assert result.full.dofs == tuple(range(1, N + 1))
+    return np.asarray(result.full.displacement)
 
 
 def assemble(springs, n):
@@ -155,7 +156,8 @@ def test_a_branched_scene_is_the_hand_assembled_system_and_mj_branched_chain():
                                [np.array([3.0, 4.0, 5.0]), np.array([2.0, 1.5])], 3.0, 0.7)
     reference = mj.exact_solve(python, scene.ts, scene.x0, scene.v0)
     result = mj.run_scene(scene)
-    got = np.array([result["full"]["displacement"][str(d)] for d in range(1, 5)]).T
+    assert result.full.dofs == (1, 2, 3, 4)
+    got = np.asarray(result.full.displacement)
     np.testing.assert_allclose(got, np.asarray(reference.displacement), rtol=0, atol=1e-13)
     # x(t) = sum_l U_l (U_l^T M x0 cos(w_l t) + U_l^T M v0 sin(w_l t) / w_l): independent truth
     t, w = np.asarray(scene.ts), np.sqrt(omega2)
@@ -223,7 +225,7 @@ def test_a_rayleigh_damped_first_mode_decays_as_one_damped_oscillator():
     w = 1.0  # omega_1 = sqrt(k/m) (eq. 2.4)
     zeta = alpha / (2 * w) + beta * w / 2
     wd = w * np.sqrt(1 - zeta**2)
-    t = np.asarray(result["times"])
+    t = np.asarray(result.times)
     envelope = np.exp(-zeta * w * t) * (np.cos(wd * t) + zeta * w / wd * np.sin(wd * t))
     exact = envelope[:, None] * np.asarray(mj.mode_shape(N, 1))[None, :]
     np.testing.assert_allclose(displacement(result), exact, rtol=0, atol=1e-12)

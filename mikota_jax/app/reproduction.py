@@ -21,15 +21,19 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from . import _figures as figures
-from ._analytic import mode_shape, paper_mode_shape
-from ._chain import mikota_chain
-from ._exact import exact_solve, modal_decomposition
-from ._galerkin import galerkin
-from ._metrics import phase_error
-from ._pod import pod
-from ._run import write_json
-from ._scene import load_scene
+from .. import (
+    exact_solve,
+    galerkin,
+    mikota_chain,
+    modal_decomposition,
+    mode_shape,
+    paper_mode_shape,
+    phase_error,
+    pod,
+)
+from . import figures
+from .results import write_json
+from .scene_file import load_scene
 
 REPRODUCED, MISSED, NOT_REPRODUCED = "reproduced", "MISSED", "not reproduced"
 

@@ -1,7 +1,9 @@
-"""Figures 2-9 of Weber & Zastrau (2018), drawn from our own results (same quantities and windows).
+"""Figures: 2-9 of Weber & Zastrau (2018), drawn from our own results (same quantities and
+windows), a scene's figures and the damper-placement landscape.
 
 Only matplotlib's non-interactive Agg backend is used, so figures render on a machine without a
-screen. Each function takes plain numpy arrays and writes one PNG.
+screen. Each function writes PNGs from plain numpy arrays (``scene_figures``: from a
+``SceneResult``).
 """
 
 from pathlib import Path
@@ -88,25 +90,27 @@ def full_versus_reduced(path, ts, full_x, full_v, red_x, red_v, dof: int, rank: 
     return _save(fig, Path(path))
 
 
-def scene_figures(result: dict, folder) -> list[Path]:
-    """The figures a scene asks for (``[output] figures = true``): histories and singular values."""
+def scene_figures(result, folder) -> list[Path]:
+    """The figures a scene asks for (``[output] figures = true``): histories and singular values.
+
+    ``result``: the scene's ``SceneResult`` (``run_scene``).
+    """
     folder = Path(folder)
-    arrays = result["_arrays"]
-    ts, dofs = arrays["times"], list(arrays["dofs"])
-    full = arrays["full"]
+    name, ts, dofs = result.scene.name, np.asarray(result.times), list(result.dofs)
+    full = result.full
     pick = [full.dofs.index(d) for d in dofs]
     written = [histories(folder / "displacement.png", ts, np.asarray(full.displacement)[:, pick],
-                         dofs=dofs, title=f"{result['name']}: full model")]
-    if "pod" in arrays:
-        reduced = arrays["reduced"]
+                         dofs=dofs, title=f"{name}: full model")]
+    if result.basis is not None:
+        reduced, rank = result.reduced, result.basis.rank
         pick_r = [reduced.dofs.index(d) for d in dofs]
         written.append(histories(folder / "reduced_displacement.png", ts,
                                  np.asarray(reduced.displacement)[:, pick_r], dofs=dofs,
-                                 title=f"{result['name']}: reduced model, r = {arrays['rank']}"))
-        decomposition = arrays["pod"]
+                                 title=f"{name}: reduced model, r = {rank}"))
+        decomposition = result.basis.pod
         written.append(singular_values_and_modes(
             folder / "singular_values.png", np.asarray(decomposition.singular_values),
-            np.asarray(decomposition.modes), list(range(1, min(5, arrays["rank"]) + 1)),
+            np.asarray(decomposition.modes), list(range(1, min(5, rank) + 1)),
             "leading POMs"))
     return written
 

@@ -5,7 +5,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from ._errors import MARK
+from .._errors import MARK
 
 
 def fail(where: str, message: str):

@@ -12,21 +12,28 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from ._analytic import mode_shape
-from ._chain import SecondOrderSystem, branched_chain, chain, mikota_chain
-from ._custom_types import Vector
-from ._dampers import GroundedDamper, RelativeDamper
-from ._errors import MARK
-from ._exact import modal_decomposition
-from ._internal import ModalDamping, Rayleigh
-from ._io import load_matrix
-from ._matrices import system
-from ._toml import choice as _choice
-from ._toml import fail as _fail
-from ._toml import is_number as _is_number
-from ._toml import number as _number
-from ._toml import positive_list as _positive_list
-from ._toml import table as _table
+from .. import (
+    GroundedDamper,
+    ModalDamping,
+    Rayleigh,
+    RelativeDamper,
+    SecondOrderSystem,
+    branched_chain,
+    chain,
+    load_matrix,
+    mikota_chain,
+    modal_decomposition,
+    mode_shape,
+    system,
+)
+from .._custom_types import Vector
+from .._errors import MARK
+from .toml_checks import choice as _choice
+from .toml_checks import fail as _fail
+from .toml_checks import is_number as _is_number
+from .toml_checks import number as _number
+from .toml_checks import positive_list as _positive_list
+from .toml_checks import table as _table
 
 _CHAIN_KEYS = {
     "mikota": ("n", "m", "k"),

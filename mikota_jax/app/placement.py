@@ -9,11 +9,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ._errors import MARK
-from ._figures import placement_landscape
-from ._optimise import DamperProblem, optimise_dampers, reduced_landscape, sweep_dampers
-from ._run import write_json
-from ._scene import Scene, load_scene
+from .. import DamperProblem, Scene, optimise_dampers, reduced_landscape, sweep_dampers
+from .._errors import MARK
+from .figures import placement_landscape
+from .results import write_json
+from .scene_file import load_scene
 
 _MIN_ENERGY = 0.9999
 

@@ -1,0 +1,95 @@
+"""Command line: ``python -m mikota_jax reproduce [--out DIR]``, ``run SCENE.toml --out DIR`` and
+``optimise SCENE.toml [--out DIR]`` (damper placement: ``placement.json`` and ``placement.png``).
+
+Bad input ends with one line on stderr and exit code 2 (no traceback); a run that fails writes no
+partial ``results.json``. Compiled executables are kept in JAX's persistent compilation cache
+(``~/.cache/mikota_jax/xla``, or ``$MIKOTA_JAX_CACHE_DIR``), so a second run skips most of the
+compilation; ``MIKOTA_JAX_CACHE=0`` turns that off.
+"""
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m mikota_jax", description=__doc__)
+    commands = parser.add_subparsers(dest="command", required=True)
+    reproduce = commands.add_parser("reproduce", help="reproduce Weber & Zastrau (2018)")
+    reproduce.add_argument("--out", default="paper_results", help="folder for figures and JSON")
+    run = commands.add_parser("run", help="run a scene file and write results.json")
+    run.add_argument("scene", help="a TOML scene file, or a packaged paper scene name")
+    run.add_argument("--out", required=True, help="folder for results.json and figures")
+    opt = commands.add_parser("optimise", help="optimise the positions and coefficients of a "
+                              "scene's grounded dampers (gradients through the ROM, certified on "
+                              "the full model)")
+    opt.add_argument("scene", help="a TOML scene file, or a packaged paper scene name")
+    opt.add_argument("--out", default="placement_results", help="folder for JSON and plot")
+    opt.add_argument("--objective", default="energy", choices=["energy", "average_energy", "peak"])
+    opt.add_argument("--dof", type=int, help="DOF of the 'peak' objective (1-based)")
+    opt.add_argument("--lowest", type=int, help="'average_energy': only the s lowest modes")
+    opt.add_argument("--energy", type=float,
+                     help="pseudo-energy fraction of the first POD basis (default: the scene's, "
+                     "at least 0.9999)")
+    opt.add_argument("--starts", type=int, default=8,
+                     help="starts of the relaxed search (--split, or several dampers; one "
+                     "damper at a DOF is found by screening every DOF); default 8")
+    opt.add_argument("--optimizer", default="adam", choices=["adam", "lbfgs"],
+                     help="optimiser of the relaxed search")
+    opt.add_argument("--iterations", type=int, default=80,
+                     help="iterations of the relaxed search (default 80)")
+    opt.add_argument("--tolerance", type=float, default=1e-4,
+                     help="largest ROM error accepted at the optimum (default 1e-4)")
+    opt.add_argument("--split", action="store_true",
+                     help="allow dampers between DOFs (split over the neighbours)")
+    opt.add_argument("--sweep", type=int, default=0, metavar="C",
+                     help="also sweep the full model over every DOF x C coefficients (the 3 "
+                     "best DOFs refined)")
+    opt.add_argument("--no-progress", action="store_true", help="no progress bars")
+    return parser
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    if os.environ.get("MIKOTA_JAX_CACHE", "1") != "0":
+        from .._cache import enable_compilation_cache
+
+        enable_compilation_cache()
+    try:
+        if args.command == "reproduce":
+            from .reproduction import reproduce
+
+            report = reproduce(args.out)
+            return 1 if report["missed"] else 0
+        if args.command == "optimise":
+            from .placement import optimise_scene
+
+            report = optimise_scene(
+                args.scene, args.out, objective=args.objective, dof=args.dof, lowest=args.lowest,
+                energy=args.energy, starts=args.starts, optimizer=args.optimizer,
+                iterations=args.iterations, split=args.split, tolerance=args.tolerance,
+                sweep=args.sweep, progress=not args.no_progress)
+            result = report["result"]
+            print(f"{result['status']}\noptimum: positions {result['positions']}, coefficients "
+                  f"{result['coefficients']}, objective (full model) {result['objective']:.10g}"
+                  f"\nwrote {Path(args.out) / 'placement.json'}")
+            return 0
+        from .. import run_scene
+        from .figures import scene_figures
+        from .results import result_dict, write_json
+        from .scene_file import load_scene
+
+        scene = load_scene(args.scene)
+        result = run_scene(scene)
+        data = result_dict(result)
+        out = Path(args.out)
+        if scene.output.figures:
+            out.mkdir(parents=True, exist_ok=True)
+            data["figures"] = [str(p.name) for p in scene_figures(result, out)]
+        write_json(data, out / "results.json")
+        print(f"wrote {out / 'results.json'}")
+        return 0
+    except ValueError as error:
+        print(f"error: {str(error).splitlines()[0]}", file=sys.stderr)
+        return 2
