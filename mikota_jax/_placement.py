@@ -9,9 +9,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ._brute_force import reduced_landscape, sweep_dampers
+from ._certify import optimise_dampers
+from ._design import DamperProblem
 from ._errors import MARK
 from ._figures import placement_landscape
-from ._optimise import DamperProblem, optimise_dampers, reduced_landscape, sweep_dampers
 from ._run import write_json
 from ._scene import Scene, load_scene
 

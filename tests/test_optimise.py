@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
-from mikota_jax._optimise import _inverse, _transform
+from mikota_jax._search import _inverse, _transform
 
 N = 12
 HORIZON = 8.0
