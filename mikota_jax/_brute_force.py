@@ -123,8 +123,8 @@ def _stiff_rule(problem: DamperProblem, method: str):
                          "(objective 'energy', no load).")
     if method == "ode" or not exact_possible:
         return None
-    mass = np.asarray(diagonal_of(problem.mass))
-    omega_max = gershgorin_omega(mass, problem.stiffness)
+    mass = np.asarray(diagonal_of(problem.base.mass))
+    omega_max = gershgorin_omega(mass, problem.base.stiffness)
 
     def exact(positions, coefficients):
         if method == "exact":

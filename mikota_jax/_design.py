@@ -249,14 +249,6 @@ class DamperProblem(eqx.Module):
         """The start design's coefficients, (g,)."""
         return self.base.damping.coefficients
 
-    @property
-    def mass(self):
-        return self.base.mass
-
-    @property
-    def stiffness(self):
-        return self.base.stiffness
-
     def system(self, positions, coefficients) -> SecondOrderSystem:
         """The chain with grounded dampers at ``positions`` (g,), in [1, n], of ``coefficients``
         (g,), plus the fixed relative dampers; unchecked (``with_parameters``): the design is

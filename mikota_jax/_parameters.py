@@ -41,7 +41,8 @@ def chain_stiffness(springs: Vector) -> SymmetricTridiagonal:
     return SymmetricTridiagonal(springs + next_springs, -springs[1:], springs)
 
 
-def _is_chain(system: SecondOrderSystem) -> bool:
+def is_chain(system: SecondOrderSystem) -> bool:
+    """Whether ``system`` is a fixed-free chain: a diagonal M and K built from its springs."""
     stiffness = system.stiffness
     return (isinstance(system.mass, Diagonal) and isinstance(stiffness, SymmetricTridiagonal)
             and stiffness.springs is not None and not stiffness.links)
@@ -52,7 +53,7 @@ def _refuse(names, system: SecondOrderSystem) -> None:
     unknown = sorted(set(names) - set(PARAMETERS))
     if unknown:
         raise ValueError(MARK + f"parameters: unknown {unknown}; allowed: {list(PARAMETERS)}.")
-    if set(names) & set(_CHAIN) and not _is_chain(system):
+    if set(names) & set(_CHAIN) and not is_chain(system):
         raise ValueError(MARK + "parameters: masses, springs, m and k need a fixed-free chain "
                          "(a diagonal mass and the springs of its stiffness).")
     if set(names) & set(_DAMPERS) and not isinstance(system.damping, Dampers):

@@ -208,8 +208,8 @@ def _screen_values(problem, basis, positions, coefficients, index, dofs, trials)
 
 def _local_scale(problem: DamperProblem) -> np.ndarray:
     """s_j = 2 sqrt(K_jj M_jj): the critical damping of DOF j held by its own springs."""
-    return 2.0 * np.sqrt(np.asarray(diagonal_of(problem.stiffness))
-                         * np.asarray(diagonal_of(problem.mass)))
+    return 2.0 * np.sqrt(np.asarray(diagonal_of(problem.base.stiffness))
+                         * np.asarray(diagonal_of(problem.base.mass)))
 
 
 def _screen(problem, basis, positions, coefficients, index: int, dofs: np.ndarray):

@@ -48,8 +48,7 @@ from ._excitation import Pulse
 from ._galerkin import galerkin
 from ._metrics import phase_error
 from ._objectives import integrated_energy
-from ._operators import Diagonal
-from ._parameters import check_parameters, with_parameters
+from ._parameters import check_parameters, is_chain, with_parameters
 from ._reduction import reduce, snapshot_window
 from ._run import solve_scene as _solve
 from ._scene import Scene
@@ -64,10 +63,9 @@ _MIKOTA_TOL = 1e-13  # relative: masses * i and springs / (n - i + 1) constant t
 
 def mikota_parameters(system: SecondOrderSystem) -> tuple[float, float] | None:
     """(m, k) if ``system`` is Mikota's chain (m_i = m / i, k_i = (n - i + 1) k), else None."""
-    springs = getattr(system.stiffness, "springs", None)
-    if springs is None or not hasattr(system.mass, "diagonal"):
+    if not is_chain(system):
         return None
-    masses, springs = np.asarray(system.mass.diagonal), np.asarray(springs)
+    masses, springs = np.asarray(system.mass.diagonal), np.asarray(system.stiffness.springs)
     i = np.arange(1, masses.size + 1)
     m, k = masses * i, springs / (masses.size - i + 1)
     if np.ptp(m) > _MIKOTA_TOL * m[0] or np.ptp(k) > _MIKOTA_TOL * k[0]:
@@ -86,13 +84,11 @@ def scene_parameters(scene: Scene, wrt=None) -> dict[str, jax.Array]:
         raise ValueError(MARK + f"scene must be a Scene (see load_scene), got "
                          f"{type(scene).__name__}.")
     system = scene.system
-    springs = getattr(system.stiffness, "springs", None)
-    is_chain = springs is not None and isinstance(system.mass, Diagonal)
     mk = mikota_parameters(system)
     damping = system.damping
     available = {"amplitude": jnp.asarray(1.0)}
-    if is_chain:
-        available.update(masses=system.mass.diagonal, springs=springs)
+    if is_chain(system):
+        available.update(masses=system.mass.diagonal, springs=system.stiffness.springs)
     if mk is not None:
         available.update(m=jnp.asarray(mk[0]), k=jnp.asarray(mk[1]))
     internal = system.internal
