@@ -88,7 +88,10 @@ def _evaluate_points(problem, basis, points_p, points_c, batch_size: int, progre
 
 
 def _evaluate_one(problem, position: float, coefficient: float, exact: bool) -> float:
-    """One design's full-model objective (inf where it fails): a golden-section step."""
+    """One design's full-model objective (inf where it fails): a golden-section step.
+
+    A sequential search evaluates one point at a time, so it calls the compiled point function
+    directly: ``sweep`` would re-trace its function (``eval_shape``) on every call."""
     out = _point(_PointObjective(problem, None, exact),
                  dict(positions=jnp.asarray(position), coefficients=jnp.asarray(coefficient)))
     value = float(out["value"]) if bool(out["finite"]) and not bool(out["failed"]) else np.inf
