@@ -41,15 +41,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._chain import SecondOrderSystem, chain
-from ._dampers import Dampers, GroundedDamper, RelativeDamper
+from ._chain import SecondOrderSystem
+from ._dampers import Dampers
 from ._errors import MARK, as_float
 from ._excitation import Pulse
 from ._galerkin import galerkin
-from ._internal import InternalDamping, ModalDamping, Rayleigh
 from ._metrics import phase_error
 from ._objectives import integrated_energy
-from ._operators import Diagonal
+from ._parameters import check_parameters, is_chain, with_parameters
 from ._reduction import reduce, snapshot_window
 from ._run import solve_scene as _solve
 from ._scene import Scene
@@ -64,10 +63,9 @@ _MIKOTA_TOL = 1e-13  # relative: masses * i and springs / (n - i + 1) constant t
 
 def mikota_parameters(system: SecondOrderSystem) -> tuple[float, float] | None:
     """(m, k) if ``system`` is Mikota's chain (m_i = m / i, k_i = (n - i + 1) k), else None."""
-    springs = getattr(system.stiffness, "springs", None)
-    if springs is None or not hasattr(system.mass, "diagonal"):
+    if not is_chain(system):
         return None
-    masses, springs = np.asarray(system.mass.diagonal), np.asarray(springs)
+    masses, springs = np.asarray(system.mass.diagonal), np.asarray(system.stiffness.springs)
     i = np.arange(1, masses.size + 1)
     m, k = masses * i, springs / (masses.size - i + 1)
     if np.ptp(m) > _MIKOTA_TOL * m[0] or np.ptp(k) > _MIKOTA_TOL * k[0]:
@@ -86,13 +84,11 @@ def scene_parameters(scene: Scene, wrt=None) -> dict[str, jax.Array]:
         raise ValueError(MARK + f"scene must be a Scene (see load_scene), got "
                          f"{type(scene).__name__}.")
     system = scene.system
-    springs = getattr(system.stiffness, "springs", None)
-    is_chain = springs is not None and isinstance(system.mass, Diagonal)
     mk = mikota_parameters(system)
     damping = system.damping
     available = {"amplitude": jnp.asarray(1.0)}
-    if is_chain:
-        available.update(masses=system.mass.diagonal, springs=springs)
+    if is_chain(system):
+        available.update(masses=system.mass.diagonal, springs=system.stiffness.springs)
     if mk is not None:
         available.update(m=jnp.asarray(mk[0]), k=jnp.asarray(mk[1]))
     internal = system.internal
@@ -191,40 +187,13 @@ class SceneFunction(eqx.Module):
         self.count, self.forward = count, bool(forward)
 
     def system(self, parameters: dict) -> SecondOrderSystem:
-        """The system and dampers at ``parameters`` (missing names keep the scene's values)."""
+        """The system and dampers at ``parameters`` (missing names keep the scene's values).
+
+        The values are checked here, once per evaluation, then mapped onto the scene's system by
+        ``with_parameters`` (no rebuild, no re-validation)."""
+        physical = {name: value for name, value in parameters.items() if name != "amplitude"}
         base = self.scene.system
-        n = base.size
-        mass, stiffness = base.mass, base.stiffness
-        if {"m", "k", "masses", "springs"} & set(parameters):
-            i = jnp.arange(1, n + 1, dtype=jnp.float64)
-            masses = parameters.get("masses", base.mass.diagonal)
-            springs = parameters.get("springs", base.stiffness.springs)
-            if "m" in parameters:
-                masses = parameters["m"] / i
-            if "k" in parameters:
-                springs = (n - i + 1) * parameters["k"]
-            rebuilt = chain(masses, springs)
-            mass, stiffness = rebuilt.mass, rebuilt.stiffness
-        internal = base.internal
-        if internal is not None:
-            rayleigh, modal = internal.rayleigh, internal.modal
-            if {"alpha", "beta"} & set(parameters):
-                rayleigh = Rayleigh(parameters.get("alpha", rayleigh.alpha),
-                                    parameters.get("beta", rayleigh.beta))
-            if "zeta" in parameters:
-                modal = ModalDamping(parameters["zeta"])
-            internal = InternalDamping(internal.matrix, rayleigh, modal)
-        damping = base.damping
-        if isinstance(base.damping, Dampers):
-            damping = base.damping
-            positions = parameters.get("positions", damping.positions)
-            coefficients = parameters.get("coefficients", damping.coefficients)
-            pairs = parameters.get("relative_coefficients", damping.pair_coefficients)
-            dampers = [GroundedDamper(p, c) for p, c in zip(positions, coefficients)]
-            dampers += [RelativeDamper((a + 1, b + 1), c) for (a, b), c in
-                        zip(damping.pairs, pairs)]
-            damping = Dampers(n, dampers) if dampers else None
-        return SecondOrderSystem(mass, stiffness, damping, internal)
+        return with_parameters(base, check_parameters(base, physical))
 
     def excitation(self, parameters: dict):
         """(x0, v0, load) scaled by the amplitude: the load if there is one, else x0 and v0."""

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
-from mikota_jax._optimise import _inverse, _transform
+from mikota_jax._search import _init, _inverse, _step, _transform, _value_and_gradient
 
 N = 12
 HORIZON = 8.0
@@ -90,6 +90,21 @@ def test_reparametrisation_keeps_every_design_feasible():
     p2, c2 = _transform(N, 2.0, u2, w2)
     np.testing.assert_allclose(p2, [1.5, 6.0, 11.5], rtol=1e-12)
     np.testing.assert_allclose(c2, [0.1, 2.0, 50.0], rtol=1e-12)
+
+
+def test_the_energy_search_compiles_without_host_callbacks():
+    """Designs are valid by construction and mapped without checks, so the compiled L-BFGS step
+    and the full model's certification hold no host callback (no equinox check inside)."""
+    p = problem()
+    c_ref = jnp.array([0.8])
+    params = _inverse(N, c_ref, np.array([[4.0], [6.0]]), np.array([[0.8], [0.8]]))
+    rate = jnp.asarray(0.1)
+    state = _init(params, rate, optimizer="lbfgs")
+    step = _step.lower(p, full_basis(), c_ref, params, state, jnp.zeros((2, 1)),
+                       jnp.ones(2, bool), jnp.ones(2, bool), rate, optimizer="lbfgs",
+                       positions_fixed=False)
+    full = _value_and_gradient.lower(p, None, p.positions, p.coefficients)
+    assert "callback" not in step.as_text() and "callback" not in full.as_text()
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,288 @@
+"""Certified damper placement: search on the reduced model, certify on the full one.
+
+The design is (positions, coefficients) of the problem's grounded dampers; any relative dampers of
+the chain stay as they are. Gradients are taken through the reduced model with its POD basis held
+fixed (no derivative through the SVD), and the optimum is certified on the full model:
+
+1. *relaxed search* (with ``split=True``, and to start several dampers): several starts spread
+   over the chain, optax (Adam or L-BFGS) on unconstrained variables, position = 1 + (n - 1)
+   sigmoid(u) in [1, n] and coefficient = c_ref exp(w) >= 0. Between DOFs a damper is split
+   linearly over its neighbours (``Dampers``): a different device, which the search prefers.
+2. *screening* (realisable designs, the default): the objective over the DOFs is rugged (Section
+   5: J(4) = 724, J(6) = 859, J(7) = 801 with c re-optimised at each), so no relaxation points
+   to the best DOF (the relaxed optimum sat at p = 7.85). Every DOF is screened on the reduced
+   model with three coefficients around its local scale 2 sqrt(K_jj M_jj) (a parabola in log c
+   estimates the best); several dampers are screened one at a time from the rounded relaxed
+   optimum.
+3. *polish*: the ``keep`` best screened designs get their coefficients optimised (L-BFGS in
+   log c, positions fixed); the best wins.
+4. *certification*: the full model's objective and coefficient gradient at the design are compared
+   with the reduced model's. If they disagree beyond ``tolerance``, the basis is enriched with
+   POD modes of a full simulation at that design (trust-region reduced-basis style) and the
+   screening (of the 4 ``keep`` best DOFs) and polish run again.
+
+"Certified" means the reduced model is accurate (to ``tolerance``) at the design returned, which
+is the best the reduced model found; the full sweep (``sweep_dampers``) is the independent check
+that it is the best DOF (``benchmarks/placement.py``). Phases 1-3 live in ``_search.py``, the
+objectives in ``_design.py``.
+"""
+
+import dataclasses
+import time
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._design import DamperProblem
+from ._errors import MARK, check_x64
+from ._integrate import _simulate
+from ._plain import to_plain
+from ._reduction import Reduction, reduce
+from ._search import (
+    OPTIMIZERS,
+    _best,
+    _default_starts,
+    _inverse,
+    _last_finite,
+    _phase_record,
+    _realisable_candidates,
+    _search,
+    _value_and_gradient,
+)
+
+
+@eqx.filter_jit
+def _snapshots(problem, positions, coefficients, count: int):
+    """The full model's displacements at the first ``count`` times of the grid, (count, n).
+
+    diffrax checks ``SaveAt(ts)`` with ``eqx.error_if`` inside its own jit, so this executable
+    holds that one host callback (the check passes: the grid was checked when the problem was
+    built)."""
+    model = problem.system(positions, coefficients)
+    trajectory, flags = _simulate(
+        model, problem.ts[:count], problem.x0, problem.v0, problem.load, problem.rtol,
+        problem.rtol * 1e-2, solver=diffrax.Dopri8(), dofs=tuple(range(1, problem.size + 1)),
+        displacement=True, velocity=False, max_steps=problem.max_steps, progress=False,
+        adjoint=diffrax.RecursiveCheckpointAdjoint())
+    return trajectory.displacement, flags
+
+
+def _snapshot_modes(problem, positions, coefficients):
+    """POD modes of a full simulation at a design (the scene's window and rank rule)."""
+    ts = np.asarray(problem.ts)
+    count = int(np.sum(ts <= problem.snapshots[1] + 1e-12))
+    displacement, flags = _snapshots(problem, positions, coefficients, count)
+    if any(bool(f) for f in flags):
+        raise ValueError(MARK + "the full-model snapshot solve failed (max_steps reached or "
+                         "non-finite states) at the design "
+                         f"positions={np.asarray(positions)}, "
+                         f"coefficients={np.asarray(coefficients)}; increase max_steps.")
+    request = Reduction(problem.snapshots, energy=problem.energy, rank=problem.rank,
+                        criterion=problem.criterion)
+    return reduce(displacement, jnp.asarray(ts[:count]), request, cap_rank=True).basis
+
+
+def _enrich(basis, modes, tol: float = 1e-8):
+    """basis plus the part of ``modes`` outside its span (orthonormal, directions above tol)."""
+    residual = modes - basis @ (basis.T @ modes)
+    residual = residual - basis @ (basis.T @ residual)  # twice is enough (Kahan-Parlett)
+    u, s, _ = jnp.linalg.svd(residual, full_matrices=False)
+    keep = int(np.sum(np.asarray(s) > tol))
+    return jnp.concatenate([basis, u[:, :keep]], axis=1)
+
+
+@dataclasses.dataclass
+class PlacementResult:
+    """The optimised damper design, certified on the full model.
+
+    ``positions``/``coefficients``: the design, (g,) each, 1-based positions (at DOFs unless
+    ``split``); ``gradient``: the full model's dJ/dc there, (g,); ``basis``: the final (n, r) POD
+    basis (``rank`` r), e.g. for ``placement_objective``; ``objective``: the full
+    model's objective there, ``objective_reduced`` the reduced model's, ``rom_error`` their
+    relative difference and ``gradient_error`` that of the logarithmic coefficient sensitivities
+    c dJ/dc / J (and dJ/dp / J for split designs). ``full_solves`` counts full-model solves
+    (snapshot simulations and certifications, each with its forward-mode tangents); ``history``
+    the path of every phase (relaxed search, screen, polish) of every round; ``relaxed_*`` the best
+    relaxed design (None where no relaxed search ran: one damper at a DOF).
+    """
+
+    positions: np.ndarray
+    coefficients: np.ndarray
+    objective: float
+    objective_reduced: float
+    rom_error: float
+    gradient_error: float
+    gradient: np.ndarray
+    certified: bool
+    status: str
+    rounds: int
+    full_solves: int
+    rank: int
+    relaxed_positions: np.ndarray | None
+    relaxed_coefficients: np.ndarray | None
+    relaxed_objective: float | None
+    initial_objective: float
+    history: list
+    seconds: float
+    seconds_full: float
+    messages: list
+    basis: np.ndarray | None = dataclasses.field(default=None, repr=False)  # final POD basis
+
+    def to_json(self) -> dict:
+        """A JSON-ready dict (arrays as lists, NaN as None), without the basis."""
+        return {f.name: to_plain(getattr(self, f.name)) for f in dataclasses.fields(self)
+                if f.name != "basis"}
+
+
+def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
+                     optimizer: str = "adam", iterations: int = 80,
+                     learning_rate: float = 0.1, split: bool = False, keep: int = 4,
+                     polish_iterations: int = 20, tolerance: float = 1e-4, max_rounds: int = 4,
+                     seed: int = 0, progress: bool = False) -> PlacementResult:
+    """Place the problem's grounded dampers: gradients through the ROM, certified on the full model.
+
+    The ROM is the Galerkin model (eq. 3.4) on a POD basis (eqs. 3.5-3.8) of full-model snapshots;
+    returns a ``PlacementResult`` with (g,) positions (1-based) and coefficients. See the module
+    docstring for the phases. ``starts``: the number of starts of the relaxed
+    search (the problem's design, then spread over the chain) or an (S, g) array of start
+    positions; ``optimizer``: its "adam" (``learning_rate`` on the unconstrained variables) or
+    "lbfgs"; ``iterations`` its length. The relaxed search runs for ``split=True`` (dampers may
+    sit between DOFs, split linearly over the neighbours) and for several dampers; one damper at
+    a DOF is found by screening every DOF. ``keep``: how many screened designs are polished.
+    ``tolerance``: the largest relative ROM error (objective and log-sensitivities) accepted at
+    the optimum; beyond it the basis is enriched and the search goes on, up to ``max_rounds``.
+    """
+    check_x64()
+    if not isinstance(problem, DamperProblem):
+        raise ValueError(MARK + f"problem must be a DamperProblem, got {type(problem).__name__}.")
+    if optimizer not in OPTIMIZERS:
+        raise ValueError(MARK + f"optimizer must be one of {list(OPTIMIZERS)}, got "
+                         f"{optimizer!r}.")
+    for name, value, low in (("iterations", iterations, 1), ("keep", keep, 1),
+                             ("polish_iterations", polish_iterations, 1),
+                             ("max_rounds", max_rounds, 1)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ValueError(MARK + f"{name} must be an integer >= {low}, got {value!r}.")
+    if not (np.isfinite(learning_rate) and learning_rate > 0):
+        raise ValueError(MARK + f"learning_rate must be > 0, got {learning_rate!r}.")
+    if not (np.isfinite(tolerance) and tolerance > 0):
+        raise ValueError(MARK + f"tolerance must be > 0, got {tolerance!r}.")
+    n, g = problem.size, problem.num_dampers
+    if isinstance(starts, int | np.integer) and not isinstance(starts, bool):
+        if starts < 1:
+            raise ValueError(MARK + f"starts must be >= 1, got {starts}.")
+        start_positions = _default_starts(problem, int(starts), seed)
+    else:
+        start_positions = np.asarray(starts, dtype=float)
+        if start_positions.ndim == 1 and g == 1:
+            start_positions = start_positions[:, None]
+        if (start_positions.ndim != 2 or start_positions.shape[1] != g
+                or not np.all((start_positions >= 1) & (start_positions <= n))):
+            raise ValueError(MARK + f"starts must be an int or an (S, {g}) array of positions "
+                             f"in [1, {n}], got shape {start_positions.shape}.")
+    clock = time.perf_counter()
+    coefficients0 = np.asarray(problem.coefficients)
+    c_ref = jnp.asarray(np.where(coefficients0 > 0, coefficients0, 1.0))
+    full_seconds, full_solves, messages, history = 0.0, 0, [], []
+
+    def full_timed(fn, *args):
+        nonlocal full_seconds, full_solves
+        t = time.perf_counter()
+        out = jax.block_until_ready(fn(*args))
+        full_seconds += time.perf_counter() - t
+        full_solves += 1
+        return out
+
+    basis = full_timed(_snapshot_modes, problem, problem.positions, problem.coefficients)
+    value0, _, _, failed0 = _value_and_gradient(problem, basis, problem.positions,
+                                                problem.coefficients)
+    if bool(failed0):
+        raise ValueError(MARK + "the reduced objective is not finite at the problem's own "
+                         "design; check the excitation and the dampers.")
+    params = _inverse(n, c_ref, start_positions,
+                      np.broadcast_to(coefficients0, start_positions.shape))
+    dummy = jnp.zeros(start_positions.shape)
+    certified, status, relaxed, shortlist = False, "", None, None
+    for round_ in range(max_rounds):
+        if split or g > 1:
+            search = _search(problem, basis, c_ref, params, dummy, optimizer=optimizer,
+                             iterations=iterations, learning_rate=learning_rate,
+                             positions_fixed=False, tol=1e-7, progress=progress,
+                             label=f"round {round_ + 1}: relaxed search", race=round_ == 0)
+            history.append(_phase_record("search", round_, search))
+            dead = int(np.sum(~search.alive))
+            if dead:
+                messages.append(f"round {round_ + 1}: {dead} of {len(search.alive)} starts "
+                                "stopped (objective not finite or solve failed); the rest went "
+                                "on.")
+            last = _last_finite(search)
+            if last is None:
+                raise ValueError(MARK + "optimise_dampers stopped: the objective was not finite "
+                                 "at any start (a solve failed); try other starts or a larger "
+                                 "max_steps.")
+            best = _best(last[2])
+            relaxed = tuple(a[best] for a in last)
+            params = search.params
+        if split:
+            positions, coefficients = relaxed[0], relaxed[1]
+        else:
+            cand_p, cand_c, shortlist = _realisable_candidates(
+                problem, basis, relaxed, shortlist, keep, round_, history)
+            polish = _search(problem, basis, c_ref, _inverse(n, c_ref, cand_p, cand_c),
+                             jnp.asarray(cand_p), optimizer="lbfgs",
+                             iterations=polish_iterations, learning_rate=learning_rate,
+                             positions_fixed=True, tol=1e-9, progress=progress,
+                             label=f"round {round_ + 1}: polish")
+            history.append(_phase_record("polish", round_, polish))
+            polished = _last_finite(polish)
+            if polished is None:
+                raise ValueError(MARK + "optimise_dampers stopped: the objective was not finite "
+                                 "at any screened DOF (every solve failed); try a larger "
+                                 "max_steps.")
+            k = _best(polished[2])
+            positions, coefficients = polished[0][k], polished[1][k]
+        positions, coefficients = jnp.asarray(positions), jnp.asarray(coefficients)
+        full_value, full_gp, full_gc, full_failed = full_timed(
+            _value_and_gradient, problem, None, positions, coefficients)
+        rom_value, rom_gp, rom_gc, _ = _value_and_gradient(problem, basis, positions,
+                                                           coefficients)
+        if bool(full_failed):
+            raise ValueError(MARK + "the full-model solve at the optimum failed (max_steps "
+                             "reached or non-finite); increase max_steps.")
+        scale = abs(float(full_value))
+        rom_error = abs(float(rom_value) - float(full_value)) / scale
+        sensitivities = np.abs(np.asarray(coefficients) * np.asarray(rom_gc - full_gc)) / scale
+        if split:
+            sensitivities = np.concatenate([sensitivities, np.abs(np.asarray(rom_gp - full_gp))
+                                            * (n - 1) / scale])
+        gradient_error = float(np.max(sensitivities))
+        certified = rom_error <= tolerance and gradient_error <= tolerance
+        if certified:
+            status = (f"certified in round {round_ + 1}: reduced and full model agree to "
+                      f"{max(rom_error, gradient_error):.2e} (tolerance {tolerance:.0e}).")
+            break
+        messages.append(f"round {round_ + 1}: ROM error {rom_error:.2e}, log-sensitivity error "
+                        f"{gradient_error:.2e} > tolerance {tolerance:.0e}: basis enriched at "
+                        f"positions {np.asarray(positions).tolist()}.")
+        if round_ == max_rounds - 1:
+            status = (f"NOT certified after {max_rounds} rounds: ROM error {rom_error:.2e}, "
+                      f"log-sensitivity error {gradient_error:.2e} (tolerance "
+                      f"{tolerance:.0e}); the objective reported is the full model's.")
+            break
+        modes = full_timed(_snapshot_modes, problem, positions, coefficients)
+        basis = _enrich(basis, modes)
+    return PlacementResult(
+        positions=np.asarray(positions), coefficients=np.asarray(coefficients),
+        objective=float(full_value), objective_reduced=float(rom_value), rom_error=rom_error,
+        gradient_error=gradient_error, gradient=np.asarray(full_gc), certified=certified,
+        status=status, rounds=round_ + 1, full_solves=full_solves, rank=int(basis.shape[1]),
+        relaxed_positions=None if relaxed is None else relaxed[0],
+        relaxed_coefficients=None if relaxed is None else relaxed[1],
+        relaxed_objective=None if relaxed is None else float(relaxed[2]),
+        initial_objective=float(value0),
+        history=history, seconds=time.perf_counter() - clock, seconds_full=full_seconds,
+        messages=messages, basis=np.asarray(basis))
+
