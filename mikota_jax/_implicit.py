@@ -27,6 +27,7 @@ from jax.lax.linalg import tridiagonal_solve
 
 from ._dampers import Dampers
 from ._errors import MARK
+from ._galerkin import ReducedModel
 from ._operators import Diagonal, LowRank, SymmetricTridiagonal, abs_row_sums
 
 _TABLEAU = diffrax.Kvaerno5.tableau
@@ -262,19 +263,13 @@ def stiffness_rate(system) -> float:
     <= max_i sum_j |D_ij| / M_ii (internal damping: alpha + beta omega_max^2, 2 zeta omega_max);
     for a non-diagonal mass (a reduced model, a user's) the exact values.
     """
-    system = system.system if hasattr(system, "basis") else system
+    system = system.system if isinstance(system, ReducedModel) else system
     mass, damping = system.mass, system.damping
     if isinstance(mass, Diagonal):
         m = np.asarray(mass.diagonal)
         omega = gershgorin_omega(m, system.stiffness)
         rate = 0.0
-        if isinstance(damping, Dampers):
-            rows = np.asarray(damping.grounded_diagonal())
-            for (i, j), c in zip(damping.pairs, np.asarray(damping.pair_coefficients)):
-                rows[i] += 2 * c
-                rows[j] += 2 * c
-            rate = float(np.max(rows / m))
-        elif damping is not None:
+        if damping is not None:
             rate = float(np.max(np.asarray(abs_row_sums(damping)) / m))
         if system.internal is not None:
             rate += _internal_rate(system.internal, m, omega)
