@@ -124,13 +124,12 @@ def as_flags(result: RESULTS, *codes) -> tuple:
 
 @contextlib.contextmanager
 def callback_free_checks():
-    """Trace diffrax's own runtime checks as NaN-poisoning instead of host callbacks.
+    """Deprecated, for the optimiser only (remove with its split): traces diffrax's runtime checks
+    as NaN-poisoning instead of host callbacks by switching equinox's private module flag.
 
-    diffrax checks ``SaveAt(ts)`` with ``eqx.error_if``, which compiles to a host callback, and
-    JAX's persistent cache refuses executables holding one. Our solvers validate ``ts`` before
-    tracing and flag non-finite results themselves, so inside them equinox's ``"nan"`` mode loses
-    nothing: a failed check there yields NaN, which the non-finite flag reports. Only the module
-    default is switched, only while the solver is traced; with another equinox layout it is a no-op.
+    No solver of the core uses it: ``simulate``'s executable keeps diffrax's ``SaveAt(ts)`` check
+    (a host callback, since ``diffeqsolve`` is itself jitted and sees ``ts`` traced), so JAX's
+    persistent cache does not store it; every other compiled solve holds no callback.
     """
     from equinox import _errors as equinox_errors
 

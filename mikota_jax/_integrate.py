@@ -24,7 +24,6 @@ from ._errors import (
     RESULTS,
     as_flags,
     as_float,
-    callback_free_checks,
     check,
     check_x64,
     first_failure,
@@ -316,11 +315,10 @@ def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | No
     rtol, atol, adjoint = check_solve_options(rtol, atol, max_steps, adjoint)
     if isinstance(solver, str):
         solver = SOLVERS[choose_solver(model, ts) if solver == "auto" else solver]()
-    with callback_free_checks():  # so that the persistent compilation cache can store the solve
-        trajectory, result = simulate_with_result(
-            model, ts, x0, v0, load, rtol, atol, solver=solver, dofs=check_dofs(dofs, model.size),
-            displacement=displacement, velocity=velocity, max_steps=max_steps, progress=progress,
-            adjoint=adjoint)
+    trajectory, result = simulate_with_result(
+        model, ts, x0, v0, load, rtol, atol, solver=solver, dofs=check_dofs(dofs, model.size),
+        displacement=displacement, velocity=velocity, max_steps=max_steps, progress=progress,
+        adjoint=adjoint)
     if throw:
         trajectory = raise_result(trajectory, result, max_steps=max_steps)
     return trajectory

@@ -31,7 +31,6 @@ from ._errors import (
     RESULTS,
     as_flags,
     as_float,
-    callback_free_checks,
     check,
     check_dense_memory,
     check_x64,
@@ -41,6 +40,7 @@ from ._errors import (
 )
 from ._exact import modal_projection, scaled_modal, state_matrix
 from ._excitation import Pulse
+from ._galerkin import ReducedModel
 from ._integrate import (
     SOLVE_FAILURES,
     acceleration,
@@ -155,7 +155,7 @@ def integrated_energy_ode_with_result(model, horizon, x0, v0, load, rtol, atol, 
 
 def _modal_size(model) -> int:
     """The size of the dense modal problem: r for a reduced model, n for a full one."""
-    return getattr(model, "rank", model.size)
+    return model.rank if isinstance(model, ReducedModel) else model.size
 
 
 @raises_value_error
@@ -191,9 +191,8 @@ def integrated_energy(model, horizon: float, x0: Vector | None = None,
         value, result = integrated_energy_exact_with_result(model, horizon, x0, v0)
         return raise_result(value, result)
     rtol, atol, adjoint = check_solve_options(rtol, atol, max_steps, adjoint)
-    with callback_free_checks():
-        value, result = integrated_energy_ode_with_result(
-            model, horizon, x0, v0, load, rtol, atol, max_steps=max_steps, adjoint=adjoint)
+    value, result = integrated_energy_ode_with_result(
+        model, horizon, x0, v0, load, rtol, atol, max_steps=max_steps, adjoint=adjoint)
     return raise_result(value, result, max_steps=max_steps)
 
 
@@ -224,7 +223,7 @@ def total_average_energy(model, lowest: int | None = None) -> Float[Array, ""]:
     """
     check_x64()
     check_problem(model, None, None, None)
-    modal_size = getattr(model, "rank", model.size)
+    modal_size = _modal_size(model)
     if lowest is not None and (isinstance(lowest, bool) or not isinstance(lowest, int)
                                or not 1 <= lowest <= modal_size):
         raise ValueError(MARK + f"lowest must be None or an integer in 1..{modal_size}, "
