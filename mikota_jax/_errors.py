@@ -100,21 +100,27 @@ def raise_result(out, result: RESULTS, **context):
 
     Compiled solvers return a ``RESULTS`` code instead of raising inside: a concrete code becomes
     a plain ``ValueError`` here, so the compiled executable holds no host callback of ours; a
-    traced one (the caller's own ``jit`` or ``vmap``) becomes ``eqx.error_if`` checks, one per
-    failure in ``FAILURES`` order. ``context`` fills the messages' fields (``max_steps``).
+    traced one (the caller's own ``jit`` or ``vmap``) becomes one ``eqx.branched_error_if``
+    (a batch reports its first failure in ``FAILURES`` order). ``context`` fills the messages'
+    fields (``max_steps``).
     """
-    traced = any(is_traced(leaf) for leaf in jax.tree.leaves(result))
-    for code in FAILURES:
-        failed = result == code
-        message = MARK + RESULTS[code]
+
+    def message(code):
+        text = MARK + RESULTS[code]
         for key, value in context.items():
-            message = message.replace("{" + key + "}", str(value))
-        if not traced:
-            if bool(np.any(np.asarray(failed))):
-                raise ValueError(message)
-        else:
-            out = eqx.error_if(out, failed, message)
-    return out
+            text = text.replace("{" + key + "}", str(value))
+        return text
+
+    if not any(is_traced(leaf) for leaf in jax.tree.leaves(result)):
+        for code in FAILURES:
+            if bool(np.any(np.asarray(result == code))):
+                raise ValueError(message(code))
+        return out
+    # index i names ranked[i]: the batch's largest index is its first failure in FAILURES order
+    ranked = FAILURES[::-1]
+    index = sum(jnp.where(result == code, i, 0) for i, code in enumerate(ranked))
+    return eqx.branched_error_if(out, result != RESULTS.successful, index,
+                                 [message(code) for code in ranked])
 
 
 def as_flags(result: RESULTS, *codes) -> tuple:
