@@ -198,7 +198,8 @@ def branched_chain(masses: Sequence[Vector], springs: Sequence[Vector], hub_mass
 
 def generalized_modes(system: SecondOrderSystem):
     """(omega^2, U): K U = M U diag(omega^2), U^T M U = I, ascending; omega^2 is not checked."""
-    springs = getattr(system.stiffness, "springs", None)
+    stiffness = system.stiffness
+    springs = stiffness.springs if isinstance(stiffness, SymmetricTridiagonal) else None
     if isinstance(system.mass, Diagonal) and springs is not None:
         # K = L^T diag(k) L: the singular values of C = diag(sqrt k) L M^-1/2 are the omega_l, to
         # full relative accuracy (eigh of M^-1/2 K M^-1/2 only to eps ||K||: the lowest omega of

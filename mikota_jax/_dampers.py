@@ -15,7 +15,7 @@ import numpy as np
 
 from ._custom_types import Array, Basis, Float, Matrix, ScalarLike, Vector
 from ._errors import MARK, as_float, check
-from ._operators import LowRank
+from ._operators import AbstractOperator, LowRank, diagonal
 
 
 class GroundedDamper(eqx.Module):
@@ -66,7 +66,7 @@ def _split(position, n: int):
     return j.astype(int) - 1, position - j
 
 
-class Dampers(eqx.Module):
+class Dampers(AbstractOperator):
     """The damping operator D of a set of dampers; applying it costs O(n + number of dampers)."""
 
     size: int = eqx.field(static=True)
@@ -133,3 +133,19 @@ class Dampers(eqx.Module):
             columns.append(basis[i] - basis[j])
             weights.append(self.pair_coefficients)
         return LowRank(jnp.concatenate(columns).T, jnp.concatenate(weights))
+
+    def abs_row_sums(self) -> Vector:
+        """sum_j |D_ij| per row: the grounded diagonal, plus 2 c at both DOFs of each pair."""
+        rows = self.grounded_diagonal()  # coefficients are >= 0
+        for (i, j), c in zip(self.pairs, self.pair_coefficients):
+            rows = rows.at[i].add(2 * c).at[j].add(2 * c)
+        return rows
+
+
+@diagonal.register(Dampers)
+def _(operator: Dampers) -> Vector:
+    rows = operator.grounded_diagonal()
+    if operator.pairs:
+        i, j = (np.asarray(a) for a in zip(*operator.pairs))
+        rows = rows.at[i].add(operator.pair_coefficients).at[j].add(operator.pair_coefficients)
+    return rows

@@ -48,33 +48,94 @@ def check(x, bad, message: str):
     return eqx.error_if(x, bad, MARK + message)
 
 
-def raise_failures(out, failures, messages):
-    """Return ``out``, failing with the message of the first flag in ``failures`` that holds.
+class RESULTS(eqx.Enumeration):
+    """Why a compiled computation failed, as diffrax's ``RESULTS``: an integer code carried
+    through ``jit`` and ``vmap`` and turned into one ``ValueError`` at the boundary
+    (``raise_result``). Messages may name ``{max_steps}``, filled in there."""
 
-    Compiled solvers return their failure flags instead of raising inside: with concrete flags the
-    error is a plain ``ValueError`` raised here, so the compiled executable holds no host callback
-    (and JAX's persistent compilation cache can store it); with traced flags (the caller's own
-    ``jit`` or ``vmap``) each becomes an ``eqx.error_if``.
+    successful = ""
+    not_definite = ("stiffness must be positive definite (a fixed-free chain with positive "
+                    "springs is).")
+    max_steps_reached = (
+        "simulate stopped: max_steps = {max_steps} reached before ts[-1]. Increase max_steps, "
+        "loosen rtol/atol, or for a stiff case (large n, strong damper) use solver='kvaerno5' "
+        "(or 'auto'), or exact_solve.")
+    solver_failed = ("simulate failed inside diffrax (step size collapsed or the implicit solve "
+                     "diverged); check the inputs for non-finite values, or try another solver.")
+    non_finite_states = ("simulate produced non-finite states; check the inputs and tolerances, "
+                         "or use a stiff solver (solver='kvaerno5').")
+    exact_not_finite = (
+        "exact_solve produced non-finite values; check the inputs for huge or non-finite values "
+        "(a rate ||A|| h beyond ~1e20 is out of the matrix exponential's range: use "
+        "simulate(..., solver='kvaerno5')).")
+    pulse_too_short = (
+        "exact_solve: the pulse duration is too short for the piecewise-constant formula, which "
+        "loses digits as eps / (omega_1 duration) (more than 1e-6 here); use its Dirac limit "
+        "v0 = M^-1 (amplitude duration) e_dof, or simulate.")
+    out_of_range = (
+        "integrated_energy: the fastest rate times the horizon (||A|| T) exceeds 8 * 2^60 ~ 9e18, "
+        "beyond the exact energy's range (or the result is not finite); a damper that strong "
+        "pins its DOF: model that DOF as fixed, or shorten the horizon.")
+    not_damped = (
+        "total_average_energy: some mode is undamped (the Lyapunov solution does not exist); "
+        "place a damper where every mode moves, or restrict Z with lowest=s.")
+
+
+# every failure, in the order a batch reports them (the first that holds anywhere wins)
+FAILURES = (RESULTS.not_definite, RESULTS.max_steps_reached, RESULTS.solver_failed,
+            RESULTS.non_finite_states, RESULTS.exact_not_finite, RESULTS.pulse_too_short,
+            RESULTS.out_of_range, RESULTS.not_damped)
+
+
+def first_failure(*cases) -> RESULTS:
+    """The result of the first ``(flag, code)`` whose flag holds; successful when none does."""
+    result = RESULTS.successful
+    for flag, code in reversed(cases):
+        result = RESULTS.where(jnp.any(flag), code, result)
+    return result
+
+
+def raise_result(out, result: RESULTS, **context):
+    """Return ``out``, failing with ``result``'s message unless it is ``successful``.
+
+    Compiled solvers return a ``RESULTS`` code instead of raising inside: a concrete code becomes
+    a plain ``ValueError`` here, so the compiled executable holds no host callback of ours; a
+    traced one (the caller's own ``jit`` or ``vmap``) becomes one ``eqx.branched_error_if``
+    (a batch reports its first failure in ``FAILURES`` order). ``context`` fills the messages'
+    fields (``max_steps``).
     """
-    if not any(is_traced(f) for f in failures):
-        for flag, message in zip(failures, messages):
-            if bool(np.any(np.asarray(flag))):
-                raise ValueError(MARK + message)
+
+    def message(code):
+        text = MARK + RESULTS[code]
+        for key, value in context.items():
+            text = text.replace("{" + key + "}", str(value))
+        return text
+
+    if not any(is_traced(leaf) for leaf in jax.tree.leaves(result)):
+        for code in FAILURES:
+            if bool(np.any(np.asarray(result == code))):
+                raise ValueError(message(code))
         return out
-    for flag, message in zip(failures, messages):
-        out = eqx.error_if(out, flag, MARK + message)
-    return out
+    # index i names ranked[i]: the batch's largest index is its first failure in FAILURES order
+    ranked = FAILURES[::-1]
+    index = sum(jnp.where(result == code, i, 0) for i, code in enumerate(ranked))
+    return eqx.branched_error_if(out, result != RESULTS.successful, index,
+                                 [message(code) for code in ranked])
+
+
+def as_flags(result: RESULTS, *codes) -> tuple:
+    """(result == code for each code): the flag tuples the optimiser still unpacks."""
+    return tuple(result == code for code in codes)
 
 
 @contextlib.contextmanager
 def callback_free_checks():
-    """Trace diffrax's own runtime checks as NaN-poisoning instead of host callbacks.
+    """Deprecated, for the optimiser only (remove with its split): traces diffrax's runtime checks
+    as NaN-poisoning instead of host callbacks by switching equinox's private module flag.
 
-    diffrax checks ``SaveAt(ts)`` with ``eqx.error_if``, which compiles to a host callback, and
-    JAX's persistent cache refuses executables holding one. Our solvers validate ``ts`` before
-    tracing and flag non-finite results themselves, so inside them equinox's ``"nan"`` mode loses
-    nothing: a failed check there yields NaN, which the non-finite flag reports. Only the module
-    default is switched, only while the solver is traced; with another equinox layout it is a no-op.
+    No solver of the core uses it: ``simulate``'s executable keeps diffrax's ``SaveAt(ts)`` check
+    (a host callback, since ``diffeqsolve`` is itself jitted and sees ``ts`` traced), so JAX's
+    persistent cache does not store it; every other compiled solve holds no callback.
     """
     from equinox import _errors as equinox_errors
 

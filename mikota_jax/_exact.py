@@ -22,10 +22,12 @@ from ._chain import generalized_modes
 from ._custom_types import Times, Vector
 from ._errors import (
     MARK,
+    RESULTS,
     check,
     check_dense_memory,
     check_x64,
-    raise_failures,
+    first_failure,
+    raise_result,
     raises_value_error,
 )
 from ._excitation import LoadFunction, Pulse
@@ -43,18 +45,11 @@ def modal_decomposition(system):
     ``SecondOrderSystem``; a stiffness that is not positive definite is a ``ValueError``.
     """
     omega2, modes = generalized_modes(system)
-    omega2 = check(omega2, omega2 <= 0, NOT_DEFINITE)
+    omega2 = check(omega2, omega2 <= 0, RESULTS[RESULTS.not_definite])
     return jnp.sqrt(omega2), modes
 
 
-NOT_FINITE = ("exact_solve produced non-finite values; check the inputs for huge or non-finite "
-              "values (a rate ||A|| h beyond ~1e20 is out of the matrix exponential's range: use "
-              "simulate(..., solver='kvaerno5')).")
 _PULSE_ERROR = 1e-6
-PULSE_TOO_SHORT = ("exact_solve: the pulse duration is too short for the piecewise-constant "
-                   "formula, which loses digits as eps / (omega_1 duration) (more than 1e-6 "
-                   "here); use its Dirac limit v0 = M^-1 (amplitude duration) e_dof, or simulate.")
-NOT_DEFINITE = "stiffness must be positive definite (a fixed-free chain with positive springs is)."
 
 
 def scaled_modal(system):
@@ -162,7 +157,10 @@ def _exact(model, ts, x0, v0, load, *, dofs, displacement, velocity):
     # the pulse enters as differences of |z*| ~ amplitude / omega: relative error eps/(omega tau)
     too_short = (jnp.finfo(omega.dtype).eps / (omega[0] * load.duration) > _PULSE_ERROR
                  if load is not None else jnp.array(False))
-    return Trajectory(ts, ys[0], ys[1], dofs, None), (not_definite, ~finite, too_short)
+    result = first_failure((not_definite, RESULTS.not_definite),
+                           (~finite, RESULTS.exact_not_finite),
+                           (too_short, RESULTS.pulse_too_short))
+    return Trajectory(ts, ys[0], ys[1], dofs, None), result
 
 
 @raises_value_error
@@ -195,6 +193,6 @@ def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = 
     x0, v0, load = check_problem(model, x0, v0, load)
     damped = system.damped
     check_dense_memory(system.size, 32 if damped else 6, "exact_solve")
-    trajectory, failures = _exact(model, ts, x0, v0, load, dofs=check_dofs(dofs, model.size),
-                                  displacement=displacement, velocity=velocity)
-    return raise_failures(trajectory, failures, (NOT_DEFINITE, NOT_FINITE, PULSE_TOO_SHORT))
+    trajectory, result = _exact(model, ts, x0, v0, load, dofs=check_dofs(dofs, model.size),
+                                displacement=displacement, velocity=velocity)
+    return raise_result(trajectory, result)

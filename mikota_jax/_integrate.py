@@ -21,16 +21,23 @@ from ._custom_types import Array, Float, Times, Vector
 from ._dampers import Dampers
 from ._errors import (
     MARK,
+    RESULTS,
+    as_flags,
     as_float,
-    callback_free_checks,
     check,
     check_x64,
-    raise_failures,
+    first_failure,
+    raise_result,
     raises_value_error,
 )
 from ._excitation import Pulse, as_load
 from ._galerkin import ReducedModel
-from ._implicit import StructuredKvaerno5, _tridiagonal_solve, choose_solver, physical_mass
+from ._implicit import (
+    StructuredKvaerno5,
+    choose_solver,
+    physical_mass,
+    symmetric_tridiagonal_solve,
+)
 from ._internal import InternalDamping
 from ._operators import Diagonal, diagonal_of
 
@@ -135,7 +142,7 @@ def acceleration(system: SecondOrderSystem, load):
         solve_mass = lambda force: inverse_mass * force  # noqa: E731
     else:  # tridiagonal (a consistent mass): one O(n) solve per evaluation
         def solve_mass(force):
-            return _tridiagonal_solve(mass.diagonal, mass.off_diagonal, force)
+            return symmetric_tridiagonal_solve(mass.diagonal, mass.off_diagonal, force)
     damping = system.damping
     if isinstance(damping, Dampers):
         grounded = damping.grounded_diagonal()
@@ -182,8 +189,9 @@ def _save_fn(n: int, lift, dofs_index, displacement: bool, velocity: bool):
 
 
 @eqx.filter_jit
-def _simulate(model, ts, x0, v0, load, rtol, atol, *, solver, dofs, displacement, velocity,
-              max_steps, progress, adjoint):
+def simulate_with_result(model, ts, x0, v0, load, rtol, atol, *, solver, dofs, displacement,
+                         velocity, max_steps, progress, adjoint):
+    """The compiled solve of ``simulate`` on checked inputs: (``Trajectory``, ``RESULTS``)."""
     system, lift, y0x, y0v, load = unpack(model, x0, v0, load)
     accel = acceleration(system, load)
     if isinstance(solver, StructuredKvaerno5):
@@ -209,17 +217,21 @@ def _simulate(model, ts, x0, v0, load, rtol, atol, *, solver, dofs, displacement
         stepsize_controller=controller, max_steps=max_steps, throw=False, progress_meter=meter,
         adjoint=adjoint)
     out = sol.ys
-    failures = solve_flags(sol, out)
-    return Trajectory(ts, out[0], out[1], dofs, sol.stats["num_steps"]), failures
+    result = solve_result(sol, out)
+    return Trajectory(ts, out[0], out[1], dofs, sol.stats["num_steps"]), result
 
 
-def solve_flags(sol, out):
-    """(max_steps reached, other diffrax failure, non-finite ``out``): the order of the messages
-    of ``solve_failure_messages``."""
+def solve_result(sol, out) -> RESULTS:
+    """Our ``RESULTS`` of a diffrax solve: max_steps reached, another diffrax failure, or
+    non-finite ``out`` (in that order)."""
     max_steps_reached = sol.result == diffrax.RESULTS.max_steps_reached
     failed = (sol.result != diffrax.RESULTS.successful) & ~max_steps_reached
     finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(a)) for a in jax.tree.leaves(out)]))
-    return max_steps_reached, failed, ~finite
+    return first_failure((max_steps_reached, RESULTS.max_steps_reached),
+                         (failed, RESULTS.solver_failed), (~finite, RESULTS.non_finite_states))
+
+
+SOLVE_FAILURES = (RESULTS.max_steps_reached, RESULTS.solver_failed, RESULTS.non_finite_states)
 
 
 def check_solve_options(rtol, atol, max_steps, adjoint):
@@ -256,18 +268,6 @@ def default_atol(rtol, model, ts, x0, v0, load):
         scale = jnp.maximum(scale, force)
     scale = jnp.where(jnp.isfinite(scale) & (scale > 0), scale, 1.0)
     return 1e-2 * rtol * scale
-
-
-def solve_failure_messages(max_steps: int) -> tuple[str, ...]:
-    return (
-        f"simulate stopped: max_steps = {max_steps} reached before ts[-1]. Increase max_steps, "
-        "loosen rtol/atol, or for a stiff case (large n, strong damper) use solver='kvaerno5' "
-        "(or 'auto'), or exact_solve.",
-        "simulate failed inside diffrax (step size collapsed or the implicit solve diverged); "
-        "check the inputs for non-finite values, or try another solver.",
-        "simulate produced non-finite states; check the inputs and tolerances, or use a stiff "
-        "solver (solver='kvaerno5').",
-    )
 
 
 @raises_value_error
@@ -315,11 +315,17 @@ def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | No
     rtol, atol, adjoint = check_solve_options(rtol, atol, max_steps, adjoint)
     if isinstance(solver, str):
         solver = SOLVERS[choose_solver(model, ts) if solver == "auto" else solver]()
-    with callback_free_checks():  # so that the persistent compilation cache can store the solve
-        trajectory, failures = _simulate(
-            model, ts, x0, v0, load, rtol, atol, solver=solver, dofs=check_dofs(dofs, model.size),
-            displacement=displacement, velocity=velocity, max_steps=max_steps, progress=progress,
-            adjoint=adjoint)
+    trajectory, result = simulate_with_result(
+        model, ts, x0, v0, load, rtol, atol, solver=solver, dofs=check_dofs(dofs, model.size),
+        displacement=displacement, velocity=velocity, max_steps=max_steps, progress=progress,
+        adjoint=adjoint)
     if throw:
-        trajectory = raise_failures(trajectory, failures, solve_failure_messages(max_steps))
+        trajectory = raise_result(trajectory, result, max_steps=max_steps)
     return trajectory
+
+
+def _simulate(*args, **kwargs):
+    """Deprecated: ``simulate_with_result`` returning the old flag tuple (max_steps reached,
+    diffrax failure, non-finite); only the optimiser still imports it."""
+    trajectory, result = simulate_with_result(*args, **kwargs)
+    return trajectory, as_flags(result, *SOLVE_FAILURES)

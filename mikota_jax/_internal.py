@@ -19,7 +19,15 @@ import jax.numpy as jnp
 
 from ._custom_types import Array, Float, ScalarLike
 from ._errors import MARK, as_float, check
-from ._operators import Dense, Diagonal, LowRank, add
+from ._operators import (
+    AbstractOperator,
+    Dense,
+    Diagonal,
+    LowRank,
+    add,
+    dense_abs_row_sums,
+    diagonal,
+)
 
 
 class Rayleigh(eqx.Module):
@@ -65,7 +73,7 @@ class InternalDamping(eqx.Module):
     """The damping of a system that is not a discrete damper: a user's matrix (``matrix``, any
     operator), ``rayleigh`` and/or ``modal``; any of them may be None."""
 
-    matrix: object = None
+    matrix: AbstractOperator | None = None
     rayleigh: Rayleigh | None = None
     modal: ModalDamping | None = None
 
@@ -106,11 +114,11 @@ class InternalDamping(eqx.Module):
         return InternalDamping(matrix, self.rayleigh, None)
 
 
-class Scaled(eqx.Module):
+class Scaled(AbstractOperator):
     """c A for a scalar c and an operator A (Rayleigh's alpha M and beta K)."""
 
     scale: Float[Array, ""]
-    operator: object
+    operator: AbstractOperator
 
     @property
     def size(self) -> int:
@@ -124,6 +132,14 @@ class Scaled(eqx.Module):
 
     def project(self, basis) -> Dense:
         return Dense(self.scale * self.operator.project(basis).as_matrix())
+
+    def abs_row_sums(self):
+        return dense_abs_row_sums(self)
+
+
+@diagonal.register(Scaled)
+def _(operator: Scaled):
+    return operator.scale * diagonal(operator.operator)
 
 
 def as_internal(internal_damping, n: int, matrix=None) -> InternalDamping | None:

@@ -3,10 +3,15 @@
 The full chain keeps its structure (a diagonal mass, a symmetric tridiagonal stiffness, a handful of
 dampers), so applying an operator costs O(n); a reduced model's mass and stiffness are dense r x r
 and its dampers stay low rank (``LowRank``, r x p with p the DOFs they touch). A user's matrices
-keep theirs: ``SymmetricBanded`` (O(n b)) and ``Sparse`` (O(nnz)). Every operator offers ``mv``
-(matrix-vector product), ``as_matrix`` (dense, only on request) and ``project(basis)`` (the
-Galerkin product ``basis^T A basis`` of eq. 3.4).
+keep theirs: ``SymmetricBanded`` (O(n b)) and ``Sparse`` (O(nnz)). Every operator is an
+``AbstractOperator`` (lineax's ``AbstractLinearOperator`` in miniature): ``size``, ``mv``
+(matrix-vector product), ``as_matrix`` (dense, only on request), ``project(basis)`` (the Galerkin
+product ``basis^T A basis`` of eq. 3.4) and ``abs_row_sums`` (Gershgorin bounds); the main
+diagonal is the single-dispatch function ``diagonal(operator)``, in each operator's structure.
 """
+
+import abc
+import functools
 
 import equinox as eqx
 import jax
@@ -16,12 +21,58 @@ import numpy as np
 from ._custom_types import Array, Basis, Float, Matrix, Vector
 
 
-def project_by_products(operator, basis: Basis) -> "Dense":
+class AbstractOperator(eqx.Module):
+    """A square linear operator applied in its structure (mass, stiffness or damping)."""
+
+    size: eqx.AbstractVar[int]
+
+    @abc.abstractmethod
+    def mv(self, x: Vector) -> Vector:
+        """A x."""
+
+    @abc.abstractmethod
+    def as_matrix(self) -> Matrix:
+        """The dense (size, size) matrix: O(size^2), only on request."""
+
+    @abc.abstractmethod
+    def project(self, basis: Basis) -> "AbstractOperator":
+        """basis^T A basis (eq. 3.4), (r, r) for an (size, r) basis."""
+
+    @abc.abstractmethod
+    def abs_row_sums(self) -> Vector:
+        """sum_j |A_ij| per row (Gershgorin bounds)."""
+
+
+@functools.singledispatch
+def diagonal(operator: AbstractOperator) -> Vector:
+    """The main diagonal of an operator, in its structure where it has one (the dense matrix's
+    otherwise)."""
+    if not isinstance(operator, AbstractOperator):
+        raise TypeError(f"not an operator: {type(operator).__name__}")
+    return jnp.diag(operator.as_matrix())
+
+
+def diagonal_of(operator: AbstractOperator) -> Vector:
+    """The main diagonal of any operator (``diagonal``; the name other modules import)."""
+    return diagonal(operator)
+
+
+def abs_row_sums(operator: AbstractOperator) -> Vector:
+    """sum_j |A_ij| per row of any operator, in its structure where it has one."""
+    return operator.abs_row_sums()
+
+
+def dense_abs_row_sums(operator: AbstractOperator) -> Vector:
+    """sum_j |A_ij| from the dense matrix (operators with no cheaper structure)."""
+    return jnp.sum(jnp.abs(operator.as_matrix()), axis=1)
+
+
+def project_by_products(operator: AbstractOperator, basis: Basis) -> "Dense":
     """basis^T A basis from r structured products A basis[:, j] (no dense A is formed)."""
     return Dense(basis.T @ jax.vmap(operator.mv, in_axes=1, out_axes=1)(basis))
 
 
-class Diagonal(eqx.Module):
+class Diagonal(AbstractOperator):
     """A diagonal matrix stored as its diagonal."""
 
     diagonal: Vector
@@ -42,8 +93,11 @@ class Diagonal(eqx.Module):
     def project(self, basis: Basis) -> "Dense":
         return Dense(basis.T @ (self.diagonal[:, None] * basis))
 
+    def abs_row_sums(self) -> Vector:
+        return jnp.abs(self.diagonal)
 
-class SymmetricTridiagonal(eqx.Module):
+
+class SymmetricTridiagonal(AbstractOperator):
     """A symmetric tridiagonal matrix: main diagonal (n,) and off-diagonal (n-1,).
 
     ``springs`` (optional): the k_i of a fixed-free chain, K = L^T diag(k) L with L the
@@ -86,7 +140,6 @@ class SymmetricTridiagonal(eqx.Module):
         return matrix
 
     def abs_row_sums(self) -> Vector:
-        """sum_j |A_ij| per row (Gershgorin bounds)."""
         off = jnp.abs(self.off_diagonal)
         rows = jnp.abs(self.diagonal) + jnp.pad(off, (0, 1)) + jnp.pad(off, (1, 0))
         if self.links:
@@ -98,7 +151,7 @@ class SymmetricTridiagonal(eqx.Module):
         return project_by_products(self, basis)
 
 
-class Dense(eqx.Module):
+class Dense(AbstractOperator):
     """A dense matrix (a reduced model's operators, or a user's dense matrix)."""
 
     matrix: Matrix
@@ -116,8 +169,11 @@ class Dense(eqx.Module):
     def project(self, basis: Basis) -> "Dense":
         return Dense(basis.T @ self.matrix @ basis)
 
+    def abs_row_sums(self) -> Vector:
+        return dense_abs_row_sums(self)
 
-class LowRank(eqx.Module):
+
+class LowRank(AbstractOperator):
     """B diag(w) B^T: projected dampers, which touch only a few DOFs (p = the DOFs touched)."""
 
     factor: Float[Array, "r p"]
@@ -136,8 +192,11 @@ class LowRank(eqx.Module):
     def project(self, basis: Basis) -> "LowRank":
         return LowRank(basis.T @ self.factor, self.weights)
 
+    def abs_row_sums(self) -> Vector:
+        return dense_abs_row_sums(self)
 
-class SymmetricBanded(eqx.Module):
+
+class SymmetricBanded(AbstractOperator):
     """A symmetric banded matrix stored as its upper bands: ``bands[j, i] = A[i, i + j]``.
 
     ``bands``: (b + 1, n) for half-bandwidth b, zero-padded at the end of band j (its last j
@@ -167,14 +226,13 @@ class SymmetricBanded(eqx.Module):
         return matrix
 
     def abs_row_sums(self) -> Vector:
-        """sum_j |A_ij| per row (Gershgorin bounds)."""
         return SymmetricBanded(jnp.abs(self.bands)).mv(jnp.ones(self.size))
 
     def project(self, basis: Basis) -> "Dense":
         return project_by_products(self, basis)
 
 
-class Sparse(eqx.Module):
+class Sparse(AbstractOperator):
     """A sparse matrix in coordinate form: entries ``values[k]`` at (``rows[k]``, ``cols[k]``).
 
     Every stored entry of a symmetric matrix appears (both triangles); 0-based indices. Applying
@@ -193,17 +251,16 @@ class Sparse(eqx.Module):
         return jnp.zeros((self.size, self.size)).at[self.rows, self.cols].add(self.values)
 
     def abs_row_sums(self) -> Vector:
-        """sum_j |A_ij| per row (Gershgorin bounds)."""
         return jax.ops.segment_sum(jnp.abs(self.values), self.rows, num_segments=self.size)
 
     def project(self, basis: Basis) -> "Dense":
         return project_by_products(self, basis)
 
 
-class Sum(eqx.Module):
+class Sum(AbstractOperator):
     """A sum of operators (a user's damping matrix plus Rayleigh or modal damping, say)."""
 
-    parts: tuple
+    parts: tuple[AbstractOperator, ...]
 
     @property
     def size(self) -> int:
@@ -218,6 +275,9 @@ class Sum(eqx.Module):
     def project(self, basis: Basis) -> "Dense":
         return Dense(sum(part.project(basis).as_matrix() for part in self.parts))
 
+    def abs_row_sums(self) -> Vector:
+        return dense_abs_row_sums(self)
+
 
 def add(*parts):
     """The sum of the operators that are not None (None when none is)."""
@@ -227,26 +287,22 @@ def add(*parts):
     return parts[0] if len(parts) == 1 else Sum(parts)
 
 
-def diagonal_of(operator) -> Vector:
-    """The main diagonal of any operator, in its structure where it has one."""
-    if hasattr(operator, "diagonal"):
-        return operator.diagonal
-    if isinstance(operator, SymmetricBanded):
-        return operator.bands[0]
-    if isinstance(operator, Sparse):
-        on = operator.rows == operator.cols
-        return jax.ops.segment_sum(jnp.where(on, operator.values, 0.0), operator.rows,
-                                   num_segments=operator.size)
-    return jnp.diag(operator.as_matrix())
+@diagonal.register(Diagonal)
+@diagonal.register(SymmetricTridiagonal)
+def _(operator) -> Vector:
+    return operator.diagonal
 
 
-def abs_row_sums(operator) -> Vector:
-    """sum_j |A_ij| per row of any operator, in its structure where it has one."""
-    if isinstance(operator, Diagonal):
-        return jnp.abs(operator.diagonal)
-    if hasattr(operator, "abs_row_sums"):
-        return operator.abs_row_sums()
-    return jnp.sum(jnp.abs(operator.as_matrix()), axis=1)
+@diagonal.register(SymmetricBanded)
+def _(operator) -> Vector:
+    return operator.bands[0]
+
+
+@diagonal.register(Sparse)
+def _(operator) -> Vector:
+    on = operator.rows == operator.cols
+    return jax.ops.segment_sum(jnp.where(on, operator.values, 0.0), operator.rows,
+                               num_segments=operator.size)
 
 
 Operator = Diagonal | SymmetricTridiagonal | SymmetricBanded | Sparse | Dense | LowRank | Sum

@@ -82,7 +82,7 @@ def test_simulate_full_model_traces_once():
     def call(system, x0=X0, v0=None, rtol=1e-8, atol=1e-10):
         return mj.simulate(system, TS, x0, v0, dofs=[2, 5, 11], rtol=rtol, atol=atol)
 
-    assert_traced_once(lambda: call(chain()), "_simulate", solver_changes(call))
+    assert_traced_once(lambda: call(chain()), "simulate_with_result", solver_changes(call))
 
 
 def test_exact_solve_full_model_traces_once():
@@ -105,4 +105,4 @@ def test_reduced_model_and_pod_trace_once():
 
     changes = solver_changes(call)
     changes["basis"] = lambda: call(chain(), b=other)
-    assert_traced_once(lambda: call(chain()), "_simulate", changes)
+    assert_traced_once(lambda: call(chain()), "simulate_with_result", changes)

@@ -231,11 +231,11 @@ def test_branched_chain_stiff_solver_keeps_the_structure_and_is_exact():
     dampers = [mj.GroundedDamper(2.0, 0.5), mj.RelativeDamper((4, 9), 0.3)]
     system = mj.branched_chain(masses, springs, 2.0, 1.0, dampers,
                                internal_damping=mj.Rayleigh(0.02, 0.01))
-    from mikota_jax._implicit import _dense_solver, shifted_solver
+    from mikota_jax._implicit import dense_shifted_solver, shifted_solver
 
     rhs = jnp.linspace(-1.0, 2.0, 9)
-    np.testing.assert_allclose(shifted_solver(system, 0.3)(rhs), _dense_solver(system, 0.3)(rhs),
-                               rtol=1e-12)
+    np.testing.assert_allclose(shifted_solver(system, 0.3)(rhs),
+                               dense_shifted_solver(system, 0.3)(rhs), rtol=1e-12)
     v0 = jnp.zeros(9).at[0].set(1.0)
     exact = mj.exact_solve(system, TS, v0=v0).displacement
     implicit = mj.simulate(system, TS, v0=v0, solver="kvaerno5", rtol=1e-10).displacement
@@ -452,13 +452,13 @@ def test_a_consistent_mass_is_solved_in_its_tridiagonal_structure():
                        internal_damping=mj.Rayleigh(0.1, 1e-3))
     assert isinstance(system.mass, SymmetricTridiagonal)
     np.testing.assert_allclose(mj.modal_decomposition(system)[0], omega, rtol=1e-12)
-    from mikota_jax._implicit import _dense_solver, shifted_solver
+    from mikota_jax._implicit import dense_shifted_solver, shifted_solver
     from mikota_jax._integrate import unpack
 
     assert unpack(system, jnp.zeros(n), jnp.zeros(n), None)[1] is None  # no modal lift
     rhs = jnp.linspace(0.0, 1.0, n)
-    np.testing.assert_allclose(shifted_solver(system, 0.01)(rhs), _dense_solver(system, 0.01)(rhs),
-                               rtol=1e-12)
+    np.testing.assert_allclose(shifted_solver(system, 0.01)(rhs),
+                               dense_shifted_solver(system, 0.01)(rhs), rtol=1e-12)
     v0 = jnp.zeros(n).at[-1].set(1.0)
     exact = mj.exact_solve(system, TS, v0=v0).displacement
     for solver in ("dopri8", "kvaerno5"):
