@@ -22,10 +22,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._design import DamperProblem, Energy
-from ._errors import MARK, check_x64
+from ._errors import MARK, RESULTS, check_x64
 from ._galerkin import galerkin
 from ._implicit import gershgorin_omega
-from ._objectives import _integrated_energy
+from ._objectives import integrated_energy_exact_with_result
 from ._operators import diagonal_of
 from ._placement_objective import _objective_fn, _reduced
 from ._plain import to_plain
@@ -49,9 +49,9 @@ class _PointObjective(eqx.Module):
         positions, coefficients = point["positions"][None], point["coefficients"][None]
         if self.exact:
             horizon = problem.ts[-1] - problem.ts[0]
-            value, (not_definite, out_of_range) = _integrated_energy(
+            value, result = integrated_energy_exact_with_result(
                 problem.system(positions, coefficients), horizon, problem.x0, problem.v0)
-            failed = not_definite | out_of_range
+            failed = result != RESULTS.successful
         else:
             value, failed = _objective_fn(problem, _reduced(problem, self.basis))(
                 positions, coefficients)

@@ -37,8 +37,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._design import DamperProblem
-from ._errors import MARK, check_x64
-from ._integrate import _simulate
+from ._errors import MARK, RESULTS, check_x64
+from ._integrate import simulate_with_result
 from ._plain import to_plain
 from ._reduction import Reduction, reduce
 from ._search import (
@@ -62,20 +62,20 @@ def _snapshots(problem, positions, coefficients, count: int):
     holds that one host callback (the check passes: the grid was checked when the problem was
     built)."""
     model = problem.system(positions, coefficients)
-    trajectory, flags = _simulate(
+    trajectory, result = simulate_with_result(
         model, problem.ts[:count], problem.x0, problem.v0, problem.load, problem.rtol,
         problem.rtol * 1e-2, solver=diffrax.Dopri8(), dofs=tuple(range(1, problem.size + 1)),
         displacement=True, velocity=False, max_steps=problem.max_steps, progress=False,
         adjoint=diffrax.RecursiveCheckpointAdjoint())
-    return trajectory.displacement, flags
+    return trajectory.displacement, result
 
 
 def _snapshot_modes(problem, positions, coefficients):
     """POD modes of a full simulation at a design (the scene's window and rank rule)."""
     ts = np.asarray(problem.ts)
     count = int(np.sum(ts <= problem.snapshots[1] + 1e-12))
-    displacement, flags = _snapshots(problem, positions, coefficients, count)
-    if any(bool(f) for f in flags):
+    displacement, result = _snapshots(problem, positions, coefficients, count)
+    if result != RESULTS.successful:
         raise ValueError(MARK + "the full-model snapshot solve failed (max_steps reached or "
                          "non-finite states) at the design "
                          f"positions={np.asarray(positions)}, "

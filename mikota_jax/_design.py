@@ -7,8 +7,9 @@ per length; a design is ``positions`` (g,) and ``coefficients`` (g,) for g groun
 
 Objectives are small Modules (``Energy``, ``AverageEnergy``, ``Peak``), named at the public
 boundary by the strings of ``OBJECTIVES``. Each says how it is evaluated on a full or Galerkin
-model (``evaluate``) and, where the reduced model's modal form makes it exact (free vibration),
-in modal coordinates (``in_modes``).
+model (``evaluate``: the value and a ``RESULTS`` code) and, where the reduced model's modal form
+makes it exact (free vibration), in modal coordinates (``in_modes``: the value and a failure
+flag).
 """
 
 from collections.abc import Sequence
@@ -23,15 +24,15 @@ from ._chain import SecondOrderSystem
 from ._dampers import Dampers, GroundedDamper, RelativeDamper
 from ._errors import MARK, check_x64
 from ._excitation import as_load
-from ._integrate import _simulate, check_dofs, check_times, initial_vector
+from ._integrate import check_dofs, check_times, initial_vector, simulate_with_result
 from ._objectives import (
-    _DOUBLINGS_FINITE,
-    _DOUBLINGS_INFINITE,
-    _doubled_gramian,
-    _first_step_too_long,
-    _integrated_energy_ode,
-    _total_average_energy,
+    DOUBLINGS_FINITE,
+    DOUBLINGS_INFINITE,
+    doubled_gramian,
+    first_step_too_long,
+    integrated_energy_ode_with_result,
     smooth_peak,
+    total_average_energy_with_result,
 )
 from ._parameters import with_parameters
 
@@ -51,7 +52,7 @@ class Energy(eqx.Module):
 
     def evaluate(self, problem, model):
         horizon = problem.ts[-1] - problem.ts[0]
-        return _integrated_energy_ode(
+        return integrated_energy_ode_with_result(
             model, horizon, problem.x0, problem.v0, problem.load, problem.rtol,
             problem.rtol * 1e-2, max_steps=problem.max_steps, adjoint=diffrax.ForwardMode())
 
@@ -59,9 +60,9 @@ class Energy(eqx.Module):
         horizon = problem.ts[-1] - problem.ts[0]
         # a fixed first step T / 2^16 (no cond: reverse mode 25 % cheaper); a damper so strong
         # that it is too long counts as a failed evaluation, never a wrong value
-        w, _ = _doubled_gramian(a, jnp.eye(a.shape[0]), horizon / 2**_DOUBLINGS_FINITE,
-                                _DOUBLINGS_FINITE)
-        return z0 @ ((w + w.T) / 2) @ z0 / 2, _first_step_too_long(a, horizon)
+        w, _ = doubled_gramian(a, jnp.eye(a.shape[0]), horizon / 2**DOUBLINGS_FINITE,
+                               DOUBLINGS_FINITE)
+        return z0 @ ((w + w.T) / 2) @ z0 / 2, first_step_too_long(a, horizon)
 
 
 class AverageEnergy(eqx.Module):
@@ -76,14 +77,14 @@ class AverageEnergy(eqx.Module):
         return True
 
     def evaluate(self, problem, model):
-        return _total_average_energy(model, lowest=self.lowest)
+        return total_average_energy_with_result(model, lowest=self.lowest)
 
     def in_modes(self, problem, omega, z0, a):
         r = omega.shape[0]
         lowest = r if self.lowest is None else min(self.lowest, r)
         select = (jnp.arange(r) < lowest).astype(a.dtype)
-        x, p = _doubled_gramian(a, jnp.diag(jnp.concatenate([select, select])),
-                                1.0 / jnp.max(omega), _DOUBLINGS_INFINITE)
+        x, p = doubled_gramian(a, jnp.diag(jnp.concatenate([select, select])),
+                               1.0 / jnp.max(omega), DOUBLINGS_INFINITE)
         return jnp.trace(x), ~(jnp.max(jnp.abs(p)) < 1e-8)
 
 
@@ -100,12 +101,12 @@ class Peak(eqx.Module):
         return False
 
     def evaluate(self, problem, model):
-        trajectory, flags = _simulate(
+        trajectory, result = simulate_with_result(
             model, problem.ts, problem.x0, problem.v0, problem.load, problem.rtol,
             problem.rtol * 1e-2, solver=diffrax.Dopri8(), dofs=(self.dof,),
             displacement=True, velocity=False, max_steps=problem.max_steps, progress=False,
             adjoint=diffrax.ForwardMode())
-        return smooth_peak(trajectory.displacement[:, 0], self.order), flags
+        return smooth_peak(trajectory.displacement[:, 0], self.order), result
 
     def in_modes(self, problem, omega, z0, a):
         raise NotImplementedError("the peak is never evaluated in modal form")

@@ -4,7 +4,6 @@ Every message starts with ``MARK`` so that the public entry points can turn equi
 (raised when a traced check fails under ``jit``) back into the ``ValueError`` a user expects.
 """
 
-import contextlib
 import functools
 
 import equinox as eqx
@@ -121,33 +120,6 @@ def raise_result(out, result: RESULTS, **context):
     index = sum(jnp.where(result == code, i, 0) for i, code in enumerate(ranked))
     return eqx.branched_error_if(out, result != RESULTS.successful, index,
                                  [message(code) for code in ranked])
-
-
-def as_flags(result: RESULTS, *codes) -> tuple:
-    """(result == code for each code): the flag tuples the optimiser still unpacks."""
-    return tuple(result == code for code in codes)
-
-
-@contextlib.contextmanager
-def callback_free_checks():
-    """Deprecated, for the optimiser only (remove with its split): traces diffrax's runtime checks
-    as NaN-poisoning instead of host callbacks by switching equinox's private module flag.
-
-    No solver of the core uses it: ``simulate``'s executable keeps diffrax's ``SaveAt(ts)`` check
-    (a host callback, since ``diffeqsolve`` is itself jitted and sees ``ts`` traced), so JAX's
-    persistent cache does not store it; every other compiled solve holds no callback.
-    """
-    from equinox import _errors as equinox_errors
-
-    previous = getattr(equinox_errors, "EQX_ON_ERROR", None)
-    if previous != "raise":  # the user chose a mode (or the layout changed): leave it
-        yield
-        return
-    equinox_errors.EQX_ON_ERROR = "nan"
-    try:
-        yield
-    finally:
-        equinox_errors.EQX_ON_ERROR = previous
 
 
 def positive_scalar(x, name: str):

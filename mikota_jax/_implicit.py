@@ -298,8 +298,3 @@ def choose_solver(model, ts) -> str:
                          "jit/vmap name the solver ('dopri8', or 'kvaerno5' for stiff cases).")
     span = float(np.asarray(ts)[-1] - np.asarray(ts)[0])
     return "kvaerno5" if stiffness_rate(model) * span > STIFF_THRESHOLD else "dopri8"
-
-
-# old names, kept until the optimiser's split is merged
-_tridiagonal_solve = symmetric_tridiagonal_solve
-_dense_solver = dense_shifted_solver

@@ -22,7 +22,6 @@ from ._dampers import Dampers
 from ._errors import (
     MARK,
     RESULTS,
-    as_flags,
     as_float,
     check,
     check_x64,
@@ -231,7 +230,6 @@ def solve_result(sol, out) -> RESULTS:
                          (failed, RESULTS.solver_failed), (~finite, RESULTS.non_finite_states))
 
 
-SOLVE_FAILURES = (RESULTS.max_steps_reached, RESULTS.solver_failed, RESULTS.non_finite_states)
 
 
 def check_solve_options(rtol, atol, max_steps, adjoint):
@@ -322,10 +320,3 @@ def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | No
     if throw:
         trajectory = raise_result(trajectory, result, max_steps=max_steps)
     return trajectory
-
-
-def _simulate(*args, **kwargs):
-    """Deprecated: ``simulate_with_result`` returning the old flag tuple (max_steps reached,
-    diffrax failure, non-finite); only the optimiser still imports it."""
-    trajectory, result = simulate_with_result(*args, **kwargs)
-    return trajectory, as_flags(result, *SOLVE_FAILURES)

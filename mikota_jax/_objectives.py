@@ -29,7 +29,6 @@ from ._custom_types import Array, Float, Vector
 from ._errors import (
     MARK,
     RESULTS,
-    as_flags,
     as_float,
     check,
     check_dense_memory,
@@ -42,7 +41,6 @@ from ._exact import modal_projection, scaled_modal, state_matrix
 from ._excitation import Pulse
 from ._galerkin import ReducedModel
 from ._integrate import (
-    SOLVE_FAILURES,
     acceleration,
     check_problem,
     check_solve_options,
@@ -250,25 +248,3 @@ def smooth_peak(values, order: int = 16) -> Float[Array, ""]:
     scale = jax.lax.stop_gradient(jnp.max(jnp.abs(values)))
     scale = jnp.where(scale > 0, scale, 1.0)
     return scale * jnp.mean((values / scale) ** order) ** (1.0 / order)
-
-
-# Old names with the old flag tuples, kept until the optimiser's split is merged.
-_DOUBLINGS_FINITE = DOUBLINGS_FINITE
-_DOUBLINGS_INFINITE = DOUBLINGS_INFINITE
-_doubled_gramian = doubled_gramian
-_first_step_too_long = first_step_too_long
-
-
-def _integrated_energy(model, horizon, x0, v0):
-    value, result = integrated_energy_exact_with_result(model, horizon, x0, v0)
-    return value, as_flags(result, RESULTS.not_definite, RESULTS.out_of_range)
-
-
-def _integrated_energy_ode(*args, **kwargs):
-    value, result = integrated_energy_ode_with_result(*args, **kwargs)
-    return value, as_flags(result, *SOLVE_FAILURES)
-
-
-def _total_average_energy(model, *, lowest):
-    value, result = total_average_energy_with_result(model, lowest=lowest)
-    return value, as_flags(result, RESULTS.not_definite, RESULTS.not_damped)

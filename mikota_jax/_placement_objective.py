@@ -15,7 +15,7 @@ import jax.numpy as jnp
 
 from ._chain import SecondOrderSystem, generalized_modes
 from ._design import DamperProblem
-from ._errors import MARK
+from ._errors import MARK, RESULTS
 from ._exact import state_matrix
 from ._galerkin import ReducedModel, galerkin
 from ._parameters import check_parameters
@@ -68,8 +68,8 @@ def _reduced(problem: DamperProblem, basis):
 
 def _evaluate(problem: DamperProblem, model):
     """(objective value, failed) of a full or reduced model; ODE solves use forward mode."""
-    value, flags = problem.objective.evaluate(problem, model)
-    failed = jnp.any(jnp.stack([jnp.any(f) for f in flags])) | ~jnp.isfinite(value)
+    value, result = problem.objective.evaluate(problem, model)
+    failed = jnp.any(result != RESULTS.successful) | ~jnp.isfinite(value)
     return value, failed
 
 
