@@ -19,7 +19,6 @@ from ._brute_force import sweep_dampers as sweep_dampers
 from ._cache import enable_compilation_cache as enable_compilation_cache
 from ._certify import PlacementResult as PlacementResult
 from ._certify import optimise_dampers as optimise_dampers
-from ._chain import SecondOrderSystem as SecondOrderSystem
 from ._chain import branched_chain as branched_chain
 from ._chain import chain as chain
 from ._chain import mikota_chain as mikota_chain
@@ -27,7 +26,6 @@ from ._dampers import GroundedDamper as GroundedDamper
 from ._dampers import RelativeDamper as RelativeDamper
 from ._design import DamperProblem as DamperProblem
 from ._exact import exact_solve as exact_solve
-from ._exact import modal_decomposition as modal_decomposition
 from ._excitation import LoadFunction as LoadFunction
 from ._excitation import Pulse as Pulse
 from ._excitation import pulse as pulse
@@ -35,17 +33,16 @@ from ._excitation import unit_vector as unit_vector
 from ._galerkin import ReducedModel as ReducedModel
 from ._galerkin import galerkin as galerkin
 from ._implicit import StructuredKvaerno5 as StructuredKvaerno5
-from ._implicit import choose_solver as choose_solver
 from ._integrate import Trajectory as Trajectory
 from ._integrate import simulate as simulate
-from ._internal import ModalDamping as ModalDamping
-from ._internal import Rayleigh as Rayleigh
+from ._internal_damping import ModalDamping as ModalDamping
+from ._internal_damping import Rayleigh as Rayleigh
 from ._io import load_matrix as load_matrix
 from ._io import save_matrix_market as save_matrix_market
-from ._matrices import system as system
 from ._metrics import phase_error as phase_error
 from ._metrics import pseudo_energy as pseudo_energy
 from ._metrics import relative_error as relative_error
+from ._modal import modal_decomposition as modal_decomposition
 from ._objectives import integrated_energy as integrated_energy
 from ._objectives import smooth_peak as smooth_peak
 from ._objectives import total_average_energy as total_average_energy
@@ -64,8 +61,11 @@ from ._sensitivity import SceneFunction as SceneFunction
 from ._sensitivity import Sensitivities as Sensitivities
 from ._sensitivity import scene_parameters as scene_parameters
 from ._sensitivity import sensitivities as sensitivities
+from ._solver_choice import choose_solver as choose_solver
 from ._sweep import grid as grid
 from ._sweep import sweep as sweep
+from ._system import SecondOrderSystem as SecondOrderSystem
+from ._user_matrices import system as system
 
 __version__ = "0.1.0"
 

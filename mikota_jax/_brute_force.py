@@ -24,11 +24,11 @@ import numpy as np
 from ._design import DamperProblem, Energy
 from ._errors import MARK, RESULTS, check_x64
 from ._galerkin import galerkin
-from ._implicit import gershgorin_omega
 from ._objectives import integrated_energy_exact_with_result
 from ._operators import diagonal_of
 from ._placement_objective import _objective_fn, _reduced
 from ._plain import to_plain
+from ._solver_choice import gershgorin_omega
 from ._sweep import sweep
 
 

@@ -1,4 +1,4 @@
-"""Second-order systems M x'' + D x' + K x = f, fixed-free and branched chains (eqs. 2.1-2.3, 3.1).
+"""Fixed-free and branched chains (eqs. 2.1-2.3) as ``SecondOrderSystem``s (eq. 3.1).
 
 Chain conventions: DOF i = 1..n (1-based) carries mass m_i and is tied to DOF i-1 by spring k_i;
 DOF 0 is the fixed support, DOF n is free. So K = tridiag(-k_i, k_i + k_{i+1}, -k_{i+1}) with
@@ -11,80 +11,14 @@ damping coefficients in force * time per length, times, frequencies in rad per u
 
 from collections.abc import Sequence
 
-import equinox as eqx
 import jax.numpy as jnp
-import jax.scipy.linalg as jsl
 
 from ._custom_types import ScalarLike, Vector
-from ._dampers import Dampers, GroundedDamper, RelativeDamper
+from ._dampers import GroundedDamper, RelativeDamper
 from ._errors import MARK, as_float, check, positive_scalar
-from ._internal import InternalDamping, ModalDamping, Rayleigh, as_internal
-from ._operators import Diagonal, Operator, SymmetricTridiagonal, add
-
-
-class SecondOrderSystem(eqx.Module):
-    """A linear second-order system M x'' + D x' + K x = f (eq. 3.1), with structured operators.
-
-    ``mass`` M and ``stiffness`` K (force per length) are n x n operators: diagonal and symmetric
-    tridiagonal for a chain (eq. 2.2), dense for a reduced model, banded or sparse for a user's
-    matrices; ``damping`` is the discrete dampers' operator (low rank once projected), ``internal``
-    the rest of D (a user's matrix, Rayleigh, modal damping), each ``None`` when absent; D (force *
-    time per length) is their sum. Build with ``mikota_chain``, ``chain``, ``branched_chain`` or
-    ``system``; ``simulate`` and ``exact_solve`` solve it.
-    """
-
-    mass: Operator
-    stiffness: Operator
-    damping: Dampers | Operator | None = None
-    internal: InternalDamping | None = None
-
-    @property
-    def size(self) -> int:
-        """n, the number of DOFs."""
-        return self.mass.size
-
-    @property
-    def damped(self) -> bool:
-        """Whether D is present (dampers or internal damping)."""
-        return self.damping is not None or self.internal is not None
-
-    def modes(self):
-        """(omega^2, U): K U = M U diag(omega^2), U^T M U = I, ascending (unchecked)."""
-        return generalized_modes(self)
-
-    def damping_operator(self):
-        """D as one operator (dampers plus internal damping), or None when undamped."""
-        internal = None if self.internal is None else self.internal.operator(
-            self.mass, self.stiffness, self.modes)
-        return add(self.damping, internal)
-
-    def dense(self):
-        """(M, D, K) as dense (n, n) arrays (D is None when undamped): for small systems, checks."""
-        damping = self.damping_operator()
-        damping = None if damping is None else damping.as_matrix()
-        return self.mass.as_matrix(), damping, self.stiffness.as_matrix()
-
-    def project(self, basis) -> "SecondOrderSystem":
-        """The r-DOF system (basis^T M basis, basis^T D basis, basis^T K basis) of eq. (3.4).
-
-        ``basis`` is (n, r); the result has dense r x r mass and stiffness and low-rank dampers;
-        Rayleigh damping stays Rayleigh damping of the projected M and K (exact), modal or a
-        user's damping becomes a dense r x r matrix. ``galerkin`` checks the basis and keeps it
-        for the lift (eq. 3.2); prefer it.
-        """
-        damping = None if self.damping is None else self.damping.project(basis)
-        internal = None if self.internal is None else self.internal.project(
-            basis, self.mass, self.stiffness, self.modes)
-        return SecondOrderSystem(self.mass.project(basis), self.stiffness.project(basis), damping,
-                                 internal)
-
-
-def _damping(n: int, dampers) -> Dampers | None:
-    dampers = tuple(dampers)
-    for d in dampers:
-        if not isinstance(d, GroundedDamper | RelativeDamper):
-            raise ValueError(MARK + f"dampers must be GroundedDamper or RelativeDamper, got {d!r}.")
-    return Dampers(n, dampers) if dampers else None
+from ._internal_damping import ModalDamping, Rayleigh, as_internal
+from ._operators import Diagonal, SymmetricTridiagonal
+from ._system import SecondOrderSystem, dampers_operator
 
 
 def chain(masses: Sequence[float] | Vector, springs: Sequence[float] | Vector,
@@ -110,7 +44,7 @@ def chain(masses: Sequence[float] | Vector, springs: Sequence[float] | Vector,
     n = masses.shape[0]
     next_springs = jnp.concatenate([springs[1:], jnp.zeros(1)])  # k_{i+1}, with k_{n+1} = 0
     stiffness = SymmetricTridiagonal(springs + next_springs, -springs[1:], springs)
-    return SecondOrderSystem(Diagonal(masses), stiffness, _damping(n, dampers),
+    return SecondOrderSystem(Diagonal(masses), stiffness, dampers_operator(n, dampers),
                              as_internal(internal_damping, n))
 
 
@@ -192,33 +126,5 @@ def branched_chain(masses: Sequence[Vector], springs: Sequence[Vector], hub_mass
         jnp.concatenate(diagonal), jnp.concatenate(off), None, tuple(links),
         jnp.stack(link_springs) if links else None)
     mass = Diagonal(jnp.concatenate([m for m, _ in branches] + [hub_mass[None]]))
-    return SecondOrderSystem(mass, stiffness, _damping(n, dampers),
+    return SecondOrderSystem(mass, stiffness, dampers_operator(n, dampers),
                              as_internal(internal_damping, n))
-
-
-def generalized_modes(system: SecondOrderSystem):
-    """(omega^2, U): K U = M U diag(omega^2), U^T M U = I, ascending; omega^2 is not checked."""
-    stiffness = system.stiffness
-    springs = stiffness.springs if isinstance(stiffness, SymmetricTridiagonal) else None
-    if isinstance(system.mass, Diagonal) and springs is not None:
-        # K = L^T diag(k) L: the singular values of C = diag(sqrt k) L M^-1/2 are the omega_l, to
-        # full relative accuracy (eigh of M^-1/2 K M^-1/2 only to eps ||K||: the lowest omega of
-        # a chain with masses over 12 decades came out 1e-3 off); C^T C = M^-1/2 K M^-1/2.
-        scale = 1 / jnp.sqrt(system.mass.diagonal)
-        n = scale.shape[0]
-        factor = jnp.sqrt(springs)[:, None] * (jnp.eye(n) - jnp.eye(n, k=-1)) * scale[None, :]
-        _, sigma, vectors_t = jnp.linalg.svd(factor)
-        return sigma[::-1] ** 2, scale[:, None] * vectors_t[::-1].T
-    if isinstance(system.mass, Diagonal):
-        scale = 1 / jnp.sqrt(system.mass.diagonal)
-        symmetric = scale[:, None] * system.stiffness.as_matrix() * scale[None, :]
-        omega2, vectors = jnp.linalg.eigh(symmetric)
-        modes = scale[:, None] * vectors
-    else:
-        lower = jnp.linalg.cholesky(system.mass.as_matrix())
-        inv_k = jsl.solve_triangular(lower, system.stiffness.as_matrix(), lower=True)
-        symmetric = jsl.solve_triangular(lower, inv_k.T, lower=True)
-        omega2, vectors = jnp.linalg.eigh((symmetric + symmetric.T) / 2)
-        modes = jsl.solve_triangular(lower.T, vectors, lower=False)
-    return omega2, modes
-

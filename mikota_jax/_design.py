@@ -20,7 +20,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ._chain import SecondOrderSystem
 from ._dampers import Dampers, GroundedDamper, RelativeDamper
 from ._errors import MARK, check_x64
 from ._excitation import as_load
@@ -35,6 +34,7 @@ from ._objectives import (
     total_average_energy_with_result,
 )
 from ._parameters import with_parameters
+from ._system import SecondOrderSystem
 
 
 class Energy(eqx.Module):

@@ -18,7 +18,6 @@ import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 
-from ._chain import generalized_modes
 from ._custom_types import Times, Vector
 from ._errors import (
     MARK,
@@ -33,45 +32,9 @@ from ._errors import (
 from ._excitation import LoadFunction, Pulse
 from ._galerkin import ReducedModel
 from ._integrate import Trajectory, check_dofs, check_problem, check_times, unpack
-from ._operators import Diagonal
-
-
-def modal_decomposition(system):
-    """Eigenfrequencies and M-orthonormal mode shapes (omega, U) of a system's M and K.
-
-    ``omega``: (n,), ascending, in rad per unit time (l sqrt(k/m) for Mikota's chain, eq. 2.4);
-    ``U``: (n, n), column l - 1 is mode l (proportional to u_l of eq. 2.5 for Mikota's chain),
-    with U^T M U = I and U^T K U = diag(omega^2) (eq. 2.7). Damping is ignored. For a
-    ``SecondOrderSystem``; a stiffness that is not positive definite is a ``ValueError``.
-    """
-    omega2, modes = generalized_modes(system)
-    omega2 = check(omega2, omega2 <= 0, RESULTS[RESULTS.not_definite])
-    return jnp.sqrt(omega2), modes
-
+from ._modal import modal_projection, scaled_modal, state_matrix
 
 _PULSE_ERROR = 1e-6
-
-
-def scaled_modal(system):
-    """(omega, U, U^T D U or None, not_definite) of a system with M-orthonormal modes U.
-
-    In the scaled modal coordinates z = (Omega eta, eta'), x = U eta, the state matrix is
-    A = [[0, Omega], [-Omega, -U^T D U]] and the energy (x^T K x + x'^T M x') / 2 is |z|^2 / 2.
-    """
-    omega2, modes = generalized_modes(system)
-    not_definite = jnp.any(omega2 <= 0)
-    omega = jnp.sqrt(jnp.where(omega2 > 0, omega2, 1.0))  # no NaN below; flagged instead
-    damping_modal, damping = None, system.damping_operator()
-    if damping is not None:
-        damping_modal = modes.T @ jax.vmap(damping.mv, in_axes=1, out_axes=1)(modes)
-    return omega, modes, damping_modal, not_definite
-
-
-def state_matrix(omega, damping_modal):
-    """A = [[0, Omega], [-Omega, -D_modal]] of the scaled modal coordinates."""
-    n = omega.shape[0]
-    damping_modal = jnp.zeros((n, n)) if damping_modal is None else damping_modal
-    return jnp.block([[jnp.zeros((n, n)), jnp.diag(omega)], [-jnp.diag(omega), -damping_modal]])
 
 
 _MAX_SQUARINGS = 64
@@ -94,14 +57,6 @@ def _propagator(omega, damping_modal):
         return lambda z: p @ z
 
     return apply
-
-
-def modal_projection(system, modes):
-    """y -> U^T M y: modal coordinates of a physical vector (U^T M U = I)."""
-    if isinstance(system.mass, Diagonal):
-        return lambda y: modes.T @ (system.mass.diagonal * y)
-    mass = system.mass.as_matrix()
-    return lambda y: modes.T @ (mass @ y)
 
 
 @eqx.filter_jit

@@ -11,9 +11,9 @@ mass), unnormalised ones, or POMs that lost orthogonality (Sirovich's method far
 import equinox as eqx
 import jax.numpy as jnp
 
-from ._chain import SecondOrderSystem
 from ._custom_types import Basis, Vector
 from ._errors import MARK, check
+from ._system import SecondOrderSystem
 
 # The error of the reduced initial state and of the lift is of this order. The bases this package
 # builds are orthonormal to ~1e-15 (SVD, QR), or to ~1e-8 after basis enrichment.

@@ -16,7 +16,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._chain import SecondOrderSystem, generalized_modes
 from ._custom_types import Array, Float, Times, Vector
 from ._dampers import Dampers
 from ._errors import (
@@ -31,14 +30,12 @@ from ._errors import (
 )
 from ._excitation import Pulse, as_load
 from ._galerkin import ReducedModel
-from ._implicit import (
-    StructuredKvaerno5,
-    choose_solver,
-    physical_mass,
-    symmetric_tridiagonal_solve,
-)
-from ._internal import InternalDamping
+from ._implicit import StructuredKvaerno5, physical_mass, symmetric_tridiagonal_solve
+from ._internal_damping import InternalDamping
+from ._modal import generalized_modes
 from ._operators import Diagonal, diagonal_of
+from ._solver_choice import choose_solver
+from ._system import SecondOrderSystem
 
 SOLVERS = {
     "tsit5": diffrax.Tsit5,

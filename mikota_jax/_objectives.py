@@ -37,7 +37,6 @@ from ._errors import (
     raise_result,
     raises_value_error,
 )
-from ._exact import modal_projection, scaled_modal, state_matrix
 from ._excitation import Pulse
 from ._galerkin import ReducedModel
 from ._integrate import (
@@ -47,6 +46,7 @@ from ._integrate import (
     solve_result,
     unpack,
 )
+from ._modal import modal_projection, scaled_modal, state_matrix
 
 DOUBLINGS_FINITE = 16  # first step at most T / 2^16: Van Loan's exponential stays well scaled
 _DOUBLINGS_MAX = 60  # ... and at least T / 2^60: ||A h|| <= 8 up to rates of 1e17 / T

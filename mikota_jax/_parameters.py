@@ -22,11 +22,11 @@ messages the constructors (``chain``, ``Dampers``, ``Rayleigh``, ``ModalDamping`
 import equinox as eqx
 import jax.numpy as jnp
 
-from ._chain import SecondOrderSystem
 from ._custom_types import Vector
 from ._dampers import Dampers
 from ._errors import MARK, check
 from ._operators import Diagonal, SymmetricTridiagonal
+from ._system import SecondOrderSystem
 
 PARAMETERS = ("m", "k", "masses", "springs", "positions", "coefficients", "relative_coefficients",
               "alpha", "beta", "zeta")

@@ -13,12 +13,12 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ._chain import SecondOrderSystem, generalized_modes
 from ._design import DamperProblem
 from ._errors import MARK, RESULTS
-from ._exact import state_matrix
 from ._galerkin import ReducedModel, galerkin
+from ._modal import generalized_modes, state_matrix
 from ._parameters import check_parameters
+from ._system import SecondOrderSystem
 
 
 class _ModalROM(eqx.Module):

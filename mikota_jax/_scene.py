@@ -9,10 +9,10 @@ layer's job (``load_scene``), so the core library never parses TOML.
 
 import equinox as eqx
 
-from ._chain import SecondOrderSystem
 from ._custom_types import Times, Vector
 from ._excitation import Pulse
 from ._reduction import Reduction
+from ._system import SecondOrderSystem
 
 # what [output] quantities may name: histories ("full"/"reduced" columns), POD outputs, metrics
 QUANTITIES = ("displacement", "velocity", "singular_values", "rank", "phase_error", "modes",

@@ -41,7 +41,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._chain import SecondOrderSystem
 from ._dampers import Dampers
 from ._errors import MARK, as_float
 from ._excitation import Pulse
@@ -52,6 +51,7 @@ from ._parameters import check_parameters, is_chain, with_parameters
 from ._reduction import reduce, snapshot_window
 from ._run import solve_scene as _solve
 from ._scene import Scene
+from ._system import SecondOrderSystem
 
 OUTPUTS = ("displacement", "velocity", "energy", "phase_error", "singular_values")
 PARAMETERS = ("m", "k", "masses", "springs", "positions", "coefficients", "relative_coefficients",

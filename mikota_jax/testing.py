@@ -11,9 +11,9 @@ the private modules:
   the structure of an array.
 """
 
-from ._implicit import stiffness_rate as stiffness_rate
 from ._operators import Dense as Dense
 from ._operators import Diagonal as Diagonal
 from ._operators import Sparse as Sparse
+from ._solver_choice import stiffness_rate as stiffness_rate
 
 __all__ = ["Dense", "Diagonal", "Sparse", "stiffness_rate"]

@@ -411,7 +411,7 @@ def test_readme_beyond_mikota_snippet_runs_and_its_gradient_is_right(capsys):
 
 
 def test_definiteness_of_a_tridiagonal_with_links_is_checked_in_o_n(monkeypatch):
-    import mikota_jax._matrices as matrices
+    import mikota_jax._user_matrices as matrices
 
     masses, springs = branched()
     m, k = assembled_branched(masses, springs, 2.0, 1.0)

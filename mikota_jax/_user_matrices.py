@@ -27,11 +27,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._chain import SecondOrderSystem, _damping
 from ._dampers import GroundedDamper, RelativeDamper
 from ._errors import MARK, as_float, check, is_traced
-from ._internal import ModalDamping, Rayleigh, as_internal
+from ._internal_damping import ModalDamping, Rayleigh, as_internal
 from ._operators import Dense, Diagonal, Sparse, SymmetricBanded, SymmetricTridiagonal
+from ._system import SecondOrderSystem, dampers_operator
 
 # definiteness of a non-tridiagonal matrix is checked densely (Cholesky / eigvalsh) up to this n
 DENSE_CHECK_LIMIT = 4000
@@ -214,5 +214,5 @@ def system(mass, stiffness, damping=None, *,
     stiffness = _check(stiffness, "stiffness", True, check_definite)
     if matrix is not None:
         matrix = _check(matrix, "damping", False, check_definite)
-    return SecondOrderSystem(mass, stiffness, _damping(n, dampers),
+    return SecondOrderSystem(mass, stiffness, dampers_operator(n, dampers),
                              as_internal(internal_damping, n, matrix))
