@@ -26,7 +26,7 @@ from ._errors import MARK, RESULTS, check_x64
 from ._galerkin import galerkin
 from ._objectives import integrated_energy_exact_with_result
 from ._operators import diagonal_of
-from ._placement_objective import _objective_fn, _reduced
+from ._placement_objective import objective_function, reduced_form
 from ._plain import to_plain
 from ._solver_choice import gershgorin_omega
 from ._sweep import sweep
@@ -53,7 +53,7 @@ class _PointObjective(eqx.Module):
                 problem.system(positions, coefficients), horizon, problem.x0, problem.v0)
             failed = result != RESULTS.successful
         else:
-            value, failed = _objective_fn(problem, _reduced(problem, self.basis))(
+            value, failed = objective_function(problem, reduced_form(problem, self.basis))(
                 positions, coefficients)
         finite = jnp.isfinite(value)
         return dict(value=jnp.where(finite, value, 0.0), finite=finite, failed=failed)

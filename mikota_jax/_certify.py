@@ -43,14 +43,14 @@ from ._plain import to_plain
 from ._reduction import Reduction, reduce
 from ._search import (
     OPTIMIZERS,
-    _best,
-    _default_starts,
-    _inverse,
-    _last_finite,
-    _phase_record,
-    _realisable_candidates,
-    _search,
-    _value_and_gradient,
+    best_index,
+    default_starts,
+    last_finite,
+    phase_record,
+    realisable_candidates,
+    run_search,
+    to_unconstrained,
+    value_and_gradient,
 )
 
 
@@ -174,7 +174,7 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
     if isinstance(starts, int | np.integer) and not isinstance(starts, bool):
         if starts < 1:
             raise ValueError(MARK + f"starts must be >= 1, got {starts}.")
-        start_positions = _default_starts(problem, int(starts), seed)
+        start_positions = default_starts(problem, int(starts), seed)
     else:
         start_positions = np.asarray(starts, dtype=float)
         if start_positions.ndim == 1 and g == 1:
@@ -197,57 +197,57 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
         return out
 
     basis = full_timed(_snapshot_modes, problem, problem.positions, problem.coefficients)
-    value0, _, _, failed0 = _value_and_gradient(problem, basis, problem.positions,
+    value0, _, _, failed0 = value_and_gradient(problem, basis, problem.positions,
                                                 problem.coefficients)
     if bool(failed0):
         raise ValueError(MARK + "the reduced objective is not finite at the problem's own "
                          "design; check the excitation and the dampers.")
-    params = _inverse(n, c_ref, start_positions,
+    params = to_unconstrained(n, c_ref, start_positions,
                       np.broadcast_to(coefficients0, start_positions.shape))
     dummy = jnp.zeros(start_positions.shape)
     certified, status, relaxed, shortlist = False, "", None, None
     for round_ in range(max_rounds):
         if split or g > 1:
-            search = _search(problem, basis, c_ref, params, dummy, optimizer=optimizer,
+            search = run_search(problem, basis, c_ref, params, dummy, optimizer=optimizer,
                              iterations=iterations, learning_rate=learning_rate,
                              positions_fixed=False, tol=1e-7, progress=progress,
                              label=f"round {round_ + 1}: relaxed search", race=round_ == 0)
-            history.append(_phase_record("search", round_, search))
+            history.append(phase_record("search", round_, search))
             dead = int(np.sum(~search.alive))
             if dead:
                 messages.append(f"round {round_ + 1}: {dead} of {len(search.alive)} starts "
                                 "stopped (objective not finite or solve failed); the rest went "
                                 "on.")
-            last = _last_finite(search)
+            last = last_finite(search)
             if last is None:
                 raise ValueError(MARK + "optimise_dampers stopped: the objective was not finite "
                                  "at any start (a solve failed); try other starts or a larger "
                                  "max_steps.")
-            best = _best(last[2])
+            best = best_index(last[2])
             relaxed = tuple(a[best] for a in last)
             params = search.params
         if split:
             positions, coefficients = relaxed[0], relaxed[1]
         else:
-            cand_p, cand_c, shortlist = _realisable_candidates(
+            cand_p, cand_c, shortlist = realisable_candidates(
                 problem, basis, relaxed, shortlist, keep, round_, history)
-            polish = _search(problem, basis, c_ref, _inverse(n, c_ref, cand_p, cand_c),
+            polish = run_search(problem, basis, c_ref, to_unconstrained(n, c_ref, cand_p, cand_c),
                              jnp.asarray(cand_p), optimizer="lbfgs",
                              iterations=polish_iterations, learning_rate=learning_rate,
                              positions_fixed=True, tol=1e-9, progress=progress,
                              label=f"round {round_ + 1}: polish")
-            history.append(_phase_record("polish", round_, polish))
-            polished = _last_finite(polish)
+            history.append(phase_record("polish", round_, polish))
+            polished = last_finite(polish)
             if polished is None:
                 raise ValueError(MARK + "optimise_dampers stopped: the objective was not finite "
                                  "at any screened DOF (every solve failed); try a larger "
                                  "max_steps.")
-            k = _best(polished[2])
+            k = best_index(polished[2])
             positions, coefficients = polished[0][k], polished[1][k]
         positions, coefficients = jnp.asarray(positions), jnp.asarray(coefficients)
         full_value, full_gp, full_gc, full_failed = full_timed(
-            _value_and_gradient, problem, None, positions, coefficients)
-        rom_value, rom_gp, rom_gc, _ = _value_and_gradient(problem, basis, positions,
+            value_and_gradient, problem, None, positions, coefficients)
+        rom_value, rom_gp, rom_gc, _ = value_and_gradient(problem, basis, positions,
                                                            coefficients)
         if bool(full_failed):
             raise ValueError(MARK + "the full-model solve at the optimum failed (max_steps "

@@ -59,7 +59,7 @@ def _modal_objective(problem: DamperProblem, rom: _ModalROM, positions, coeffici
     return value, rom.not_definite | undamped | ~jnp.isfinite(value)
 
 
-def _reduced(problem: DamperProblem, basis):
+def reduced_form(problem: DamperProblem, basis):
     """What the objective needs of a basis: a ``_ModalROM`` where it is exact, else the basis."""
     if basis is None or not problem.objective.exact_in_modes(problem):
         return basis
@@ -73,8 +73,9 @@ def _evaluate(problem: DamperProblem, model):
     return value, failed
 
 
-def _objective_fn(problem: DamperProblem, reduced):
-    """(positions, coefficients) -> (value, failed): ``reduced`` from ``_reduced`` or None (full).
+def objective_function(problem: DamperProblem, reduced):
+    """(positions, coefficients) -> (value, failed); ``reduced`` from ``reduced_form``, or None
+    for the full model.
 
     Reverse-mode differentiable. A ``_ModalROM`` is exact (matrix exponentials, reverse mode);
     every diffrax solve is differentiated in forward mode, wrapped in a custom VJP (the design
@@ -139,7 +140,7 @@ def placement_objective(problem: DamperProblem, basis=None):
         coefficients = jnp.atleast_1d(jnp.asarray(coefficients, jnp.float64))
         design = check_parameters(problem.base, dict(positions=positions,
                                                      coefficients=coefficients))
-        value, failed = _objective_fn(problem, _reduced(problem, basis))(
+        value, failed = objective_function(problem, reduced_form(problem, basis))(
             design["positions"], design["coefficients"])
         return jnp.where(failed, jnp.nan, value)
 

@@ -2,13 +2,13 @@
 
 * ``_search`` iterates ``_step``: one optax step (Adam or L-BFGS) for every start of a batch, on
   unconstrained variables, position = 1 + (n - 1) sigmoid(u) in [1, n] and coefficient
-  = c_ref exp(w) >= 0 (``_transform``), so every design is valid by construction and the
+  = c_ref exp(w) >= 0 (``from_unconstrained``), so every design is valid by construction and the
   compiled step holds no check (no host callback) of ours. With ``positions_fixed`` it is the
   *polish*: L-BFGS in log c at fixed positions.
 * ``_screen``: the reduced objective at every DOF with three coefficients around its local
   scale 2 sqrt(K_jj M_jj); a parabola in log c estimates the best (Section 5: the objective over
   the DOFs is rugged, so no relaxation points to the best DOF).
-* ``_realisable_candidates``: the designs at DOFs that the polish starts from.
+* ``realisable_candidates``: the designs at DOFs that the polish starts from.
 
 Shapes: S starts, g dampers; positions (S, g), 1-based; paths (iterations, S, g).
 """
@@ -23,18 +23,18 @@ import optax
 
 from ._design import DamperProblem
 from ._operators import diagonal_of
-from ._placement_objective import _objective_fn, _reduced
+from ._placement_objective import objective_function, reduced_form
 
 _W_BOUND = 40.0  # |log(c / c_ref)| <= 40: coefficients stay finite
 
 
-def _transform(n: int, c_ref, u, w):
+def from_unconstrained(n: int, c_ref, u, w):
     """Unconstrained (u, w) -> positions in [1, n], coefficients c_ref exp(w) >= 0."""
     positions = 1.0 + (n - 1) * jax.nn.sigmoid(u) if n > 1 else jnp.ones_like(u)
     return positions, c_ref * jnp.exp(jnp.clip(w, -_W_BOUND, _W_BOUND))
 
 
-def _inverse(n: int, c_ref, positions, coefficients):
+def to_unconstrained(n: int, c_ref, positions, coefficients):
     """Positions in [1, n] and coefficients >= 0 -> unconstrained (u, w) (clipped at the ends)."""
     frac = np.clip((np.asarray(positions) - 1.0) / max(n - 1, 1), 1e-6, 1 - 1e-6)
     ratio = np.maximum(np.asarray(coefficients) / np.asarray(c_ref), np.exp(-_W_BOUND))
@@ -58,10 +58,10 @@ def _optimizer(name: str, learning_rate):
 
 def _loss(problem, reduced, c_ref, params, fixed, positions_fixed: bool):
     """(objective, (positions, coefficients, failed)) at unconstrained params; NaN on failure."""
-    positions, coefficients = _transform(problem.size, c_ref, *params)
+    positions, coefficients = from_unconstrained(problem.size, c_ref, *params)
     if positions_fixed:
         positions = fixed
-    value, failed = _objective_fn(problem, reduced)(positions, coefficients)
+    value, failed = objective_function(problem, reduced)(positions, coefficients)
     return jnp.where(failed, jnp.nan, value), (positions, coefficients, failed)
 
 
@@ -77,10 +77,10 @@ def _step(problem, basis, c_ref, params, state, fixed, alive, active, learning_r
     matrix exponentials cost more than the same ones in turn); an inactive start is skipped, a
     start whose objective fails stops where it is (``ok`` false)."""
     opt = _optimizer(optimizer, learning_rate)
-    reduced = _reduced(problem, basis)
+    reduced = reduced_form(problem, basis)
 
     def skip(params, state, fixed, alive):
-        positions, coefficients = _transform(problem.size, c_ref, *params)
+        positions, coefficients = from_unconstrained(problem.size, c_ref, *params)
         if positions_fixed:
             positions = fixed
         nan = jnp.asarray(jnp.nan, positions.dtype)
@@ -132,7 +132,7 @@ class _Search:
     alive: np.ndarray  # (starts,)
 
 
-def _search(problem, basis, c_ref, params, fixed, *, optimizer, iterations, learning_rate,
+def run_search(problem, basis, c_ref, params, fixed, *, optimizer, iterations, learning_rate,
             positions_fixed, tol, progress, label, race: bool = False) -> _Search:
     """Iterate ``_step``; with ``race``, the worse half of the running starts stops after a
     quarter and after half of the iterations (successive halving), so that most of the work goes
@@ -180,10 +180,10 @@ def _progress(progress: bool, total: int, label: str):
 
 
 @eqx.filter_jit
-def _value_and_gradient(problem, basis, positions, coefficients):
+def value_and_gradient(problem, basis, positions, coefficients):
     """(objective, d/dpositions, d/dcoefficients, failed) of the reduced (basis) or full model."""
     (value, failed), (gp, gc) = jax.value_and_grad(
-        _objective_fn(problem, _reduced(problem, basis)), argnums=(0, 1), has_aux=True)(
+        objective_function(problem, reduced_form(problem, basis)), argnums=(0, 1), has_aux=True)(
         positions, coefficients)
     return value, gp, gc, failed
 
@@ -195,7 +195,7 @@ _SCREEN_RATIO = 3.0  # trial coefficients s_j / 3, s_j, 3 s_j around the local s
 def _screen_values(problem, basis, positions, coefficients, index, dofs, trials):
     """The reduced objective with damper ``index`` moved to each of ``dofs`` and given each of
     ``trials`` (J, 3) coefficients, the other dampers as they are; NaN where it fails."""
-    objective = _objective_fn(problem, _reduced(problem, basis))
+    objective = objective_function(problem, reduced_form(problem, basis))
 
     def one(args):
         dof, c = args
@@ -239,7 +239,7 @@ def _screen(problem, basis, positions, coefficients, index: int, dofs: np.ndarra
     return estimate, coefficient
 
 
-def _default_starts(problem: DamperProblem, starts: int, seed: int):
+def default_starts(problem: DamperProblem, starts: int, seed: int):
     """(S, g) positions: the problem's own design first, then spread over [1, n]."""
     n, g = problem.size, problem.num_dampers
     own = np.asarray(problem.positions)[None, :]
@@ -253,20 +253,20 @@ def _default_starts(problem: DamperProblem, starts: int, seed: int):
     return np.concatenate([own, spread])
 
 
-def _phase_record(phase: str, round_: int, search: _Search) -> dict:
+def phase_record(phase: str, round_: int, search: _Search) -> dict:
     return dict(phase=phase, round=round_, positions=search.positions,
                 coefficients=search.coefficients, objective=search.values,
                 gradient_norm=search.gradient_norms)
 
 
-def _best(values, mask=None) -> int:
+def best_index(values, mask=None) -> int:
     values = np.where(np.isfinite(values), values, np.inf)
     if mask is not None:
         values = np.where(mask, values, np.inf)
     return int(np.argmin(values))
 
 
-def _realisable_candidates(problem, basis, relaxed, shortlist, keep: int, round_: int,
+def realisable_candidates(problem, basis, relaxed, shortlist, keep: int, round_: int,
                           history: list):
     """(positions, coefficients) of ``keep`` designs at DOFs to polish, and the new shortlist.
 
@@ -308,7 +308,7 @@ def _realisable_candidates(problem, basis, relaxed, shortlist, keep: int, round_
     return np.stack(cand_p), np.stack(cand_c), None
 
 
-def _last_finite(search: _Search):
+def last_finite(search: _Search):
     """Per start, the last design with a finite objective: (positions, coefficients, values)."""
     finite = np.isfinite(search.values)
     if not finite.any():

@@ -12,7 +12,13 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
-from mikota_jax._search import _init, _inverse, _step, _transform, _value_and_gradient
+from mikota_jax._search import (
+    _init,
+    _step,
+    from_unconstrained,
+    to_unconstrained,
+    value_and_gradient,
+)
 
 N = 12
 HORIZON = 8.0
@@ -83,11 +89,11 @@ def test_truncated_basis_gradient_differs_from_the_full_one_by_the_rom_error():
 def test_reparametrisation_keeps_every_design_feasible():
     u = jnp.array([-1e3, -5.0, 0.0, 5.0, 1e3])
     w = jnp.array([-1e3, -3.0, 0.0, 3.0, 1e3])
-    positions, coefficients = _transform(N, 2.0, u, w)
+    positions, coefficients = from_unconstrained(N, 2.0, u, w)
     assert np.all((positions >= 1) & (positions <= N))
     assert np.all(np.isfinite(coefficients) & (coefficients >= 0))
-    u2, w2 = _inverse(N, 2.0, np.array([1.5, 6.0, 11.5]), np.array([0.1, 2.0, 50.0]))
-    p2, c2 = _transform(N, 2.0, u2, w2)
+    u2, w2 = to_unconstrained(N, 2.0, np.array([1.5, 6.0, 11.5]), np.array([0.1, 2.0, 50.0]))
+    p2, c2 = from_unconstrained(N, 2.0, u2, w2)
     np.testing.assert_allclose(p2, [1.5, 6.0, 11.5], rtol=1e-12)
     np.testing.assert_allclose(c2, [0.1, 2.0, 50.0], rtol=1e-12)
 
@@ -97,13 +103,13 @@ def test_the_energy_search_compiles_without_host_callbacks():
     and the full model's certification hold no host callback (no equinox check inside)."""
     p = problem()
     c_ref = jnp.array([0.8])
-    params = _inverse(N, c_ref, np.array([[4.0], [6.0]]), np.array([[0.8], [0.8]]))
+    params = to_unconstrained(N, c_ref, np.array([[4.0], [6.0]]), np.array([[0.8], [0.8]]))
     rate = jnp.asarray(0.1)
     state = _init(params, rate, optimizer="lbfgs")
     step = _step.lower(p, full_basis(), c_ref, params, state, jnp.zeros((2, 1)),
                        jnp.ones(2, bool), jnp.ones(2, bool), rate, optimizer="lbfgs",
                        positions_fixed=False)
-    full = _value_and_gradient.lower(p, None, p.positions, p.coefficients)
+    full = value_and_gradient.lower(p, None, p.positions, p.coefficients)
     assert "callback" not in step.as_text() and "callback" not in full.as_text()
 
 
