@@ -262,6 +262,7 @@ def test_gradient_of_an_exact_rom_objective_matches_central_differences(basis, x
     assert abs(float(grad[0])) > 1e-3 and abs(float(grad[1])) > 1e-3  # not trivially zero
 
 
+@pytest.mark.slow  # ~15 s; CI time (the exact-solve variants stay in the default run)
 def test_gradient_of_a_simulated_rom_objective_matches_central_differences(basis, x0, close):
     f = make_objective(mj.simulate, basis, x0, rtol=1e-12, atol=1e-14)
     p, c = 6.4, 0.8

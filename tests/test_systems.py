@@ -331,6 +331,7 @@ def test_a_full_rank_rom_reproduces_every_internal_damping_model():
                                atol=1e-8)
 
 
+@pytest.mark.slow  # ~15 s; CI time (the exact-solve variants stay in the default run)
 def test_gradients_in_alpha_beta_zeta_and_the_damper_match_central_differences():
     m, k = spd(N, 5), pentadiagonal_stiffness(N)
     x0 = jnp.linspace(1.0, -1.0, N)
