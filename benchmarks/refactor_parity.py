@@ -84,6 +84,21 @@ def cases(pkg, basis: np.ndarray, quick: bool) -> dict:
     return out
 
 
+def plot(rows: list[dict], reference: str, quick: bool) -> None:
+    """Bars of current / reference run time per case, the 10 % budget marked."""
+    fig, ax = figure(figsize=(7, 3.4))
+    y = np.arange(len(rows))
+    ax.barh(y, [r["ratio"] for r in rows], color="tab:blue", height=0.6)
+    ax.axvline(1.0, color="k", lw=0.8)
+    ax.axvline(1.1, color="tab:red", ls="--", lw=0.8, label="10 % budget")
+    ax.set_yticks(y, [r["case"] for r in rows])
+    ax.set_xlim(0.0, 1.25)
+    ax.set_xlabel("run time, current / reference (dimensionless)")
+    ax.set_title(f"restructuring parity vs {reference}\n{subtitle()}", fontsize=9)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.28), fontsize=8, frameon=False)
+    save_figure(fig, "refactor_parity", quick)
+
+
 def main(argv=None) -> None:
     args = parse_args(__doc__, argv, reference=dict(default=REFERENCE),
                       repeats=dict(type=int, default=5))
@@ -129,16 +144,7 @@ def main(argv=None) -> None:
                        ("current_compile_s", "cur first call s", ".2f"),
                        ("max_difference", "max |diff|", ".1e")])
     path = write_json("refactor_parity", args.quick, dict(reference=args.reference, rows=rows))
-    fig, ax = figure(figsize=(7, 3.2))
-    y = np.arange(len(rows))
-    ax.barh(y, [r["ratio"] for r in rows], color="tab:blue")
-    ax.axvline(1.0, color="k", lw=0.8)
-    ax.axvline(1.1, color="tab:red", ls="--", lw=0.8, label="10 % budget")
-    ax.set_yticks(y, [r["case"] for r in rows])
-    ax.set_xlabel("run time, current / reference (dimensionless)")
-    ax.set_title(f"restructuring parity vs {args.reference}\n{subtitle()}", fontsize=9)
-    ax.legend(loc="lower right", fontsize=8)
-    save_figure(fig, "refactor_parity", args.quick)
+    plot(rows, args.reference, args.quick)
     print(f"\nwrote {path}")
 
 
