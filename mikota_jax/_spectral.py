@@ -32,7 +32,7 @@ from ._custom_types import Array, Float, Vector
 from ._dampers import Dampers
 from ._errors import MARK, RESULTS, as_float, check, check_x64, raise_result
 from ._modal import generalized_modes, modal_projection
-from ._objectives import integrated_energy_exact_with_result
+from ._objectives import integrated_energy, integrated_energy_exact_with_result
 
 
 def _complex_arithmetic(fn):
@@ -324,8 +324,8 @@ def _differentiable_roots(modes: DampedModes) -> DampedModes:
 
 @eqx.filter_jit
 def spectral_energy_with_result(system, horizon, x0, v0):
-    """(J, ``RESULTS`` code, ``DampedModes``): the spectral energy, or the Van Loan path where the
-    damped modes did not converge or are near-defective."""
+    """(J, ok, ``DampedModes``): the spectral energy and whether it holds (ok: every root
+    converged and no two damped roots nearly coincide); where not ok, J must not be used."""
     omega, modes_u, factor, weights = _modal_data(system)
     frozen = modal_damped_modes(*jax.lax.stop_gradient((omega, factor, weights)))
     modes = _differentiable_roots(eqx.tree_at(lambda m: (m.omega, m.factor, m.weights), frozen,
@@ -333,16 +333,17 @@ def spectral_energy_with_result(system, horizon, x0, v0):
     project = modal_projection(system, modes_u)
     q0, p0 = project(x0), project(v0)
     ok = frozen.converged & (frozen.separation > DEFECTIVE_SEPARATION)
+    value = _energy_from_modes(modes, q0, p0, horizon)
+    return value, ok & jnp.isfinite(value), frozen
 
-    def fallback(_):
-        value, result = integrated_energy_exact_with_result(system, horizon, x0, v0)
-        return value, result
 
-    def spectral(_):
-        return _energy_from_modes(modes, q0, p0, horizon), RESULTS.successful
-
-    value, result = jax.lax.cond(ok, spectral, fallback, None)
-    return value, result, frozen
+@eqx.filter_jit
+def _energy_or_fallback(system, horizon, x0, v0):
+    """Under a caller's ``jit``: the spectral value, or the Van Loan path where it does not hold."""
+    value, ok, _ = spectral_energy_with_result(system, horizon, x0, v0)
+    return jax.lax.cond(
+        ok, lambda: (value, RESULTS.successful),
+        lambda: integrated_energy_exact_with_result(system, horizon, x0, v0))
 
 
 def spectral_energy(system, horizon: float, x0: Vector | None = None,
@@ -350,15 +351,18 @@ def spectral_energy(system, horizon: float, x0: Vector | None = None,
     """The integrated energy J = int_0^T (x^T K x + x'^T M x') / 2 dt of free vibration, from the
     damped modes in closed form.
 
-    J = -sum_jk a_j a_k c_j^T W c_k (e^{(lambda_j + lambda_k) T} - 1) / (lambda_j + lambda_k)^2
-    over damped roots (a_j the modal coefficients of (x0, v0), c_j of ``DampedModes``), plus
-    T (omega_l^2 eta0_l^2 + eta0'_l^2) / 2 for each mode no damper touches: O(k n^2) after the
-    modes, no matrix exponential. ``system``: a ``SecondOrderSystem`` with dampers and no
-    internal damping; ``horizon`` T > 0; ``x0``, ``v0``: (n,) (default zero). Where the roots
-    did not converge or two damped roots nearly coincide (relative separation below 1e-6), it
-    falls back to ``integrated_energy(method="exact")`` (Van Loan; documented, never silent in
-    ``spectral_energy_with_result``). Differentiable (``jax.grad``) in the dampers' coefficients
-    and the initial state by implicit differentiation of the secular equation.
+    J = 1/2 sum_jk a_j a_k G_jk (e^{s_jk T} - 1) / s_jk, s_jk = lambda_j + lambda_k, over the
+    damped roots (a_j the coefficients of (x0, v0) by the bi-orthogonality y_k^T (lambda_j +
+    lambda_k + D_m) y_j = 0), with the modal Gram matrix G_jk = y_j^T Omega^2 y_k + lambda_j
+    lambda_k y_j^T y_k = -2 c_j^T diag(d) c_k / s_jk (Cauchy-like; a conjugate pair summed
+    directly), plus T (omega_l^2 eta0_l^2 + eta0'_l^2) / 2 for each mode no damper touches:
+    O(k n^2) after the modes, no matrix exponential. ``system``: a ``SecondOrderSystem`` with
+    dampers and no internal damping; ``horizon`` T > 0; ``x0``, ``v0``: (n,) (default zero). A
+    scalar in energy x time. Where the roots did not converge or two damped roots nearly
+    coincide (relative separation below 1e-6: critical damping of a mode), it falls back to
+    ``integrated_energy(method="exact")`` (Van Loan, O(n^3)); ``spectral_energy_with_result``
+    says which. Differentiable (``jax.grad``) in the dampers' coefficients and positions and the
+    initial state, by implicit differentiation of the secular equation at the roots.
     """
     check_x64()
     n = system.size
@@ -369,6 +373,12 @@ def spectral_energy(system, horizon: float, x0: Vector | None = None,
     if x0.shape != (n,) or v0.shape != (n,):
         raise ValueError(MARK + f"x0 and v0 must have shape ({n},), got {x0.shape} and "
                          f"{v0.shape}.")
-    value, result, _ = spectral_energy_with_result(system, horizon, x0, v0)
-
-    return raise_result(value, result)
+    value, ok, _ = spectral_energy_with_result(system, horizon, x0, v0)
+    try:
+        holds = bool(ok)  # concrete eagerly and under jax.grad: no Van Loan compiled
+    except jax.errors.ConcretizationTypeError:
+        value, result = _energy_or_fallback(system, horizon, x0, v0)
+        return raise_result(value, result)
+    if holds:
+        return value
+    return integrated_energy(system, horizon, x0, v0)
