@@ -177,10 +177,16 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
     """
     n = omega.shape[0]
     coupling = jnp.sqrt(jnp.sum(weights[None, :] * factor**2, axis=1))  # |row l of D_m^(1/2)|
-    total = jnp.sqrt(jnp.sum(coupling**2))
     eps = jnp.finfo(omega.dtype).eps
-    # pitfall 1 of the notes: a mode no damper touches has its root on the pole (0 / 0)
-    active = coupling * total > eps * jnp.maximum(jnp.max(omega), total**2)
+    # pitfall 1 of the notes: a mode no damper touches has its root on the pole (0 / 0). Which
+    # modes are touched is decided at a damper's coefficient, or at omega_max / |f_i|^2 if that
+    # is larger (then: |f_li| > eps |f_i|): a weak (or zero) damper's first-order effect on a
+    # mode, and its derivative (d -> 0), are kept instead of being deflated away
+    columns = jnp.sum(factor**2, axis=0)
+    scale = jnp.max(omega) / jnp.where(columns > 0, columns, 1.0)
+    reach = jnp.sqrt(jnp.sum(jnp.maximum(weights, scale)[None, :] * factor**2, axis=1))
+    total = jnp.sqrt(jnp.sum(reach**2))
+    active = reach * total > eps * jnp.maximum(jnp.max(omega), total**2)
     modes = jnp.arange(n)
     anchor = jnp.concatenate([modes, modes])
     sign = jnp.concatenate([jnp.ones(n), -jnp.ones(n)])
@@ -283,16 +289,18 @@ def _energy_from_modes(modes: DampedModes, q0, p0, horizon):
     pair = active[:, None] & active[None, :]
     s_safe = jnp.where(pair, s, -1.0)
     # (e^{sT} - 1) / s, for tiny |s T| too
-    growth = jnp.where(jnp.abs(s_safe * horizon) < 1e-3,
+    small = jnp.abs(s_safe * horizon) < 1e-3
+    s_large = jnp.where(small, 1.0, s_safe)  # no 0 / 0 in the branch not taken (its gradient)
+    growth = jnp.where(small,
                        horizon * (1 + s_safe * horizon / 2 + (s_safe * horizon) ** 2 / 6
                                   + (s_safe * horizon) ** 3 / 24),
-                       jnp.expm1(s_safe * horizon) / s_safe)
+                       jnp.expm1(s_large * horizon) / s_large)
     # G_jk = y_j^T Omega^2 y_k + lambda_j lambda_k y_j^T y_k = -2 c_j^T W c_k / (lambda_j +
     # lambda_k) (from the eigen-equations of j and k): no cancellation, except for a conjugate
     # pair (or a real root with itself) of a mode the dampers barely touch, where s = 2 Re lambda
     # is below the rounding of lambda; there the direct sum of positive terms
     # (omega_l^2 + |lambda|^2) |y_l|^2 is exact, O(n) per root
-    gram = -2 * ((c * weights[None, :]) @ c.T) / s_safe
+    gram = -2 * ((c * weights[None, :]) @ c.T) / jnp.where(s_safe == 0, 1.0, s_safe)
     conj_gap = jnp.abs(1j * (base[None, :] + base[:, None])
                        + modes.offset[None, :] - jnp.conj(modes.offset)[:, None])
     partner = jnp.argmin(jnp.where(pair, conj_gap, jnp.inf), axis=1)

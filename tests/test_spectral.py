@@ -159,6 +159,17 @@ def test_the_gradient_matches_central_differences(coefficient, close):
     close(grad, (by_d, by_p), rtol=1e-6)
 
 
+def test_the_gradient_at_a_switched_off_damper_is_finite_and_right(close):
+    # d = 0: every root sits on its pole; modes are kept (not deflated) so that the first-order
+    # effect dJ/dd = -int_0^T int_0^t v_7(s)^2 ds dt survives (Van Loan: -1233.24501846)
+    grad = jax.grad(lambda d, p: energy_of("spectral", d, p), argnums=(0, 1))(
+        jnp.array(0.0), jnp.array(7.0))
+    close(energy_of("spectral", 0.0, 7.0), 550.0, rtol=1e-14)
+    h = 1e-7
+    close(grad[0], (energy_of("spectral", h, 7.0) - 550.0) / h, rtol=1e-6)
+    close(grad[1], 0.0, atol=1e-12)
+
+
 @pytest.mark.slow
 def test_the_gradient_matches_the_van_loan_gradient(close):
     point = (jnp.array(1.0), jnp.array(7.4))
