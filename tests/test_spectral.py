@@ -31,6 +31,15 @@ def physical_roots(system, refine_against=None, tol=1e-10):
     a = np.block([[np.zeros((n, n)), np.eye(n)],
                   [-np.linalg.solve(m, k), -np.linalg.solve(m, d)]])
     roots = np.linalg.eigvals(a)
+    # the roots below 0.5 in modulus (no Mikota root with m = k = 1 lies near it) from the
+    # reversed pencil mu^2 K + mu D + M (mu = 1 / lambda):
+    # a strong damper's small real roots are lost in the forward one's ||A|| (measured 8x off)
+    reverse = np.block([[np.zeros((n, n)), np.eye(n)],
+                        [-np.linalg.solve(k, m), -np.linalg.solve(k, d)]])
+    inverse = np.linalg.eigvals(reverse)
+    combined = np.concatenate([roots[np.abs(roots) >= 0.5], 1 / inverse[np.abs(inverse) > 2]])
+    assert combined.shape == (2 * n,), "the two pencils disagree on which roots lie below 0.5"
+    roots = combined
     for i, root in enumerate(roots):
         if refine_against is not None and (np.min(np.abs(refine_against - root))
                                            <= tol * abs(root)):
