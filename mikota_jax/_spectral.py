@@ -10,7 +10,8 @@ Omega^2, ``generalized_modes``); the dampers in them are D_m = F diag(d) F^T wit
 pole-offset form lambda = i s omega_J + delta (anchor J, sign s), so that lambda^2 + omega_l^2 =
 (i (s omega_J - omega_l) + delta)(i (s omega_J + omega_l) + delta) never cancels near a pole.
 
-Method (Veselic, Damped Oscillations of Linear Systems, Springer LNM 2023, 2011; Jakovcevic Stor,
+Method (Veselic, Damped Oscillations of Linear Systems, Springer Lecture Notes in Mathematics
+vol. 2023, 2011; Jakovcevic Stor,
 Slapnicar, Tomljanovic, Mathematics 10(5):790, 2022, "FastOptimalDamping"): with R(lambda) =
 (lambda^2 + Omega^2)^-1 the eigenvalues of lambda^2 + lambda D_m + Omega^2 are the zeros of the
 secular determinant det(I_k + lambda F^T R F diag(d)) times the poles' polynomial. Modes that no
@@ -20,6 +21,10 @@ logarithmic derivative is evaluated with each root's own pole removed analytical
 polished by Newton on phi_J(lambda) = lambda^2 + omega_J^2 + lambda f_J^T diag(d) H^-1 f_J, with
 H = I + lambda sum_(l != J) r_l f_l f_l^T diag(d). The eigenvector y = R F diag(d) c with c =
 H^-1 f_J has y_J = -1 / lambda: no huge entries.
+
+Not yet: O(n^2) undamped modes (the SVD of ``generalized_modes`` is O(n^3)), internal damping,
+responses from modes (``exact_solve``), the total average energy, a structured fallback at
+near-defective pairs (today: the Van Loan path), wiring into the public functions.
 """
 
 import functools
@@ -64,7 +69,9 @@ class DampedModes(eqx.Module):
     omega_J + delta; ``null`` c: (2n, k), the eigenvector's damper amplitudes (y = R F diag(d) c);
     ``converged``: whether every root passed the residual and trace checks; ``separation``: the
     smallest |lambda_j - lambda_k| / |lambda_j| between damped roots (near-defective below
-    ``DEFECTIVE_SEPARATION``); ``iterations``: Aberth sweeps used.
+    ``DEFECTIVE_SEPARATION``); ``iterations``: Aberth sweeps used. At an exceptional point
+    (one DOF, d = 2 sqrt(k m): lambda = -sqrt(k/m) twice, one eigenvector) the two roots come
+    back within ~sqrt(eps) of the double root with ``separation`` below the threshold.
     """
 
     omega: Float[Array, " n"]
