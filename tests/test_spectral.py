@@ -73,6 +73,7 @@ def test_damped_eigenvalues_match_the_refined_dense_eigenvalues_at_every_positio
         assert_same_roots(ours, physical_roots(system), 1e-10)
 
 
+@pytest.mark.slow  # dense eig of the 600 x 600 reference (CI time)
 @pytest.mark.parametrize("coefficient", [1e-8, 1.0, 1e8])
 def test_damped_eigenvalues_of_the_paper_chain_match_dense_eig(coefficient):
     # raw dense eig is itself the weak side for the small real root of a strong damper
@@ -116,7 +117,8 @@ def test_the_exceptional_point_of_one_dof_is_flagged_and_the_energy_falls_back(c
     close(value, 0.75 - np.exp(-2 * T) * (T**2 + 2 * T + 1.5) / 2, rtol=1e-12)
 
 
-@pytest.mark.parametrize("coefficient", [1e-8, 1e-2, 1.0, 1e2])
+@pytest.mark.parametrize("coefficient", [1e-8, pytest.param(1e-2, marks=pytest.mark.slow), 1.0,
+                                         pytest.param(1e2, marks=pytest.mark.slow)])
 def test_the_spectral_energy_equals_the_van_loan_energy(coefficient, close):
     n = 30
     v0 = np.linspace(0.0, 1.0, n)
@@ -155,7 +157,8 @@ def energy_of(method, coefficient, position, n=30):
     return mj.integrated_energy(system, T, unit(n, 3))
 
 
-@pytest.mark.parametrize("coefficient", [1e-3, 1.0, 1e3])
+@pytest.mark.parametrize("coefficient", [pytest.param(1e-3, marks=pytest.mark.slow), 1.0,
+                                         pytest.param(1e3, marks=pytest.mark.slow)])
 def test_the_gradient_matches_central_differences(coefficient, close):
     # implicit differentiation: one Newton step on the secular equation at the roots
     grad = jax.grad(lambda d, p: energy_of("spectral", d, p), argnums=(0, 1))(
