@@ -91,3 +91,11 @@ def test_usage_errors_exit_with_code_2(argv):
     with pytest.raises(SystemExit) as stop:
         main(argv)
     assert stop.value.code == 2
+
+
+def test_help_is_plain_text_without_rest_markup(capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["--help"])
+    text = capsys.readouterr().out
+    assert stop.value.code == 0 and "python -m mikota_jax reproduce" in text
+    assert "``" not in text

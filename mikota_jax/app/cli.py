@@ -14,7 +14,9 @@ from pathlib import Path
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m mikota_jax", description=__doc__)
+    # the docstring is reST; --help shows it as plain text (no ``literal`` markers)
+    parser = argparse.ArgumentParser(prog="python -m mikota_jax",
+                                     description=__doc__.replace("``", ""))
     commands = parser.add_subparsers(dest="command", required=True)
     reproduce = commands.add_parser("reproduce", help="reproduce Weber & Zastrau (2018)")
     reproduce.add_argument("--out", default="paper_results", help="folder for figures and JSON")
