@@ -40,7 +40,7 @@ from ._design import DamperProblem
 from ._errors import MARK, RESULTS, check_x64
 from ._integrate import simulate_with_result
 from ._plain import to_plain
-from ._reduction import Reduction, reduce
+from ._reduction import Reduction, reduce, snapshot_window
 from ._search import (
     OPTIMIZERS,
     best_index,
@@ -73,7 +73,8 @@ def _snapshots(problem, positions, coefficients, count: int):
 def _snapshot_modes(problem, positions, coefficients):
     """POD modes of a full simulation at a design (the scene's window and rank rule)."""
     ts = np.asarray(problem.ts)
-    count = int(np.sum(ts <= problem.snapshots[1] + 1e-12))
+    # solve only up to the window's end, by the reduction stage's own window rule
+    count = int(np.flatnonzero(snapshot_window(ts, problem.snapshots))[-1]) + 1
     displacement, result = _snapshots(problem, positions, coefficients, count)
     if result != RESULTS.successful:
         raise ValueError(MARK + "the full-model snapshot solve failed (max_steps reached or "

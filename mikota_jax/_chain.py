@@ -21,6 +21,13 @@ from ._operators import Diagonal, SymmetricTridiagonal
 from ._system import SecondOrderSystem, dampers_operator
 
 
+def chain_stiffness(springs: Vector) -> SymmetricTridiagonal:
+    """K = tridiag(-k_i, k_i + k_{i+1}, -k_{i+1}) with k_{n+1} = 0 (eq. 2.2), from springs (n,),
+    unchecked: ``chain`` checks first, the parameter map (``_parameters``) checks at its entry."""
+    next_springs = jnp.concatenate([springs[1:], jnp.zeros(1)])
+    return SymmetricTridiagonal(springs + next_springs, -springs[1:], springs)
+
+
 def chain(masses: Sequence[float] | Vector, springs: Sequence[float] | Vector,
           dampers: Sequence[GroundedDamper | RelativeDamper] = (), *,
           internal_damping: Rayleigh | ModalDamping | tuple | None = None) -> SecondOrderSystem:
@@ -42,9 +49,8 @@ def chain(masses: Sequence[float] | Vector, springs: Sequence[float] | Vector,
     springs = check(springs, ~(jnp.isfinite(springs) & (springs > 0)),
                     "springs must be finite and > 0.")
     n = masses.shape[0]
-    next_springs = jnp.concatenate([springs[1:], jnp.zeros(1)])  # k_{i+1}, with k_{n+1} = 0
-    stiffness = SymmetricTridiagonal(springs + next_springs, -springs[1:], springs)
-    return SecondOrderSystem(Diagonal(masses), stiffness, dampers_operator(n, dampers),
+    return SecondOrderSystem(Diagonal(masses), chain_stiffness(springs),
+                             dampers_operator(n, dampers),
                              as_internal(internal_damping, n))
 
 

@@ -22,7 +22,7 @@ messages the constructors (``chain``, ``Dampers``, ``Rayleigh``, ``ModalDamping`
 import equinox as eqx
 import jax.numpy as jnp
 
-from ._custom_types import Vector
+from ._chain import chain_stiffness
 from ._dampers import Dampers
 from ._errors import MARK, check
 from ._operators import Diagonal, SymmetricTridiagonal
@@ -33,12 +33,6 @@ PARAMETERS = ("m", "k", "masses", "springs", "positions", "coefficients", "relat
 _CHAIN = ("m", "k", "masses", "springs")
 _DAMPERS = {"positions": "positions", "coefficients": "coefficients",
             "relative_coefficients": "pair_coefficients"}
-
-
-def chain_stiffness(springs: Vector) -> SymmetricTridiagonal:
-    """K = tridiag(-k_i, k_i + k_{i+1}, -k_{i+1}), k_{n+1} = 0 (eq. 2.2): ``chain``'s arithmetic."""
-    next_springs = jnp.concatenate([springs[1:], jnp.zeros(1)])
-    return SymmetricTridiagonal(springs + next_springs, -springs[1:], springs)
 
 
 def is_chain(system: SecondOrderSystem) -> bool:
