@@ -111,6 +111,40 @@ class DampedModes(eqx.Module):
         unit = jnp.eye(n)[self.anchor]
         return jnp.where(self.root_active[:, None], y, unit).T
 
+    @_complex_arithmetic
+    def normalisers(self) -> Array:
+        """N_j = y_j^T (2 lambda_j I + D_m) y_j: (2n,) complex, the bi-orthogonality scale of
+        ``vectors`` (y_k^T ((lambda_j + lambda_k) I + D_m) y_j = 0 for j != k). Zero at a
+        defective pair (critical damping)."""
+        lam = self.eigenvalues
+        y = self.vectors().T  # (2n, n)
+        yfw = y @ self.factor
+        return 2 * lam * jnp.sum(y * y, axis=1) + jnp.sum(yfw * self.weights[None, :] * yfw,
+                                                          axis=1)
+
+    @_complex_arithmetic
+    def coefficients(self, q0: Float[Array, " n"], p0: Float[Array, " n"]) -> Array:
+        """a: (2n,) complex, the modal state (eta(0), eta'(0)) = (q0, p0) expanded as eta(t) =
+        sum_j a_j exp(lambda_j t) y_j (every root, deflated ones included).
+
+        a_j = y_j^T ((lambda_j I + D_m) q0 + p0) / N_j, written as y_j^T (p0 - Omega^2 q0 /
+        lambda_j) / N_j by the eigen-equation: the two terms of the first form cancel for a root
+        running to -infinity (a strong damper), this form does not.
+        """
+        lam = self.eigenvalues
+        y = self.vectors().T
+        numerator = y @ p0 - (y @ (self.omega**2 * q0)) / lam
+        return numerator / self.normalisers()
+
+    @_complex_arithmetic
+    def load_coefficients(self, g: Float[Array, " n"]) -> Array:
+        """b: (2n,) complex, b_j = y_j^T g / N_j for a constant modal force g (= U^T f): the
+        response of eta'' + D_m eta' + Omega^2 eta = g from rest is eta(t) = sum_j b_j
+        (exp(lambda_j t) - 1) / lambda_j y_j (the static part Omega^-2 g = -sum_j b_j y_j /
+        lambda_j)."""
+        y = self.vectors().T
+        return (y @ g) / self.normalisers()
+
 
 def _gaps(omega, anchor, sign, offset):
     """lambda_j - i omega_l and lambda_j + i omega_l without cancellation: two (2n, n) arrays."""
@@ -281,14 +315,8 @@ def _energy_from_modes(modes: DampedModes, q0, p0, horizon):
     lam = modes.eigenvalues
     c = modes.null
     y = modes.vectors().T  # (2n, n)
-    # a_j = y_j^T ((lambda_j + D_m) q0 + q0') / y_j^T (2 lambda_j + D_m) y_j (bi-orthogonality);
-    # y^T (lambda + D_m) q0 = -y^T Omega^2 q0 / lambda by the eigen-equation: the two terms
-    # cancel for a root running to -infinity (a strong damper), this form does not
-    numerator = y @ p0 - (y @ (omega**2 * q0)) / lam
-    yfw = y @ factor  # F^T y = -c / lambda for damped roots
-    denominator = 2 * lam * jnp.sum(y * y, axis=1) + jnp.sum(yfw * weights[None, :] * yfw, axis=1)
     active = modes.root_active
-    a = jnp.where(active, numerator / jnp.where(active, denominator, 1.0), 0.0)
+    a = jnp.where(active, modes.coefficients(q0, p0), 0.0)
     # lambda_j + lambda_k in pole-offset form: for a conjugate pair the +-i omega_J cancel
     # exactly
     base = modes.sign * omega[modes.anchor]
