@@ -1,30 +1,30 @@
-"""Damped modes of a chain with a few dampers, and the integrated energy from them in O(n^2).
-
-Not yet wired into ``exact_solve`` or ``integrated_energy``: a first slice of the spectral engine.
+"""Damped modes of a chain with a few dampers, and energies from them in closed form, O(k n^2).
 
 Conventions: eta are the M-orthonormal modal coordinates (x = U eta, U^T M U = I, U^T K U =
-Omega^2, ``generalized_modes``); the dampers in them are D_m = F diag(d) F^T with F = U^T B the
-(n, k) modal damper factor (``Dampers.project``: a grounded damper is e_j, a split one
-(1 - w) e_j and w e_(j+1), a relative one e_i - e_j). The 2n roots are laid out as root j < n at
-+i omega_j and root j >= n at -i omega_(j - n) for an undamped chain; each is stored in the
-pole-offset form lambda = i s omega_J + delta (anchor J, sign s), so that lambda^2 + omega_l^2 =
-(i (s omega_J - omega_l) + delta)(i (s omega_J + omega_l) + delta) never cancels near a pole.
+Omega^2, ``generalized_modes``); internal damping diagonal in them (Rayleigh, modal) is Gamma =
+diag(gamma); the dampers are D_m = F diag(d) F^T with F = U^T B the (n, k) modal damper factor
+(``Dampers.project``: a grounded damper is e_j, a split one (1 - w) e_j and w e_(j+1), a relative
+one e_i - e_j). Mode l alone has the poles p_l, p_(n+l), the roots of lambda^2 + gamma_l lambda +
+omega_l^2 (+-i omega_l undamped; two real ones when overdamped). Each of the 2n roots is stored
+in the pole-offset form lambda = p_A + delta (anchor A), so that lambda^2 + gamma_l lambda +
+omega_l^2 = (p_A - p_l + delta)(p_A - p_(n+l) + delta) never cancels near a pole; for an undamped
+chain root j < n lies near +i omega_j and root n + j near -i omega_j.
 
 Method (Veselic, Damped Oscillations of Linear Systems, Springer Lecture Notes in Mathematics
-vol. 2023, 2011; Jakovcevic Stor,
-Slapnicar, Tomljanovic, Mathematics 10(5):790, 2022, "FastOptimalDamping"): with R(lambda) =
-(lambda^2 + Omega^2)^-1 the eigenvalues of lambda^2 + lambda D_m + Omega^2 are the zeros of the
-secular determinant det(I_k + lambda F^T R F diag(d)) times the poles' polynomial. Modes that no
-damper touches are deflated (exact +-i omega_l); the others' 2 n_a roots are found together by the
-Aberth-Ehrlich iteration (Aberth, Math. Comp. 27:339, 1973) on the characteristic polynomial, whose
-logarithmic derivative is evaluated with each root's own pole removed analytically (H below), and
-polished by Newton on phi_J(lambda) = lambda^2 + omega_J^2 + lambda f_J^T diag(d) H^-1 f_J, with
-H = I + lambda sum_(l != J) r_l f_l f_l^T diag(d). The eigenvector y = R F diag(d) c with c =
-H^-1 f_J has y_J = -1 / lambda: no huge entries.
+vol. 2023, 2011; Jakovcevic Stor, Slapnicar, Tomljanovic, Mathematics 10(5):790, 2022,
+"FastOptimalDamping"): with R(lambda) = (lambda^2 + lambda Gamma + Omega^2)^-1 the eigenvalues
+of lambda^2 + lambda (Gamma + D_m) + Omega^2 are the zeros of the secular determinant
+det(I_k + lambda F^T R F diag(d)) times the poles' polynomial. Modes that no damper touches are
+deflated (their own poles); the others' 2 n_a roots are found together by the Aberth-Ehrlich
+iteration (Aberth, Math. Comp. 27:339, 1973) on the characteristic polynomial, whose logarithmic
+derivative is evaluated with each root's own pole removed analytically (H below), and polished by
+Newton on phi_J(lambda) = lambda^2 + gamma_J lambda + omega_J^2 + lambda f_J^T diag(d) H^-1 f_J,
+with H = I + lambda sum_(l != J) r_l f_l f_l^T diag(d). The eigenvector y = R F diag(d) c with c =
+H^-1 f_J has y_J = -1 / lambda: no huge entries. Gradients: one Newton step at the frozen roots
+(implicit differentiation of phi_J = 0), so ``jax.grad`` never enters the iteration.
 
-Not yet: O(n^2) undamped modes (the SVD of ``generalized_modes`` is O(n^3)), internal damping,
-responses from modes (``exact_solve``), the total average energy, a structured fallback at
-near-defective pairs (today: the Van Loan path), wiring into the public functions.
+Not yet: O(n^2) undamped modes (the SVD of ``generalized_modes`` is O(n^3)); a structured
+treatment of near-defective pairs (the callers fall back to the dense paths there).
 """
 
 import functools
@@ -61,54 +61,69 @@ DEFECTIVE_SEPARATION = 1e-6  # two damped roots closer than this (relative): nea
 
 
 class DampedModes(eqx.Module):
-    """The 2n eigenvalues of lambda^2 I + lambda F diag(d) F^T + Omega^2 in pole-offset form.
+    """The 2n eigenvalues of lambda^2 I + lambda (diag(gamma) + F diag(d) F^T) + Omega^2.
 
-    ``omega``: (n,) undamped frequencies; ``factor`` F: (n, k) modal damper factor; ``weights``
-    d: (k,); ``active``: (n,) which modes a damper touches (the others are exactly undamped);
-    ``anchor`` J: (2n,) int, ``sign`` s: (2n,) +-1, ``offset`` delta: (2n,) complex, lambda = i s
-    omega_J + delta; ``null`` c: (2n, k), the eigenvector's damper amplitudes (y = R F diag(d) c);
-    ``converged``: whether every root passed the residual and trace checks; ``separation``: the
-    smallest |lambda_j - lambda_k| / |lambda_j| between damped roots (near-defective below
-    ``DEFECTIVE_SEPARATION``); ``iterations``: Aberth sweeps used. At an exceptional point
-    (one DOF, d = 2 sqrt(k m): lambda = -sqrt(k/m) twice, one eigenvector) the two roots come
-    back within ~sqrt(eps) of the double root with ``separation`` below the threshold.
+    ``omega``: (n,) undamped frequencies; ``gamma``: (n,) internal damping rates in modal
+    coordinates (Rayleigh alpha + beta omega^2, modal 2 zeta omega; zero without); ``factor`` F:
+    (n, k) modal damper factor; ``weights`` d: (k,); ``active``: (n,) which modes a damper
+    touches (the others keep their own two roots, the poles); ``anchor`` A: (2n,) int, the pole
+    each root is written from, lambda = ``poles``[A] + ``offset``; ``null`` c: (2n, k), the
+    eigenvector's damper amplitudes (y = R F diag(d) c); ``converged``: whether every root passed
+    the residual and trace checks; ``separation``: the smallest |lambda_j - lambda_k| /
+    |lambda_j| between two roots that interact (near-defective below ``DEFECTIVE_SEPARATION``);
+    ``iterations``: Aberth sweeps used. At an exceptional point (one DOF, d = 2 sqrt(k m):
+    lambda = -sqrt(k/m) twice, one eigenvector) the two roots come back within ~sqrt(eps) of the
+    double root with ``separation`` below the threshold.
     """
 
     omega: Float[Array, " n"]
+    gamma: Float[Array, " n"]
     factor: Float[Array, "n k"]
     weights: Float[Array, " k"]
     active: Array
     anchor: Array
-    sign: Float[Array, " 2n"]
     offset: Array
     null: Array
     converged: Array
     separation: Float[Array, ""]
     iterations: Array
+    internal: bool = eqx.field(static=True, default=False)  # whether gamma may be nonzero
+
+    @property
+    def poles(self) -> Array:
+        """(2n,) complex: the roots of lambda^2 + gamma_l lambda + omega_l^2, the upper (or
+        larger real) one of mode l at l and the other at n + l."""
+        return _poles(self.omega, self.gamma)
+
+    @property
+    def modes(self) -> Array:
+        """(2n,) int: the undamped mode each root is anchored to."""
+        return self.anchor % self.omega.shape[0]
 
     @property
     @_complex_arithmetic
     def eigenvalues(self) -> Array:
-        """lambda: (2n,) complex, in the root layout of the module docstring."""
-        return 1j * self.sign * self.omega[self.anchor] + self.offset
+        """lambda: (2n,) complex; an undamped chain's root j < n near +i omega_j."""
+        return self.poles[self.anchor] + self.offset
 
     @property
     def root_active(self) -> Array:
-        """(2n,) bool: the roots of damped modes."""
+        """(2n,) bool: the roots of modes a damper touches."""
         return jnp.concatenate([self.active, self.active])
 
     @_complex_arithmetic
     def vectors(self) -> Array:
         """Modal eigenvectors y: (n, 2n) complex, (lambda^2 + lambda D_m + Omega^2) y = 0.
 
-        Damped roots are scaled so that y_J = -1 / lambda; undamped ones are unit vectors.
+        Damped roots are scaled so that y_J = -1 / lambda; the others are unit vectors.
         """
         n = self.omega.shape[0]
-        r, _ = _resolvent(self.omega, self.anchor, self.sign, self.offset, self.active)
+        r, _ = _resolvent(self.poles, self.anchor, self.offset, self.active)
         lam = self.eigenvalues
         y = r * ((self.factor * self.weights[None, :]) @ self.null.T).T  # (2n, n)
-        y = jnp.where(jnp.arange(n)[None, :] == self.anchor[:, None], (-1 / lam)[:, None], y)
-        unit = jnp.eye(n)[self.anchor]
+        own = jnp.arange(n)[None, :] == self.modes[:, None]
+        y = jnp.where(own, (-1 / lam)[:, None], y)
+        unit = jnp.eye(n)[self.modes]
         return jnp.where(self.root_active[:, None], y, unit).T
 
     @_complex_arithmetic
@@ -119,13 +134,14 @@ class DampedModes(eqx.Module):
         lam = self.eigenvalues
         y = self.vectors().T  # (2n, n)
         yfw = y @ self.factor
-        return 2 * lam * jnp.sum(y * y, axis=1) + jnp.sum(yfw * self.weights[None, :] * yfw,
-                                                          axis=1)
+        return (jnp.sum((2 * lam[:, None] + self.gamma[None, :]) * y * y, axis=1)
+                + jnp.sum(yfw * self.weights[None, :] * yfw, axis=1))
 
     @_complex_arithmetic
-    def coefficients(self, q0: Float[Array, " n"], p0: Float[Array, " n"]) -> Array:
-        """a: (2n,) complex, the modal state (eta(0), eta'(0)) = (q0, p0) expanded as eta(t) =
-        sum_j a_j exp(lambda_j t) y_j (every root, deflated ones included).
+    def coefficients(self, q0: Float[Array, "n ..."], p0: Float[Array, "n ..."]) -> Array:
+        """a: (2n, *p) complex, the modal state (eta(0), eta'(0)) = (q0, p0) expanded as
+        eta(t) = sum_j a_j exp(lambda_j t) y_j (every root, deflated ones included); q0, p0 may
+        carry a trailing batch axis.
 
         a_j = y_j^T ((lambda_j I + D_m) q0 + p0) / N_j, written as y_j^T (p0 - Omega^2 q0 /
         lambda_j) / N_j by the eigen-equation: the two terms of the first form cancel for a root
@@ -133,8 +149,10 @@ class DampedModes(eqx.Module):
         """
         lam = self.eigenvalues
         y = self.vectors().T
-        numerator = y @ p0 - (y @ (self.omega**2 * q0)) / lam
-        return numerator / self.normalisers()
+        stiff = (self.omega**2).reshape((-1,) + (1,) * (q0.ndim - 1)) * q0
+        lam = lam.reshape((-1,) + (1,) * (q0.ndim - 1))
+        norm = self.normalisers().reshape(lam.shape)
+        return (y @ p0 - (y @ stiff) / lam) / norm
 
     @_complex_arithmetic
     def load_coefficients(self, g: Float[Array, " n"]) -> Array:
@@ -146,33 +164,58 @@ class DampedModes(eqx.Module):
         return (y @ g) / self.normalisers()
 
 
-def _gaps(omega, anchor, sign, offset):
-    """lambda_j - i omega_l and lambda_j + i omega_l without cancellation: two (2n, n) arrays."""
-    base = sign * omega[anchor]
-    minus = 1j * (base[:, None] - omega[None, :]) + offset[:, None]
-    plus = 1j * (base[:, None] + omega[None, :]) + offset[:, None]
-    return minus, plus
+def _poles(omega, gamma):
+    """(2n,) roots of lambda^2 + gamma lambda + omega^2 without cancellation: -gamma/2 +-
+    i sqrt((omega - gamma/2)(omega + gamma/2)) below critical, -omega^2 / (gamma/2 + root) and
+    -(gamma/2 + root) above (overdamped mode: two real poles)."""
+    half = gamma / 2
+    under = (omega - half) * (omega + half)
+    root = jnp.sqrt(jnp.abs(under))
+    over = under < 0
+    big = -(half + root)
+    small = -(omega**2) / jnp.where(half + root > 0, half + root, 1.0)
+    upper = jnp.where(over, small + 0j, -half + 1j * root)
+    lower = jnp.where(over, big + 0j, -half - 1j * root)
+    return jnp.concatenate([upper, lower])
 
 
-def _resolvent(omega, anchor, sign, offset, active):
-    """r_jl = 1 / (lambda_j^2 + omega_l^2) over damped l != J_j (0 elsewhere), and the mask."""
-    minus, plus = _gaps(omega, anchor, sign, offset)
-    n = omega.shape[0]
-    mask = active[None, :] & (jnp.arange(n)[None, :] != anchor[:, None])
-    product = minus * plus
+def _gaps(poles, anchor, offset):
+    """lambda_j - p_l and lambda_j - p_(n+l) without cancellation: two (2n, n) arrays."""
+    n = poles.shape[0] // 2
+    base = poles[anchor]
+    return (base[:, None] - poles[None, :n]) + offset[:, None], (
+        (base[:, None] - poles[None, n:]) + offset[:, None])
+
+
+def _resolvent(poles, anchor, offset, active):
+    """r_jl = 1 / (lambda_j^2 + gamma_l lambda_j + omega_l^2) over damped l != J_j (0
+    elsewhere), and the mask."""
+    upper, lower = _gaps(poles, anchor, offset)
+    n = poles.shape[0] // 2
+    mask = active[None, :] & (jnp.arange(n)[None, :] != (anchor % n)[:, None])
+    product = upper * lower
     return jnp.where(mask, 1 / jnp.where(mask, product, 1.0), 0.0), mask
 
 
-def _secular(omega, factor, weights, active, anchor, sign, offset):
-    """Per root: (phi, phi', sum of the other poles' log-derivative + tr H^-1 H', c = H^-1 f_J)."""
+def _partner(anchor, n):
+    """The other pole of the same mode."""
+    return (anchor + n) % (2 * n)
+
+
+def _secular(poles, gamma, factor, weights, active, anchor, offset):
+    """Per root: (phi, phi', sum of the other poles' log-derivative + tr H^-1 H', c = H^-1 f_J,
+    the size of phi's terms)."""
     k = factor.shape[1]
-    lam = 1j * sign * omega[anchor] + offset
-    r, mask = _resolvent(omega, anchor, sign, offset, active)
-    r_prime = r - 2 * lam[:, None] ** 2 * r**2  # d/dlambda (lambda r) = r - 2 lambda^2 r^2
+    n = gamma.shape[0]
+    mode = anchor % n
+    lam = poles[anchor] + offset
+    r, mask = _resolvent(poles, anchor, offset, active)
+    rate = 2 * lam[:, None] + gamma[None, :]  # d/dlambda (lambda^2 + gamma_l lambda + omega_l^2)
+    r_prime = r - lam[:, None] * rate * r**2  # d/dlambda (lambda r)
     ff = factor[:, :, None] * factor[:, None, :] * weights[None, None, :]  # (n, k, k)
     h = jnp.eye(k)[None] + lam[:, None, None] * jnp.einsum("jl,lab->jab", r, ff)
     h_prime = jnp.einsum("jl,lab->jab", r_prime, ff)
-    f = factor[anchor]  # (2n, k)
+    f = factor[mode]  # (2n, k)
     solved = jnp.linalg.solve(h, jnp.stack([f.astype(h.dtype)] + [h_prime[:, :, i] for i in
                                                                   range(k)], axis=-1))
     c = solved[..., 0]  # H^-1 f_J
@@ -181,172 +224,236 @@ def _secular(omega, factor, weights, active, anchor, sign, offset):
     wf = f * weights[None, :]
     quad = jnp.sum(wf * c, axis=-1)  # f^T W H^-1 f
     quad_prime = -jnp.sum(wf * jnp.einsum("jab,jb->ja", h_inv_h_prime, c), axis=-1)
-    pole = offset * (offset + 2j * sign * omega[anchor])  # lambda^2 + omega_J^2
+    # lambda^2 + gamma_J lambda + omega_J^2 = delta (delta + p_A - p_partner)
+    pole = offset * (offset + poles[anchor] - poles[_partner(anchor, n)])
     phi = pole + lam * quad
-    phi_prime = 2 * lam + quad + lam * quad_prime
+    phi_prime = 2 * lam + gamma[mode] + quad + lam * quad_prime
     scale = jnp.abs(pole) + jnp.abs(lam * quad)
-    others = jnp.sum(jnp.where(mask, 2 * lam[:, None] * r, 0.0), axis=1) + trace
+    others = jnp.sum(jnp.where(mask, rate * r, 0.0), axis=1) + trace
     return phi, phi_prime, others, c, scale
 
 
-def _reanchor(omega, active, anchor, sign, offset):
-    """Move each root's anchor to its nearest damped pole i s omega_J (same lambda)."""
-    lam_imag = jnp.imag(offset) + sign * omega[anchor]
-    new_sign = jnp.where(lam_imag >= 0, 1.0, -1.0)
-    distance = jnp.abs(1j * (sign * omega[anchor])[:, None] + offset[:, None]
-                       - 1j * new_sign[:, None] * omega[None, :])
-    new_anchor = jnp.argmin(jnp.where(active[None, :], distance, jnp.inf), axis=1)
-    new_offset = offset + 1j * (sign * omega[anchor] - new_sign * omega[new_anchor])
-    return new_anchor, new_sign, new_offset
+def _reanchor(poles, active, anchor, offset):
+    """Move each root's anchor to its nearest pole of a damped mode (same lambda)."""
+    lam = poles[anchor] + offset
+    candidates = jnp.concatenate([active, active])
+    distance = jnp.abs(lam[:, None] - poles[None, :])
+    new_anchor = jnp.argmin(jnp.where(candidates[None, :], distance, jnp.inf), axis=1)
+    return new_anchor, offset + (poles[anchor] - poles[new_anchor])
 
 
-def _roots_difference(omega, anchor, sign, offset):
+def _roots_difference(poles, anchor, offset):
     """lambda_j - lambda_k: (2n, 2n), exact for roots on the same pole."""
-    base = sign * omega[anchor]
-    return 1j * (base[:, None] - base[None, :]) + (offset[:, None] - offset[None, :])
+    base = poles[anchor]
+    return (base[:, None] - base[None, :]) + (offset[:, None] - offset[None, :])
 
 
 @eqx.filter_jit
 @_complex_arithmetic
 def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
-                       weights: Float[Array, " k"]) -> DampedModes:
-    """All 2n eigenvalues of lambda^2 I + lambda F diag(d) F^T + Omega^2, O(k^2 n^2) per sweep.
+                       weights: Float[Array, " k"],
+                       gamma: Float[Array, " n"] | None = None) -> DampedModes:
+    """All 2n eigenvalues of lambda^2 I + lambda (diag(gamma) + F diag(d) F^T) + Omega^2,
+    O(k^2 n^2) per sweep.
 
     ``omega``: (n,) distinct positive frequencies; ``factor`` F: (n, k); ``weights`` d: (k,)
-    >= 0. See the module docstring for the method and the returned layout. Not differentiable
-    through the iteration: ``spectral_energy`` differentiates by one Newton step at the roots.
+    >= 0; ``gamma``: (n,) >= 0 modal internal damping rates (default zero). See the module
+    docstring for the method and the returned layout. Not differentiable through the iteration:
+    ``spectral_energy`` differentiates by one Newton step at the roots.
     """
     n = omega.shape[0]
+    internal = gamma is not None
+    gamma = jnp.zeros_like(omega) if gamma is None else gamma
+    poles = _poles(omega, gamma)
     coupling = jnp.sqrt(jnp.sum(weights[None, :] * factor**2, axis=1))  # |row l of D_m^(1/2)|
     eps = jnp.finfo(omega.dtype).eps
-    # pitfall 1 of the notes: a mode no damper touches has its root on the pole (0 / 0). Which
-    # modes are touched is decided at a damper's coefficient, or at omega_max / |f_i|^2 if that
-    # is larger (then: |f_li| > eps |f_i|): a weak (or zero) damper's first-order effect on a
-    # mode, and its derivative (d -> 0), are kept instead of being deflated away
+    # pitfall 1 of the notes: a mode no damper touches has its roots on its poles (0 / 0).
+    # Which modes are touched is decided at a damper's coefficient, or at omega_max / |f_i|^2 if
+    # that is larger (then: |f_li| > eps |f_i|): a weak (or zero) damper's first-order effect on
+    # a mode, and its derivative (d -> 0), are kept instead of being deflated away
     columns = jnp.sum(factor**2, axis=0)
     scale = jnp.max(omega) / jnp.where(columns > 0, columns, 1.0)
     reach = jnp.sqrt(jnp.sum(jnp.maximum(weights, scale)[None, :] * factor**2, axis=1))
     total = jnp.sqrt(jnp.sum(reach**2))
     active = reach * total > eps * jnp.maximum(jnp.max(omega), total**2)
-    modes = jnp.arange(n)
-    anchor = jnp.concatenate([modes, modes])
+    anchor = jnp.arange(2 * n)
     sign = jnp.concatenate([jnp.ones(n), -jnp.ones(n)])
     # start inside the left half plane, off the poles, asymmetric so pairs can split onto the
     # real axis; the first-order shift -|g_l|^2 / 2 of a weak damper, capped
-    shift = jnp.minimum(jnp.concatenate([coupling, coupling]) ** 2 / 2, 0.5 * omega[anchor])
+    shift = jnp.minimum(jnp.concatenate([coupling, coupling]) ** 2 / 2,
+                        0.5 * jnp.concatenate([omega, omega]))
     start = -shift * (1 + 0.1j * sign) * jnp.where(sign > 0, 1.0, 1.03)
-    offset = jnp.where(jnp.concatenate([active, active]), start, 0.0).astype(jnp.complex128)
     root_active = jnp.concatenate([active, active])
+    offset = jnp.where(root_active, start, 0.0).astype(jnp.complex128)
     pair_mask = root_active[None, :] & root_active[:, None] & ~jnp.eye(2 * n, dtype=bool)
 
     def sweep(carry):
-        anchor, sign, offset, it, _ = carry
-        phi, phi_prime, others, _, _ = _secular(omega, factor, weights, active, anchor, sign,
+        anchor, offset, it, _ = carry
+        phi, phi_prime, others, _, _ = _secular(poles, gamma, factor, weights, active, anchor,
                                                 offset)
-        diff = _roots_difference(omega, anchor, sign, offset)
+        diff = _roots_difference(poles, anchor, offset)
         repel = jnp.sum(jnp.where(pair_mask, 1 / jnp.where(pair_mask, diff, 1.0), 0.0), axis=1)
         denominator = phi * (others - repel) + phi_prime
         step = jnp.where(root_active & (denominator != 0),
                          phi / jnp.where(denominator != 0, denominator, 1.0), 0.0)
         offset = offset - step
-        lam = 1j * sign * omega[anchor] + offset
+        lam = poles[anchor] + offset
         size = jnp.max(jnp.where(root_active, jnp.abs(step) / jnp.abs(lam), 0.0))
-        anchor, sign, offset = _reanchor(omega, active, anchor, sign, offset)
+        anchor, offset = _reanchor(poles, active, anchor, offset)
         offset = jnp.where(root_active, offset, 0.0)
-        return anchor, sign, offset, it + 1, size
+        return anchor, offset, it + 1, size
 
     def not_done(carry):
         *_, it, size = carry
         return (it < _MAX_ITERATIONS) & ((size > _ABERTH_TOL) | ~jnp.isfinite(size))
 
-    init = (anchor, sign, offset, jnp.array(0), jnp.array(jnp.inf))
-    anchor, sign, offset, iterations, _ = jax.lax.while_loop(not_done, sweep, init)
-    anchor = jnp.where(root_active, anchor, jnp.concatenate([modes, modes]))
-    sign = jnp.where(root_active, sign, jnp.concatenate([jnp.ones(n), -jnp.ones(n)]))
+    init = (anchor, offset, jnp.array(0), jnp.array(jnp.inf))
+    anchor, offset, iterations, _ = jax.lax.while_loop(not_done, sweep, init)
+    anchor = jnp.where(root_active, anchor, jnp.arange(2 * n))
     for _ in range(_POLISH_STEPS):
-        phi, phi_prime, *_ = _secular(omega, factor, weights, active, anchor, sign, offset)
+        phi, phi_prime, *_ = _secular(poles, gamma, factor, weights, active, anchor, offset)
         offset = jnp.where(root_active & (phi_prime != 0),
                            offset - phi / jnp.where(phi_prime != 0, phi_prime, 1.0), offset)
-    phi, _, _, c, scale = _secular(omega, factor, weights, active, anchor, sign, offset)
-    lam = 1j * sign * omega[anchor] + offset
+    phi, _, _, c, scale = _secular(poles, gamma, factor, weights, active, anchor, offset)
+    lam = poles[anchor] + offset
     residual_ok = jnp.all(jnp.where(root_active, jnp.abs(phi) <= _RESIDUAL_TOL * scale, True))
-    trace = jnp.sum(jnp.where(active, coupling**2, 0.0))
+    trace = jnp.sum(jnp.where(active, coupling**2 + gamma, 0.0))
     trace_ok = (jnp.abs(jnp.sum(jnp.where(root_active, lam, 0.0)) + trace)
                 <= _TRACE_TOL * jnp.sum(jnp.where(root_active, jnp.abs(lam), 0.0)))
-    diff = jnp.abs(_roots_difference(omega, anchor, sign, offset)) / jnp.abs(lam)[:, None]
-    separation = jnp.min(jnp.where(pair_mask, diff, jnp.inf))
+    # roots that interact: two damped ones, or the two poles of one undamped-by-dampers mode
+    # (critical internal damping makes that pair defective)
+    same_mode = (anchor % n)[:, None] == (anchor % n)[None, :]
+    interacting = (pair_mask | (same_mode & ~root_active[:, None])) & ~jnp.eye(2 * n, dtype=bool)
+    diff = jnp.abs(_roots_difference(poles, anchor, offset)) / jnp.abs(lam)[:, None]
+    separation = jnp.min(jnp.where(interacting, diff, jnp.inf))
     converged = residual_ok & trace_ok & jnp.all(jnp.isfinite(lam)) & jnp.all(jnp.isfinite(c))
-    return DampedModes(omega, factor, weights, active, anchor, sign, offset, c, converged,
-                       separation, iterations)
+    return DampedModes(omega, gamma, factor, weights, active, anchor, offset, c, converged,
+                       separation, iterations, internal)
+
+
+def spectral_applies(system) -> str | None:
+    """None if the spectral path takes ``system``, else why not (one line)."""
+    if not isinstance(system.damping, Dampers):
+        return ("the spectral path needs discrete dampers (GroundedDamper, RelativeDamper), got "
+                f"{type(system.damping).__name__}")
+    if system.internal is not None and system.internal.matrix is not None:
+        return ("the spectral path takes internal damping that is diagonal in modal coordinates "
+                "(Rayleigh, modal), not a user's damping matrix")
+    return None
 
 
 def _modal_data(system):
-    """(omega, U, F, d) of a ``SecondOrderSystem`` with dampers only."""
-    if system.internal is not None:
-        raise ValueError(MARK + "system: internal damping is not supported by the spectral "
-                         "path yet (dampers only); use integrated_energy(method='exact').")
-    if not isinstance(system.damping, Dampers):
-        raise ValueError(MARK + "system: the spectral path needs discrete dampers "
-                         "(GroundedDamper, RelativeDamper), got "
-                         f"{type(system.damping).__name__}.")
+    """(omega, U, F, d, gamma or None) of a ``SecondOrderSystem`` the spectral path takes."""
+    why = spectral_applies(system)
+    if why is not None:
+        raise ValueError(MARK + f"system: {why}.")
     omega2, modes = generalized_modes(system)
     omega2 = check(omega2, omega2 <= 0, RESULTS[RESULTS.not_definite])
     low_rank = system.damping.project(modes)
-    return jnp.sqrt(omega2), modes, low_rank.factor, low_rank.weights
+    gamma = None
+    if system.internal is not None:
+        gamma = system.internal.in_modes(omega2, modes).diagonal
+    return jnp.sqrt(omega2), modes, low_rank.factor, low_rank.weights, gamma
 
 
 def damped_modes(system) -> DampedModes:
-    """The damped modes of a ``SecondOrderSystem`` with dampers (no internal damping).
+    """The damped modes of a ``SecondOrderSystem`` with dampers (and internal damping diagonal
+    in modal coordinates: Rayleigh, modal).
 
     All 2n eigenvalues lambda of lambda^2 M + lambda D + K in the layout of ``DampedModes``
-    (modal eigenvectors by ``.vectors()``, x = U y). Roots a damper does not touch are exactly
-    +-i omega_l. Check ``converged`` and ``separation``: the iteration reports, and never
-    hides, roots it did not find or pairs that nearly coincide (critical damping).
+    (modal eigenvectors by ``.vectors()``, x = U y). Roots of a mode no damper touches are that
+    mode's own two poles. Check ``converged`` and ``separation``: the iteration reports, and
+    never hides, roots it did not find or pairs that nearly coincide (critical damping).
     """
     check_x64()
-    omega, _, factor, weights = _modal_data(system)
-    return modal_damped_modes(omega, factor, weights)
+    omega, _, factor, weights, gamma = _modal_data(system)
+    return modal_damped_modes(omega, factor, weights, gamma)
+
+
+@_complex_arithmetic
+def _sums(modes: DampedModes):
+    """(s, pair): s_jk = lambda_j + lambda_k (2n, 2n) in pole-offset form (a conjugate pair's
+    imaginary parts cancel exactly), and which pairs carry energy (two damped roots, or the two
+    roots of one mode no damper touches)."""
+    n = modes.omega.shape[0]
+    base = modes.poles[modes.anchor]
+    s = (base[:, None] + base[None, :]) + (modes.offset[:, None] + modes.offset[None, :])
+    active = modes.root_active
+    same_mode = modes.modes[:, None] == modes.modes[None, :]
+    pair = (active[:, None] & active[None, :]) | (same_mode & ~active[:, None])
+    del n
+    return s, pair
+
+
+@_complex_arithmetic
+def modal_gram(modes: DampedModes, y) -> Array:
+    """G_jk = y_j^T Omega^2 y_k + lambda_j lambda_k y_j^T y_k, (2n, 2n), zero where the roots
+    do not interact: the energy inner product of the state eigenvectors (Omega y_j, lambda_j
+    y_j).
+
+    From the eigen-equations of j and k (symmetric D_m), G_jk = -2 lambda_j lambda_k y_j^T D_m
+    y_k / (lambda_j + lambda_k); with y^T F = -c / lambda this is -2 c_j^T diag(d) c_k /
+    (lambda_j + lambda_k) for dampers alone (Cauchy-like, O(k n^2), no cancellation), plus -2
+    lambda_j lambda_k y_j^T diag(gamma) y_k / (lambda_j + lambda_k) with internal damping (one
+    (2n, n, 2n) product, O(n^3): internal damping breaks the low rank). A conjugate pair (and
+    a real root with itself), where lambda_j + lambda_k is below the rounding of lambda, is
+    summed directly, O(n) per root; a mode no damper touches has unit vectors.
+    """
+    omega, weights, c = modes.omega, modes.weights, modes.null
+    lam = modes.eigenvalues
+    s, pair = _sums(modes)
+    active = modes.root_active
+    s_safe = jnp.where(pair & (s != 0), s, 1.0)
+    cauchy = (c * weights[None, :]) @ c.T
+    if modes.internal:
+        cauchy = cauchy + (lam[:, None] * lam[None, :]) * ((y * modes.gamma[None, :]) @ y.T)
+    gram = -2 * cauchy / s_safe
+    base = modes.poles[modes.anchor]
+    conj_gap = jnp.abs((base[None, :] - jnp.conj(base)[:, None])
+                       + (modes.offset[None, :] - jnp.conj(modes.offset)[:, None]))
+    partner = jnp.argmin(jnp.where(pair, conj_gap, jnp.inf), axis=1)
+    direct = jnp.sum((omega[None, :] ** 2 + (lam * lam[partner])[:, None]) * y * y[partner],
+                     axis=1)
+    rows = jnp.arange(lam.shape[0])
+    gram = gram.at[rows, partner].set(jnp.where(active, direct, gram[rows, partner]))
+    own = omega[modes.modes] ** 2
+    unit = own[:, None] + lam[:, None] * lam[None, :]
+    gram = jnp.where(active[:, None] | active[None, :], gram, unit)
+    return jnp.where(pair, gram, 0.0)
+
+
+def _growth(s, horizon):
+    """(e^{s T} - 1) / s, also for tiny |s T| (series) and T = inf (-1 / s, Re s < 0)."""
+    if horizon is None:
+        return -1 / jnp.where(s != 0, s, -1.0)
+    small = jnp.abs(s * horizon) < 1e-3
+    s_large = jnp.where(small, 1.0, s)  # no 0 / 0 in the branch not taken (its gradient)
+    return jnp.where(small,
+                     horizon * (1 + s * horizon / 2 + (s * horizon) ** 2 / 6
+                                + (s * horizon) ** 3 / 24),
+                     jnp.expm1(s_large * horizon) / s_large)
 
 
 @_complex_arithmetic
 def _energy_from_modes(modes: DampedModes, q0, p0, horizon):
-    """J from the damped modes and the modal initial state (eta0, eta0'), O(n^2 k)."""
-    omega, factor, weights = modes.omega, modes.factor, modes.weights
-    lam = modes.eigenvalues
-    c = modes.null
+    """J from the modes and the modal initial state (eta0, eta0'), O(n^2 k) (O(n^3) with
+    internal damping, see ``modal_gram``); q0, p0 may carry a trailing batch axis (then one J
+    per column); ``horizon`` None: T = inf."""
     y = modes.vectors().T  # (2n, n)
-    active = modes.root_active
-    a = jnp.where(active, modes.coefficients(q0, p0), 0.0)
-    # lambda_j + lambda_k in pole-offset form: for a conjugate pair the +-i omega_J cancel
-    # exactly
-    base = modes.sign * omega[modes.anchor]
-    s = 1j * (base[:, None] + base[None, :]) + (modes.offset[:, None] + modes.offset[None, :])
-    pair = active[:, None] & active[None, :]
-    s_safe = jnp.where(pair, s, -1.0)
-    # (e^{sT} - 1) / s, for tiny |s T| too
-    small = jnp.abs(s_safe * horizon) < 1e-3
-    s_large = jnp.where(small, 1.0, s_safe)  # no 0 / 0 in the branch not taken (its gradient)
-    growth = jnp.where(small,
-                       horizon * (1 + s_safe * horizon / 2 + (s_safe * horizon) ** 2 / 6
-                                  + (s_safe * horizon) ** 3 / 24),
-                       jnp.expm1(s_large * horizon) / s_large)
-    # G_jk = y_j^T Omega^2 y_k + lambda_j lambda_k y_j^T y_k = -2 c_j^T W c_k / (lambda_j +
-    # lambda_k) (from the eigen-equations of j and k): no cancellation, except for a conjugate
-    # pair (or a real root with itself) of a mode the dampers barely touch, where s = 2 Re lambda
-    # is below the rounding of lambda; there the direct sum of positive terms
-    # (omega_l^2 + |lambda|^2) |y_l|^2 is exact, O(n) per root
-    gram = -2 * ((c * weights[None, :]) @ c.T) / jnp.where(s_safe == 0, 1.0, s_safe)
-    conj_gap = jnp.abs(1j * (base[None, :] + base[:, None])
-                       + modes.offset[None, :] - jnp.conj(modes.offset)[:, None])
-    partner = jnp.argmin(jnp.where(pair, conj_gap, jnp.inf), axis=1)
-    y_partner = y[partner]
-    direct = jnp.sum((omega[None, :] ** 2 + (lam * lam[partner])[:, None]) * y * y_partner,
-                     axis=1)
-    rows = jnp.arange(lam.shape[0])
-    gram = gram.at[rows, partner].set(jnp.where(active, direct, gram[rows, partner]))
-    damped = jnp.sum(jnp.where(pair, a[:, None] * a[None, :] * gram * growth, 0.0)) / 2
-    undamped = jnp.where(modes.active, 0.0, (omega * q0) ** 2 + p0**2)
-    return jnp.real(damped) + horizon * jnp.sum(undamped) / 2
+    s, pair = _sums(modes)
+    if not modes.internal:  # a mode no damper touches keeps its energy: T E_l(0), exactly
+        pair = pair & modes.root_active[:, None]
+    a = modes.coefficients(q0, p0)
+    kernel = jnp.where(pair, modal_gram(modes, y) * _growth(jnp.where(pair, s, -1.0), horizon),
+                       0.0)
+    value = jnp.real(jnp.einsum("j...,jk,k...->...", a, kernel, a)) / 2
+    if modes.internal:
+        return value
+    idle = jnp.where(modes.active[:, None] if q0.ndim > 1 else modes.active, 0.0,
+                     (modes.omega.reshape((-1,) + (1,) * (q0.ndim - 1)) * q0) ** 2 + p0**2)
+    if horizon is None:  # an undamped mode's energy never decays
+        return value + jnp.where(jnp.any(idle > 0, axis=0), jnp.inf, 0.0)
+    return value + horizon * jnp.sum(idle, axis=0) / 2
 
 
 @_complex_arithmetic
@@ -354,30 +461,40 @@ def _differentiable_roots(modes: DampedModes) -> DampedModes:
     """The same roots with the derivative of one Newton step on phi_J at them (implicit
     differentiation: dlambda = -dphi / phi'); the iteration itself carries no derivative."""
     frozen = jax.lax.stop_gradient(modes)
-    phi, phi_prime, *_ = _secular(modes.omega, modes.factor, modes.weights, frozen.active,
-                                  frozen.anchor, frozen.sign, frozen.offset)
+    poles = _poles(modes.omega, modes.gamma)
+    phi, phi_prime, *_ = _secular(poles, modes.gamma, modes.factor, modes.weights,
+                                  frozen.active, frozen.anchor, frozen.offset)
     active = frozen.root_active
     step = jnp.where(active, phi / jnp.where(active, phi_prime, 1.0), 0.0)
     offset = frozen.offset - (step - jax.lax.stop_gradient(step))
-    _, _, _, c, _ = _secular(modes.omega, modes.factor, modes.weights, frozen.active,
-                             frozen.anchor, frozen.sign, offset)
-    return eqx.tree_at(lambda m: (m.omega, m.factor, m.weights, m.offset, m.null), frozen,
-                       (modes.omega, modes.factor, modes.weights, offset, c))
+    _, _, _, c, _ = _secular(poles, modes.gamma, modes.factor, modes.weights, frozen.active,
+                             frozen.anchor, offset)
+    return eqx.tree_at(lambda m: (m.omega, m.gamma, m.factor, m.weights, m.offset, m.null),
+                       frozen, (modes.omega, modes.gamma, modes.factor, modes.weights, offset, c))
+
+
+def live_modes(system):
+    """(differentiable ``DampedModes``, U, ok): the roots found without derivatives, then
+    carrying the implicit derivative of the secular equation; ok: converged and no two
+    interacting roots nearly coincide."""
+    omega, modes_u, factor, weights, gamma = _modal_data(system)
+    frozen = modal_damped_modes(*jax.lax.stop_gradient((omega, factor, weights, gamma)))
+    live = frozen if gamma is None else eqx.tree_at(lambda m: m.gamma, frozen, gamma)
+    modes = _differentiable_roots(eqx.tree_at(lambda m: (m.omega, m.factor, m.weights), live,
+                                              (omega, factor, weights)))
+    ok = frozen.converged & (frozen.separation > DEFECTIVE_SEPARATION)
+    return modes, modes_u, ok
 
 
 @eqx.filter_jit
 def spectral_energy_with_result(system, horizon, x0, v0):
     """(J, ok, ``DampedModes``): the spectral energy and whether it holds (ok: every root
     converged and no two damped roots nearly coincide); where not ok, J must not be used."""
-    omega, modes_u, factor, weights = _modal_data(system)
-    frozen = modal_damped_modes(*jax.lax.stop_gradient((omega, factor, weights)))
-    modes = _differentiable_roots(eqx.tree_at(lambda m: (m.omega, m.factor, m.weights), frozen,
-                                              (omega, factor, weights)))
+    modes, modes_u, ok = live_modes(system)
     project = modal_projection(system, modes_u)
     q0, p0 = project(x0), project(v0)
-    ok = frozen.converged & (frozen.separation > DEFECTIVE_SEPARATION)
     value = _energy_from_modes(modes, q0, p0, horizon)
-    return value, ok & jnp.isfinite(value), frozen
+    return value, ok & jnp.isfinite(value), jax.lax.stop_gradient(modes)
 
 
 @eqx.filter_jit
