@@ -78,12 +78,15 @@ class RESULTS(eqx.Enumeration):
     not_damped = (
         "total_average_energy: some mode is undamped (the Lyapunov solution does not exist); "
         "place a damper where every mode moves, or restrict Z with lowest=s.")
+    spectral_failed = (
+        "the spectral path did not hold here (a root did not converge, or two roots nearly "
+        "coincide: a mode at critical damping); use method='dense'.")
 
 
 # every failure, in the order a batch reports them (the first that holds anywhere wins)
 FAILURES = (RESULTS.not_definite, RESULTS.max_steps_reached, RESULTS.solver_failed,
             RESULTS.non_finite_states, RESULTS.exact_not_finite, RESULTS.pulse_too_short,
-            RESULTS.out_of_range, RESULTS.not_damped)
+            RESULTS.out_of_range, RESULTS.not_damped, RESULTS.spectral_failed)
 
 
 def first_failure(*cases) -> RESULTS:

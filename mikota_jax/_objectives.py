@@ -47,6 +47,8 @@ from ._integrate import (
     unpack,
 )
 from ._modal import modal_projection, scaled_modal, state_matrix
+from ._spectral import spectral_applies
+from ._spectral_objectives import spectral_energy_with_result, spectral_trace_with_result
 
 DOUBLINGS_FINITE = 16  # first step at most T / 2^16: Van Loan's exponential stays well scaled
 _DOUBLINGS_MAX = 60  # ... and at least T / 2^60: ||A h|| <= 8 up to rates of 1e17 / T
@@ -113,8 +115,8 @@ def _modal_problem(model, x0, v0):
 
 
 @eqx.filter_jit
-def integrated_energy_exact_with_result(model, horizon, x0, v0):
-    """The compiled ``integrated_energy(method="exact")`` on checked inputs: (J, ``RESULTS``)."""
+def van_loan_energy_with_result(model, horizon, x0, v0):
+    """The dense ``integrated_energy`` (Van Loan, doubling) on checked inputs: (J, ``RESULTS``)."""
     a, z0, _, not_definite = _modal_problem(model, x0, v0)
     w, _ = _finite_gramian(a, jnp.eye(a.shape[0]), horizon)
     w = (w + w.T) / 2
@@ -123,6 +125,37 @@ def integrated_energy_exact_with_result(model, horizon, x0, v0):
     value = z0 @ w @ z0 / 2
     return value, first_failure((not_definite, RESULTS.not_definite),
                                 (out_of_range | ~jnp.isfinite(value), RESULTS.out_of_range))
+
+
+def takes_spectral(model) -> bool:
+    """Whether the spectral path applies: a full system with discrete dampers (and internal
+    damping diagonal in modal coordinates, if any)."""
+    return not isinstance(model, ReducedModel) and spectral_applies(model) is None
+
+
+def _spectral_or_dense(spectral, dense):
+    """(value, ``RESULTS``): the spectral value where it holds, else the dense one. Eagerly only
+    the branch needed runs; under a caller's trace, a ``lax.cond`` (both compiled; under ``vmap``
+    both evaluated)."""
+    value, ok = spectral()
+    try:
+        holds = bool(ok)
+    except jax.errors.ConcretizationTypeError:
+        return jax.lax.cond(ok, lambda: (value, RESULTS.successful), dense)
+    return (value, RESULTS.successful) if holds else dense()
+
+
+def integrated_energy_exact_with_result(model, horizon, x0, v0, method="exact"):
+    """``integrated_energy`` without a load on checked inputs: (J, ``RESULTS``). ``method``:
+    "exact" (spectral where it applies and holds, else dense), "spectral" or "dense"."""
+    dense = lambda: van_loan_energy_with_result(model, horizon, x0, v0)  # noqa: E731
+    if method == "dense" or not takes_spectral(model):
+        return dense()
+    spectral = lambda: spectral_energy_with_result(model, horizon, x0, v0)  # noqa: E731
+    if method == "spectral":
+        value, ok = spectral()
+        return value, RESULTS.where(ok, RESULTS.successful, RESULTS.spectral_failed)
+    return _spectral_or_dense(spectral, dense)
 
 
 @eqx.filter_jit
@@ -156,6 +189,17 @@ def _modal_size(model) -> int:
     return model.rank if isinstance(model, ReducedModel) else model.size
 
 
+_EXACT_METHODS = ("exact", "spectral", "dense")
+
+
+def _check_spectral(model, method):
+    if method == "spectral" and not takes_spectral(model):
+        why = ("a reduced model has no discrete dampers of its own" if isinstance(
+            model, ReducedModel) else "the system is undamped" if not model.damped
+            else spectral_applies(model))
+        raise ValueError(MARK + f"method='spectral' does not apply: {why}; use method='exact'.")
+
+
 @raises_value_error
 def integrated_energy(model, horizon: float, x0: Vector | None = None,
                       v0: Vector | None = None, load=None, *, method: str = "exact",
@@ -169,24 +213,33 @@ def integrated_energy(model, horizon: float, x0: Vector | None = None,
     Differentiable in every physical value (masses, springs, damper positions and coefficients,
     T, x0, v0): the damper-placement objective ``"energy"``.
 
-    ``method="exact"`` (free vibration only): a matrix-exponential integral, no tolerance, O(n^3)
-    -- the choice for a reduced model. ``method="ode"``: the integral is one more state of an
-    adaptive Dopri8 solve (``rtol``/``atol``, ``max_steps``, ``adjoint`` as in ``simulate``; use
-    ``diffrax.ForwardMode()`` under ``jax.jvp``/``jax.jacfwd``), O(n) per step and loads allowed
-    -- the choice for a full chain (about 0.1 s for the paper's n = 300 scene against 0.9 s).
+    ``method="exact"`` (free vibration only, no tolerance): ``"spectral"`` where it applies and
+    holds, else ``"dense"``. ``"spectral"``: from the damped modes in closed form
+    (``_spectral_objectives``), O(k n^2) after the undamped modes for k damper columns; applies
+    to a full system with discrete dampers and internal damping diagonal in modal coordinates
+    (Rayleigh, modal; then O(n^3) in one matrix product), not to a reduced model, a user's
+    damping matrix or an undamped system; where a root does not converge or two roots nearly
+    coincide (a mode at critical damping) ``"exact"`` falls back to ``"dense"``. ``"dense"``: a
+    matrix-exponential integral (Van Loan, doubling), O(n^3) -- the choice for a reduced model.
+    ``method="ode"``: the integral is one more state of an adaptive Dopri8 solve (``rtol``/
+    ``atol``, ``max_steps``, ``adjoint`` as in ``simulate``; use ``diffrax.ForwardMode()`` under
+    ``jax.jvp``/``jax.jacfwd``), O(n) per step and loads allowed.
     """
     check_x64()
-    if method not in ("exact", "ode"):
-        raise ValueError(MARK + f"method must be 'exact' or 'ode', got {method!r}.")
+    if method not in _EXACT_METHODS + ("ode",):
+        raise ValueError(MARK + "method must be 'exact', 'spectral', 'dense' or 'ode', got "
+                         f"{method!r}.")
     horizon = as_float(horizon, "horizon")
     horizon = check(horizon, ~(jnp.isfinite(horizon) & (horizon > 0)), "horizon must be > 0.")
     x0, v0, load = check_problem(model, x0, v0, load)
-    if method == "exact":
+    if method in _EXACT_METHODS:
         if load is not None:
-            raise ValueError(MARK + "method='exact' integrates free vibration only; for a load "
-                             "use method='ode'.")
-        check_dense_memory(_modal_size(model), 100, "integrated_energy(method='exact')")
-        value, result = integrated_energy_exact_with_result(model, horizon, x0, v0)
+            raise ValueError(MARK + f"method={method!r} integrates free vibration only; for a "
+                             "load use method='ode'.")
+        _check_spectral(model, method)
+        check_dense_memory(_modal_size(model), 100 if not takes_spectral(model) else 12,
+                           "integrated_energy(method='exact')")
+        value, result = integrated_energy_exact_with_result(model, horizon, x0, v0, method)
         return raise_result(value, result)
     rtol, atol, adjoint = check_solve_options(rtol, atol, max_steps, adjoint)
     value, result = integrated_energy_ode_with_result(
@@ -195,8 +248,9 @@ def integrated_energy(model, horizon: float, x0: Vector | None = None,
 
 
 @eqx.filter_jit
-def total_average_energy_with_result(model, *, lowest):
-    """The compiled ``total_average_energy`` on checked inputs: (trace X, ``RESULTS``)."""
+def _dense_trace_with_result(model, *, lowest):
+    """The dense ``total_average_energy`` (doubling of Van Loan's integral): (trace X,
+    ``RESULTS``)."""
     system, _, _, _, _ = unpack(model, jnp.zeros(model.size), jnp.zeros(model.size), None)
     omega, _, damping_modal, not_definite = scaled_modal(system)
     a = state_matrix(omega, damping_modal)
@@ -209,8 +263,28 @@ def total_average_energy_with_result(model, *, lowest):
                                        (undamped, RESULTS.not_damped))
 
 
+def total_average_energy_with_result(model, *, lowest, method="exact"):
+    """The compiled ``total_average_energy`` on checked inputs: (trace X, ``RESULTS``)."""
+    dense = lambda: _dense_trace_with_result(model, lowest=lowest)  # noqa: E731
+    if method == "dense" or not takes_spectral(model):
+        return dense()
+
+    def spectral():
+        value, ok = spectral_trace_with_result(model, lowest=lowest)
+        # an undamped mode: X does not exist (inf), which the dense path reports as such
+        return value, ok
+
+    if method == "spectral":
+        value, ok = spectral()
+        return value, RESULTS.where(ok, RESULTS.successful,
+                                    RESULTS.where(jnp.isinf(value), RESULTS.not_damped,
+                                                  RESULTS.spectral_failed))
+    return _spectral_or_dense(spectral, dense)
+
+
 @raises_value_error
-def total_average_energy(model, lowest: int | None = None) -> Float[Array, ""]:
+def total_average_energy(model, lowest: int | None = None, *,
+                         method: str = "exact") -> Float[Array, ""]:
     """Veselic's total average energy: trace X with A^T X + X A = -Z, a scalar.
 
     A is the state matrix of M x'' + D x' + K x = 0 (eq. 3.1) in scaled modal coordinates (see
@@ -218,16 +292,25 @@ def total_average_energy(model, lowest: int | None = None) -> Float[Array, ""]:
     Z = I (every mode); ``lowest=s``: Z selects the s lowest eigenfrequencies (both components of
     each). Its unit is time: X = int_0^inf exp(A^T t) Z exp(A t) dt. Raises if some mode is
     undamped (then X does not exist). Differentiable in the physical values.
+
+    ``method`` as in ``integrated_energy``: ``"exact"`` takes ``"spectral"`` (closed form from the
+    damped modes, O(k n^2 + s n^2) for dampers alone, O(n^3) in one matrix product with internal
+    damping; a full system with discrete dampers) where it applies and holds, else ``"dense"``
+    (Smith doubling of Van Loan's integral, O(n^3) per doubling, 64 doublings).
     """
     check_x64()
+    if method not in _EXACT_METHODS:
+        raise ValueError(MARK + f"method must be 'exact', 'spectral' or 'dense', got {method!r}.")
     check_problem(model, None, None, None)
     modal_size = _modal_size(model)
     if lowest is not None and (isinstance(lowest, bool) or not isinstance(lowest, int)
                                or not 1 <= lowest <= modal_size):
         raise ValueError(MARK + f"lowest must be None or an integer in 1..{modal_size}, "
                          f"got {lowest!r}.")
-    check_dense_memory(_modal_size(model), 100, "total_average_energy")
-    value, result = total_average_energy_with_result(model, lowest=lowest)
+    _check_spectral(model, method)
+    check_dense_memory(_modal_size(model), 100 if not takes_spectral(model) else 12,
+                       "total_average_energy")
+    value, result = total_average_energy_with_result(model, lowest=lowest, method=method)
     return raise_result(value, result)
 
 

@@ -33,14 +33,13 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ._custom_types import Array, Float, Vector
+from ._custom_types import Array, Float
 from ._dampers import Dampers
-from ._errors import MARK, RESULTS, as_float, check, check_x64, raise_result
-from ._modal import generalized_modes, modal_projection
-from ._objectives import integrated_energy, integrated_energy_exact_with_result
+from ._errors import MARK, RESULTS, check, check_x64
+from ._modal import generalized_modes
 
 
-def _complex_arithmetic(fn):
+def complex_arithmetic(fn):
     """Run ``fn`` with JAX's standard dtype promotion: the roots are complex and mix freely with
     the real frequencies (the tests' strict promotion guards the rest of the package)."""
 
@@ -101,7 +100,7 @@ class DampedModes(eqx.Module):
         return self.anchor % self.omega.shape[0]
 
     @property
-    @_complex_arithmetic
+    @complex_arithmetic
     def eigenvalues(self) -> Array:
         """lambda: (2n,) complex; an undamped chain's root j < n near +i omega_j."""
         return self.poles[self.anchor] + self.offset
@@ -111,7 +110,7 @@ class DampedModes(eqx.Module):
         """(2n,) bool: the roots of modes a damper touches."""
         return jnp.concatenate([self.active, self.active])
 
-    @_complex_arithmetic
+    @complex_arithmetic
     def vectors(self) -> Array:
         """Modal eigenvectors y: (n, 2n) complex, (lambda^2 + lambda D_m + Omega^2) y = 0.
 
@@ -126,7 +125,7 @@ class DampedModes(eqx.Module):
         unit = jnp.eye(n)[self.modes]
         return jnp.where(self.root_active[:, None], y, unit).T
 
-    @_complex_arithmetic
+    @complex_arithmetic
     def normalisers(self) -> Array:
         """N_j = y_j^T (2 lambda_j I + D_m) y_j: (2n,) complex, the bi-orthogonality scale of
         ``vectors`` (y_k^T ((lambda_j + lambda_k) I + D_m) y_j = 0 for j != k). Zero at a
@@ -137,7 +136,7 @@ class DampedModes(eqx.Module):
         return (jnp.sum((2 * lam[:, None] + self.gamma[None, :]) * y * y, axis=1)
                 + jnp.sum(yfw * self.weights[None, :] * yfw, axis=1))
 
-    @_complex_arithmetic
+    @complex_arithmetic
     def coefficients(self, q0: Float[Array, "n ..."], p0: Float[Array, "n ..."]) -> Array:
         """a: (2n, *p) complex, the modal state (eta(0), eta'(0)) = (q0, p0) expanded as
         eta(t) = sum_j a_j exp(lambda_j t) y_j (every root, deflated ones included); q0, p0 may
@@ -154,7 +153,7 @@ class DampedModes(eqx.Module):
         norm = self.normalisers().reshape(lam.shape)
         return (y @ p0 - (y @ stiff) / lam) / norm
 
-    @_complex_arithmetic
+    @complex_arithmetic
     def load_coefficients(self, g: Float[Array, " n"]) -> Array:
         """b: (2n,) complex, b_j = y_j^T g / N_j for a constant modal force g (= U^T f): the
         response of eta'' + D_m eta' + Omega^2 eta = g from rest is eta(t) = sum_j b_j
@@ -249,7 +248,7 @@ def _roots_difference(poles, anchor, offset):
 
 
 @eqx.filter_jit
-@_complex_arithmetic
+@complex_arithmetic
 def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
                        weights: Float[Array, " k"],
                        gamma: Float[Array, " n"] | None = None) -> DampedModes:
@@ -333,6 +332,9 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
 
 def spectral_applies(system) -> str | None:
     """None if the spectral path takes ``system``, else why not (one line)."""
+    if system.damping is None:
+        return ("the spectral path needs discrete dampers (GroundedDamper, RelativeDamper); the "
+                "system has none")
     if not isinstance(system.damping, Dampers):
         return ("the spectral path needs discrete dampers (GroundedDamper, RelativeDamper), got "
                 f"{type(system.damping).__name__}")
@@ -342,7 +344,7 @@ def spectral_applies(system) -> str | None:
     return None
 
 
-def _modal_data(system):
+def modal_data(system):
     """(omega, U, F, d, gamma or None) of a ``SecondOrderSystem`` the spectral path takes."""
     why = spectral_applies(system)
     if why is not None:
@@ -366,12 +368,12 @@ def damped_modes(system) -> DampedModes:
     never hides, roots it did not find or pairs that nearly coincide (critical damping).
     """
     check_x64()
-    omega, _, factor, weights, gamma = _modal_data(system)
+    omega, _, factor, weights, gamma = modal_data(system)
     return modal_damped_modes(omega, factor, weights, gamma)
 
 
-@_complex_arithmetic
-def _sums(modes: DampedModes):
+@complex_arithmetic
+def pair_sums(modes: DampedModes):
     """(s, pair): s_jk = lambda_j + lambda_k (2n, 2n) in pole-offset form (a conjugate pair's
     imaginary parts cancel exactly), and which pairs carry energy (two damped roots, or the two
     roots of one mode no damper touches)."""
@@ -385,7 +387,7 @@ def _sums(modes: DampedModes):
     return s, pair
 
 
-@_complex_arithmetic
+@complex_arithmetic
 def modal_gram(modes: DampedModes, y) -> Array:
     """G_jk = y_j^T Omega^2 y_k + lambda_j lambda_k y_j^T y_k, (2n, 2n), zero where the roots
     do not interact: the energy inner product of the state eigenvectors (Omega y_j, lambda_j
@@ -401,7 +403,7 @@ def modal_gram(modes: DampedModes, y) -> Array:
     """
     omega, weights, c = modes.omega, modes.weights, modes.null
     lam = modes.eigenvalues
-    s, pair = _sums(modes)
+    s, pair = pair_sums(modes)
     active = modes.root_active
     s_safe = jnp.where(pair & (s != 0), s, 1.0)
     cauchy = (c * weights[None, :]) @ c.T
@@ -422,7 +424,7 @@ def modal_gram(modes: DampedModes, y) -> Array:
     return jnp.where(pair, gram, 0.0)
 
 
-def _growth(s, horizon):
+def growth(s, horizon):
     """(e^{s T} - 1) / s, also for tiny |s T| (series) and T = inf (-1 / s, Re s < 0)."""
     if horizon is None:
         return -1 / jnp.where(s != 0, s, -1.0)
@@ -434,30 +436,8 @@ def _growth(s, horizon):
                      jnp.expm1(s_large * horizon) / s_large)
 
 
-@_complex_arithmetic
-def _energy_from_modes(modes: DampedModes, q0, p0, horizon):
-    """J from the modes and the modal initial state (eta0, eta0'), O(n^2 k) (O(n^3) with
-    internal damping, see ``modal_gram``); q0, p0 may carry a trailing batch axis (then one J
-    per column); ``horizon`` None: T = inf."""
-    y = modes.vectors().T  # (2n, n)
-    s, pair = _sums(modes)
-    if not modes.internal:  # a mode no damper touches keeps its energy: T E_l(0), exactly
-        pair = pair & modes.root_active[:, None]
-    a = modes.coefficients(q0, p0)
-    kernel = jnp.where(pair, modal_gram(modes, y) * _growth(jnp.where(pair, s, -1.0), horizon),
-                       0.0)
-    value = jnp.real(jnp.einsum("j...,jk,k...->...", a, kernel, a)) / 2
-    if modes.internal:
-        return value
-    idle = jnp.where(modes.active[:, None] if q0.ndim > 1 else modes.active, 0.0,
-                     (modes.omega.reshape((-1,) + (1,) * (q0.ndim - 1)) * q0) ** 2 + p0**2)
-    if horizon is None:  # an undamped mode's energy never decays
-        return value + jnp.where(jnp.any(idle > 0, axis=0), jnp.inf, 0.0)
-    return value + horizon * jnp.sum(idle, axis=0) / 2
-
-
-@_complex_arithmetic
-def _differentiable_roots(modes: DampedModes) -> DampedModes:
+@complex_arithmetic
+def differentiable_roots(modes: DampedModes) -> DampedModes:
     """The same roots with the derivative of one Newton step on phi_J at them (implicit
     differentiation: dlambda = -dphi / phi'); the iteration itself carries no derivative."""
     frozen = jax.lax.stop_gradient(modes)
@@ -477,68 +457,10 @@ def live_modes(system):
     """(differentiable ``DampedModes``, U, ok): the roots found without derivatives, then
     carrying the implicit derivative of the secular equation; ok: converged and no two
     interacting roots nearly coincide."""
-    omega, modes_u, factor, weights, gamma = _modal_data(system)
+    omega, modes_u, factor, weights, gamma = modal_data(system)
     frozen = modal_damped_modes(*jax.lax.stop_gradient((omega, factor, weights, gamma)))
     live = frozen if gamma is None else eqx.tree_at(lambda m: m.gamma, frozen, gamma)
-    modes = _differentiable_roots(eqx.tree_at(lambda m: (m.omega, m.factor, m.weights), live,
+    modes = differentiable_roots(eqx.tree_at(lambda m: (m.omega, m.factor, m.weights), live,
                                               (omega, factor, weights)))
     ok = frozen.converged & (frozen.separation > DEFECTIVE_SEPARATION)
     return modes, modes_u, ok
-
-
-@eqx.filter_jit
-def spectral_energy_with_result(system, horizon, x0, v0):
-    """(J, ok, ``DampedModes``): the spectral energy and whether it holds (ok: every root
-    converged and no two damped roots nearly coincide); where not ok, J must not be used."""
-    modes, modes_u, ok = live_modes(system)
-    project = modal_projection(system, modes_u)
-    q0, p0 = project(x0), project(v0)
-    value = _energy_from_modes(modes, q0, p0, horizon)
-    return value, ok & jnp.isfinite(value), jax.lax.stop_gradient(modes)
-
-
-@eqx.filter_jit
-def _energy_or_fallback(system, horizon, x0, v0):
-    """Under a caller's ``jit``: the spectral value, or the Van Loan path where it does not hold."""
-    value, ok, _ = spectral_energy_with_result(system, horizon, x0, v0)
-    return jax.lax.cond(
-        ok, lambda: (value, RESULTS.successful),
-        lambda: integrated_energy_exact_with_result(system, horizon, x0, v0))
-
-
-def spectral_energy(system, horizon: float, x0: Vector | None = None,
-                    v0: Vector | None = None) -> Float[Array, ""]:
-    """The integrated energy J = int_0^T (x^T K x + x'^T M x') / 2 dt of free vibration, from the
-    damped modes in closed form.
-
-    J = 1/2 sum_jk a_j a_k G_jk (e^{s_jk T} - 1) / s_jk, s_jk = lambda_j + lambda_k, over the
-    damped roots (a_j the coefficients of (x0, v0) by the bi-orthogonality y_k^T (lambda_j +
-    lambda_k + D_m) y_j = 0), with the modal Gram matrix G_jk = y_j^T Omega^2 y_k + lambda_j
-    lambda_k y_j^T y_k = -2 c_j^T diag(d) c_k / s_jk (Cauchy-like; a conjugate pair summed
-    directly), plus T (omega_l^2 eta0_l^2 + eta0'_l^2) / 2 for each mode no damper touches:
-    O(k n^2) after the modes, no matrix exponential. ``system``: a ``SecondOrderSystem`` with
-    dampers and no internal damping; ``horizon`` T > 0; ``x0``, ``v0``: (n,) (default zero). A
-    scalar in energy x time. Where the roots did not converge or two damped roots nearly
-    coincide (relative separation below 1e-6: critical damping of a mode), it falls back to
-    ``integrated_energy(method="exact")`` (Van Loan, O(n^3)); ``spectral_energy_with_result``
-    says which. Differentiable (``jax.grad``) in the dampers' coefficients and positions and the
-    initial state, by implicit differentiation of the secular equation at the roots.
-    """
-    check_x64()
-    n = system.size
-    horizon = as_float(horizon, "horizon")
-    horizon = check(horizon, ~(jnp.isfinite(horizon) & (horizon > 0)), "horizon must be > 0.")
-    x0 = jnp.zeros(n) if x0 is None else as_float(x0, "x0")
-    v0 = jnp.zeros(n) if v0 is None else as_float(v0, "v0")
-    if x0.shape != (n,) or v0.shape != (n,):
-        raise ValueError(MARK + f"x0 and v0 must have shape ({n},), got {x0.shape} and "
-                         f"{v0.shape}.")
-    value, ok, _ = spectral_energy_with_result(system, horizon, x0, v0)
-    try:
-        holds = bool(ok)  # concrete eagerly and under jax.grad: no Van Loan compiled
-    except jax.errors.ConcretizationTypeError:
-        value, result = _energy_or_fallback(system, horizon, x0, v0)
-        return raise_result(value, result)
-    if holds:
-        return value
-    return integrated_energy(system, horizon, x0, v0)
