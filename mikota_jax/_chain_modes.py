@@ -215,7 +215,8 @@ def _tangents(masses, springs, omega2, modes, twisted, dmasses, dsprings):
     domega2 = jnp.sum(dsprings[:, None] * stretch**2, axis=0) - omega2 * inertia
     force = dsprings[:, None] * stretch
     stiff = force - jnp.concatenate([force[1:], zero])  # dK u = L^T (dk * L u)
-    rhs = -(stiff - omega2[None, :] * dmasses[:, None] * modes) + domega2[None, :] * masses[:, None] * modes
+    rhs = (omega2[None, :] * dmasses[:, None] * modes - stiff
+           + domega2[None, :] * masses[:, None] * modes)
     scale = jnp.sqrt(masses)[:, None]
     y = _solve_twisted(t, twisted, (rhs / scale)[::-1])[::-1]
     w = y / scale  # (K - omega^2 M) w = rhs, up to a multiple of u
