@@ -20,8 +20,10 @@ bidiagonal C: ``q`` (the pivots k_i / m_i), ``e`` (k_i / m_{i-1}) and the off-di
   reorthogonalisation (the error is O(n eps / relgap) in each vector).
 * Derivatives (custom JVP): d omega_l^2 = u_l^T (dK - omega_l^2 dM) u_l and du_l from
   (K - omega_l^2 M) du_l = -(dK - omega_l^2 dM) u_l + d omega_l^2 M u_l with
-  u_l^T M du_l = -u_l^T dM u_l / 2, solved in O(n) by the same twisted factorisation (row r is
-  implied by the others; its two blocks are the leading L+ D+ L+^T and trailing U- D- U-^T).
+  u_l^T M du_l = -u_l^T dM u_l / 2, in O(n) per mode: row r of the singular system is implied
+  by the others, so it and du_r are dropped, the two tridiagonal blocks left are solved by
+  Gaussian elimination with partial pivoting (dgtsv) and the M-component is set afterwards.
+  Reverse mode goes through the same rules (the tangent maps are linear and transposable).
 
 Conventions: DOFs 0-based in ``rows`` (this module is private; the public API is 1-based);
 eigenvalues ascending; each mode's largest-magnitude entry positive (the package's sign rule).
@@ -143,7 +145,7 @@ def _twisted(q, e, tau):
     last = q[-1] - tau
     _, (backward, p) = jax.lax.scan(up, last, (q[:-1], e), reverse=True)
     p = jnp.concatenate([p, last[None]])
-    backward = jnp.concatenate([p[:1], backward])  # D-_0 = p_0
+    backward = jnp.concatenate([_nonzero(p[:1], q[:1]), backward])  # D-_0 = p_0
     twist = jnp.argmin(jnp.abs(s + p + tau[None, :]), axis=0)
     return _Twisted(forward, backward, twist)
 
@@ -181,34 +183,57 @@ def _modes_of(masses, springs, omega2):
     return modes * jnp.where(largest < 0, -1.0, 1.0), twisted
 
 
-def _solve_twisted(t, twisted, rhs):
-    """y with y_r = 0 solving every row but r of (T - lambda I) y = rhs (work order, per column):
-    the leading block by L+ D+ L+^T, the trailing one by U- D- U-^T."""
-    index, r = jnp.arange(rhs.shape[0]), twisted.twist
-    zeros = jnp.zeros_like(rhs[:1])
-    lower = jnp.concatenate([t[:, None] / twisted.forward[:-1], zeros])  # l+_j
-    upper = jnp.concatenate([zeros, t[:, None] / twisted.backward[1:]])  # u-_{j-1}
+def _solve_deflated(q, e, t, omega2, twist, rhs):
+    """y with y_r = 0 solving every row but r of (T - lambda I) y = rhs (work order, per column).
 
-    def substitute(mask, coupling, values, reverse):  # x_j = v_j - c_j x_{j -+ 1} where mask
-        def step(carry, entries):
-            c, v, j = entries
-            x = jnp.where(mask(j), v - c * carry, 0.0)
-            return x, x
-        return jax.lax.scan(step, zeros[0], (coupling, values, index), reverse=reverse)[1]
+    Row r is implied by the others for rhs orthogonal to the eigenvector; dropping it and y_r
+    leaves two tridiagonal blocks, solved here as one matrix (row and column r set to e_r) by
+    Gaussian elimination with partial pivoting (LAPACK dgtsv): stable where the unpivoted pivots
+    D+ / D- vanish, as they do exactly for integer data such as Mikota's chain.
+    """
+    n = q.shape[0]
+    index, r = jnp.arange(n)[:, None], twist[None, :]
+    diagonal = jnp.where(index == r, 1.0,
+                         (q + jnp.concatenate([jnp.zeros(1), e]))[:, None] - omega2[None, :])
+    # coupling (j, j+1) = (j+1, j) = t_j, cut where j == r or j + 1 == r; padded to n rows
+    off = jnp.where((index[:-1] == r) | (index[:-1] + 1 == r), 0.0, t[:, None])
+    off = jnp.concatenate([off, jnp.zeros_like(off[:1])])
+    rhs = jnp.where(index == r, 0.0, rhs)
 
-    above, below = (lambda j: j < r), (lambda j: j > r)
-    # leading block: L+ w = g, then L+^T y = w / D+
-    w = substitute(above, jnp.concatenate([zeros, lower[:-1]]), rhs, reverse=False)
-    y_top = substitute(above, lower, w / twisted.forward, reverse=True)
-    # trailing block: U- w = g, then U-^T y = w / D-
-    w = substitute(below, jnp.concatenate([upper[1:], zeros]), rhs, reverse=True)
-    y_bottom = substitute(below, upper, w / twisted.backward, reverse=False)
-    return y_top + y_bottom
+    def eliminate(carry, row):  # carry: row i after elimination (d_i, u_i, b_i)
+        d, u, b = carry
+        lower, d_next, u_next, b_next = row  # (i+1, i), (i+1, i+1), (i+1, i+2), rhs_{i+1}
+        swap = jnp.abs(d) < jnp.abs(lower)
+        pivot = jnp.where(swap, lower, d)
+        fact = jnp.where(swap, d, lower) / jnp.where(pivot == 0, 1.0, pivot)
+        final = (pivot, jnp.where(swap, d_next, u), jnp.where(swap, u_next, 0.0),
+                 jnp.where(swap, b_next, b))
+        carry = (jnp.where(swap, u - fact * d_next, d_next - fact * u),
+                 jnp.where(swap, -fact * u_next, u_next),
+                 jnp.where(swap, b - fact * b_next, b_next - fact * b))
+        return carry, final
+
+    rows = (off[:-1], diagonal[1:], off[1:], rhs[1:])
+    (d, _, b), (pivots, first, second, values) = jax.lax.scan(
+        eliminate, (diagonal[0], off[0], rhs[0]), rows)
+    pivots = jnp.concatenate([pivots, d[None]])
+    first, second = (jnp.concatenate([a, jnp.zeros_like(a[:1])]) for a in (first, second))
+    values = jnp.concatenate([values, b[None]])
+
+    def substitute(carry, row):
+        x1, x2 = carry  # x_{i+1}, x_{i+2}
+        pivot, u1, u2, value = row
+        x = (value - u1 * x1 - u2 * x2) / pivot
+        return (x, x1), x
+
+    zeros = jnp.zeros_like(rhs[0])
+    return jax.lax.scan(substitute, (zeros, zeros), (pivots, first, second, values),
+                        reverse=True)[1]
 
 
 def _tangents(masses, springs, omega2, modes, twisted, dmasses, dsprings):
     """(d omega^2, dU) of the modes in ``modes`` (n, c) for tangents (dm, dk), O(n) per mode."""
-    _, _, t = _qd(masses, springs)
+    q, e, t = _qd(masses, springs)
     zero = jnp.zeros_like(modes[:1])
     stretch = modes - jnp.concatenate([zero, modes[:-1]])  # (L u)_i = u_i - u_{i-1}
     inertia = jnp.sum(dmasses[:, None] * modes**2, axis=0)  # u^T dM u
@@ -218,7 +243,7 @@ def _tangents(masses, springs, omega2, modes, twisted, dmasses, dsprings):
     rhs = (omega2[None, :] * dmasses[:, None] * modes - stiff
            + domega2[None, :] * masses[:, None] * modes)
     scale = jnp.sqrt(masses)[:, None]
-    y = _solve_twisted(t, twisted, (rhs / scale)[::-1])[::-1]
+    y = _solve_deflated(q, e, t, omega2, twisted.twist, (rhs / scale)[::-1])[::-1]
     w = y / scale  # (K - omega^2 M) w = rhs, up to a multiple of u
     along = jnp.sum(modes * masses[:, None] * w, axis=0)
     return domega2, w - (along + inertia / 2)[None, :] * modes

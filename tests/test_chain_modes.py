@@ -189,3 +189,21 @@ def test_wrong_shapes_and_values_are_refused_naming_the_argument():
         chain_mode_data(masses, springs, jnp.asarray([0]), jnp.eye(4))
     with pytest.raises(ValueError, match="chunk"):
         chain_mode_data(masses, springs, jnp.asarray([0]), jnp.eye(5), chunk=0)
+
+
+def test_gradient_through_mikota_modes_with_exactly_zero_pivots_is_finite_and_right(close):
+    # integer data: some pivots of T - omega^2 I vanish exactly (guarded in the factorisation)
+    i = np.arange(1.0, 11.0)
+    masses, springs = jnp.asarray(1 / i), jnp.asarray(11 - i)
+
+    def objective(modes_of):
+        def fn(masses, springs):
+            omega2, modes = modes_of(masses, springs)
+            return omega2[1] + jnp.sum(modes[0] ** 2) + jnp.sum(modes[:, 3] ** 4)
+        return fn
+
+    reference = lambda m, k: generalized_modes(mj.chain(m, k))
+    grads = jax.grad(objective(chain_modes), argnums=(0, 1))(masses, springs)
+    expected = jax.grad(objective(reference), argnums=(0, 1))(masses, springs)
+    close(grads[0], expected[0], rtol=1e-9, atol=1e-12)
+    close(grads[1], expected[1], rtol=1e-9, atol=1e-12)
