@@ -23,8 +23,9 @@ with H = I + lambda sum_(l != J) r_l f_l f_l^T diag(d). The eigenvector y = R F 
 H^-1 f_J has y_J = -1 / lambda: no huge entries. Gradients: one Newton step at the frozen roots
 (implicit differentiation of phi_J = 0), so ``jax.grad`` never enters the iteration.
 
-Not yet: O(n^2) undamped modes (the SVD of ``generalized_modes`` is O(n^3)); a structured
-treatment of near-defective pairs (the callers fall back to the dense paths there).
+The undamped modes of a fixed-free chain come from ``chain_modes`` (O(n^2), relative accuracy);
+other systems use ``generalized_modes`` (dense, O(n^3)). Not yet: a structured treatment of
+near-defective pairs (the callers fall back to the dense paths there).
 """
 
 import functools
@@ -33,10 +34,12 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from ._chain_modes import chain_modes
 from ._custom_types import Array, Float
 from ._dampers import Dampers
 from ._errors import MARK, RESULTS, check, check_x64
 from ._modal import generalized_modes
+from ._operators import Diagonal, SymmetricTridiagonal
 
 
 def complex_arithmetic(fn):
@@ -241,6 +244,40 @@ def _reanchor(poles, active, anchor, offset):
     return new_anchor, offset + (poles[anchor] - poles[new_anchor])
 
 
+_ANCHOR_CANDIDATES = 4
+
+
+def _best_anchors(poles, gamma, factor, weights, active, anchor, offset):
+    """Re-anchor each root (same lambda) at the one of its nearest poles where phi_J vanishes.
+
+    phi_J is zero at a root only if H_J = H - lambda r_J f_J f_J^T W stays regular there. Where
+    modes lie closer together than the dampers' coupling (two nearly decoupled chains), a root's
+    nearest pole may belong to a weakly coupled mode whose removal leaves H_J as singular as H:
+    phi_J is then O(1) at the (correct) root and Newton on it jumps to another root. So the
+    ``_ANCHOR_CANDIDATES`` nearest poles of damped modes are tried, and each root keeps the one
+    with the smallest relative residual |phi_J| / (its terms).
+    """
+    n = gamma.shape[0]
+    lam = poles[anchor] + offset
+    candidates = jnp.concatenate([active, active])
+    distance = jnp.where(candidates[None, :], jnp.abs(lam[:, None] - poles[None, :]), jnp.inf)
+    _, nearest = jax.lax.top_k(-distance, min(_ANCHOR_CANDIDATES, 2 * n))
+    residuals, offsets = [], []
+    for i in range(nearest.shape[1]):
+        trial = nearest[:, i]
+        trial_offset = offset + (poles[anchor] - poles[trial])
+        phi, _, _, _, scale = _secular(poles, gamma, factor, weights, active, trial,
+                                       trial_offset)
+        residuals.append(jnp.where(scale > 0, jnp.abs(phi) / scale, jnp.inf))
+        offsets.append(trial_offset)
+    pick = jnp.argmin(jnp.stack(residuals, axis=1), axis=1)
+    rows = jnp.arange(2 * n)
+    root_active = jnp.concatenate([active, active])
+    new_anchor = jnp.where(root_active, nearest[rows, pick], anchor)
+    new_offset = jnp.where(root_active, jnp.stack(offsets, axis=1)[rows, pick], offset)
+    return new_anchor, new_offset
+
+
 def _roots_difference(poles, anchor, offset):
     """lambda_j - lambda_k: (2n, 2n), exact for roots on the same pole."""
     base = poles[anchor]
@@ -309,6 +346,7 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
     init = (anchor, offset, jnp.array(0), jnp.array(jnp.inf))
     anchor, offset, iterations, _ = jax.lax.while_loop(not_done, sweep, init)
     anchor = jnp.where(root_active, anchor, jnp.arange(2 * n))
+    anchor, offset = _best_anchors(poles, gamma, factor, weights, active, anchor, offset)
     for _ in range(_POLISH_STEPS):
         phi, phi_prime, *_ = _secular(poles, gamma, factor, weights, active, anchor, offset)
         offset = jnp.where(root_active & (phi_prime != 0),
@@ -349,7 +387,14 @@ def modal_data(system):
     why = spectral_applies(system)
     if why is not None:
         raise ValueError(MARK + f"system: {why}.")
-    omega2, modes = generalized_modes(system)
+    stiffness = system.stiffness
+    springs = (stiffness.springs if isinstance(stiffness, SymmetricTridiagonal)
+               and not stiffness.links else None)
+    if isinstance(system.mass, Diagonal) and springs is not None:
+        # a fixed-free chain: O(n^2) modes, no dense decomposition (``_chain_modes``)
+        omega2, modes = chain_modes(system.mass.diagonal, springs)
+    else:
+        omega2, modes = generalized_modes(system)
     omega2 = check(omega2, omega2 <= 0, RESULTS[RESULTS.not_definite])
     low_rank = system.damping.project(modes)
     gamma = None
