@@ -202,6 +202,7 @@ def test_a_critically_damped_dof_falls_back_to_the_dense_path_and_is_right(ts, c
 # --- transformations and gradients ----------------------------------------------------------------
 
 
+@pytest.mark.slow  # 88 s on a loaded 2-core machine (three compiles, the dense branch too)
 def test_jit_and_vmap_over_coefficients_give_the_eager_results(close):
     coefficients = jnp.array([0.01, 1.0, 30.0])
 
@@ -220,6 +221,7 @@ def tip_energy(position, coefficient, x0, method="spectral", n=10):
     return jnp.sum(out.displacement**2) + jnp.sum(out.velocity**2)
 
 
+@pytest.mark.slow  # 72 s on a loaded 2-core machine (the dense path's gradient compiles expm)
 @pytest.mark.parametrize("position", [7.3, 4.0])
 def test_gradients_match_central_differences_and_the_dense_path(position, close):
     x0 = jnp.asarray(X0[:10])
