@@ -9,6 +9,10 @@ exp(A h) and z* = (Omega^-1 U^T f, 0) the static equilibrium of the load on the 
 loads that are constant between jumps. A jump at t_b inside (t_k, t_{k+1}] adds (I - exp(A (t_{k+1}
 - t_b))) (z*_after - z*_before). Undamped systems skip expm: P is a rotation by omega_l h in each
 mode.
+
+A full system whose damping is discrete dampers only takes the spectral path instead
+(``_spectral_solve``: the damped modes, every output at every time as one matrix product, any
+grid); this dense path is its fallback where the modes do not hold (critical damping).
 """
 
 from collections.abc import Sequence
@@ -33,8 +37,11 @@ from ._excitation import LoadFunction, Pulse
 from ._galerkin import ReducedModel
 from ._integrate import Trajectory, check_dofs, check_problem, check_times, unpack
 from ._modal import modal_projection, scaled_modal, state_matrix
+from ._spectral_solve import spectral_applies, spectral_solve_with_result
 
 _PULSE_ERROR = 1e-6
+_UNIFORM = 1e-9  # relative spread of the steps within which one propagator serves them all
+METHODS = ("auto", "spectral", "dense")
 
 
 _MAX_SQUARINGS = 64
@@ -60,15 +67,26 @@ def _propagator(omega, damping_modal):
 
 
 @eqx.filter_jit
-def _exact(model, ts, x0, v0, load, *, dofs, displacement, velocity):
+def _exact(model, ts, x0, v0, load, *, dofs, displacement, velocity, uniform=True):
     system, basis, y0x, y0v, load = unpack(model, x0, v0, load)
     omega, modes, damping_modal, not_definite = scaled_modal(system)
     project = modal_projection(system, modes)
     n = omega.shape[0]
     propagate = _propagator(omega, damping_modal)
     if damping_modal is not None:  # one expm for the whole (uniform) grid
-        fixed = propagate(ts[1] - ts[0] if ts.shape[0] > 1 else jnp.zeros(()))
+        first = ts[1] - ts[0] if ts.shape[0] > 1 else jnp.zeros(())
+        fixed = propagate(first)
         step_of = lambda k: fixed
+        if not uniform:  # any grid (the spectral path's fallback): an expm where a step differs
+            a = state_matrix(omega, damping_modal)
+            fixed_matrix = jsl.expm(a * first, max_squarings=_MAX_SQUARINGS)
+
+            def step_of(k):
+                h = ts[k + 1] - ts[k]
+                p = jax.lax.cond(jnp.abs(h - first) <= _UNIFORM * jnp.abs(first),
+                                 lambda: fixed_matrix,
+                                 lambda: jsl.expm(a * h, max_squarings=_MAX_SQUARINGS))
+                return lambda z: p @ z
     else:  # undamped: a rotation per mode, any grid
         step_of = lambda k: propagate(ts[k + 1] - ts[k])
     z0 = jnp.concatenate([omega * project(y0x), project(y0v)])
@@ -118,36 +136,89 @@ def _exact(model, ts, x0, v0, load, *, dofs, displacement, velocity):
     return Trajectory(ts, ys[0], ys[1], dofs, None), result
 
 
+def _is_uniform(ts) -> bool | None:
+    """Whether a concrete grid's steps agree to ``_UNIFORM``; None for a traced one."""
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(ts)):
+        return None
+    if ts.shape[0] <= 2:
+        return True
+    gaps = jnp.diff(ts)
+    return bool(jnp.max(jnp.abs(gaps - gaps[0])) <= _UNIFORM * jnp.abs(gaps[0]))
+
+
+@eqx.filter_jit
+def _spectral_or_dense(trajectory, ok, model, ts, x0, v0, load, *, dofs, displacement,
+                       velocity, uniform):
+    """Under a caller's ``jit``/``vmap``: the spectral trajectory, or the dense path's where it
+    does not hold (a ``lax.cond``; under ``vmap`` with a batched ``ok`` both run)."""
+    return jax.lax.cond(
+        ok, lambda: (trajectory, RESULTS.successful),
+        lambda: _exact(model, ts, x0, v0, load, dofs=dofs, displacement=displacement,
+                       velocity=velocity, uniform=uniform))
+
+
 @raises_value_error
 def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = None, load=None,
                 *, dofs: Sequence[int] | None = None, displacement: bool = True,
-                velocity: bool = False) -> Trajectory:
+                velocity: bool = False, method: str = "auto") -> Trajectory:
     """The exact solution of M x'' + D x' + K x = f (eq. 3.1) for no load or a ``Pulse`` (eq. 4.3).
 
     Same arguments and outputs as ``simulate``: ``model`` a ``SecondOrderSystem`` or a
     ``ReducedModel`` (solved in r DOFs, lifted back by eq. 3.2); ``ts`` (N,); ``x0``, ``v0`` (n,)
     in full coordinates (default zero); ``dofs`` 1-based (default all, d = len(dofs)); returns a
-    ``Trajectory`` of (N, d) arrays, ``num_steps`` None. No integration error: modal
-    coordinates and a matrix exponential. Any increasing grid ``ts`` for an undamped system; a
-    uniform grid when damped (one 2n x 2n matrix exponential serves every step). Costs one n x n
-    eigendecomposition and O(n^2) per time step, so dense memory limits n (``simulate`` is O(n)).
+    ``Trajectory`` of (N, d) arrays, ``num_steps`` None. No integration error.
+
+    ``method``: "spectral", "dense" or "auto" (spectral where it applies, else dense). The
+    spectral path applies to a full ``SecondOrderSystem`` whose damping is discrete dampers only
+    (``GroundedDamper``, ``RelativeDamper``; no internal damping): x(t) = Re sum_j a_j
+    exp(lambda_j t) U y_j over the 2n damped modes (``_spectral``), every requested output at
+    every time as one matrix product; any increasing grid; one n x n eigendecomposition, the
+    secular equation for the roots (O(k^2 n^2) a sweep, k dampers) and O(N d n) for the
+    outputs. Where its modes do not hold (a root not converged, or two roots within 1e-6: a
+    critically damped mode) it falls back to the dense path, also under ``jit``. The dense path
+    (the only one for a ``ReducedModel``, a user's damping matrix, internal damping or an
+    undamped system): modal coordinates and a matrix exponential; any increasing grid when
+    undamped (a rotation per mode), a uniform grid when damped (one 2n x 2n matrix exponential
+    serves every step); one eigendecomposition and O(n^2) per time step. Dense memory limits n
+    on both paths (``simulate`` is O(n)).
     """
     check_x64()
+    if method not in METHODS:
+        raise ValueError(MARK + f"method must be 'auto', 'spectral' or 'dense', got {method!r}.")
     if isinstance(load, LoadFunction) or (load is not None and not isinstance(load, Pulse)):
         raise ValueError(MARK + "exact_solve takes load=None or a Pulse (piecewise constant); "
                          "integrate a general f(t) with simulate.")
     if not (displacement or velocity):
         raise ValueError(MARK + "ask for displacement and/or velocity; nothing would be saved.")
+    refusal = spectral_applies(model)
+    if method == "spectral" and refusal is not None:
+        raise ValueError(MARK + f"method='spectral' needs a full system with discrete dampers "
+                         f"only, but {refusal}; use method='dense'.")
+    spectral = refusal is None and method != "dense"
     ts = check_times(ts)
     system = model.system if isinstance(model, ReducedModel) else model
-    if ts.shape[0] > 2 and system.damped:
+    if ts.shape[0] > 2 and system.damped and not spectral:
         gaps = jnp.diff(ts)
-        ts = check(ts, jnp.max(jnp.abs(gaps - gaps[0])) > 1e-9 * jnp.abs(gaps[0]),
+        ts = check(ts, jnp.max(jnp.abs(gaps - gaps[0])) > _UNIFORM * jnp.abs(gaps[0]),
                    "ts must be a uniform grid for exact_solve of a damped system; use simulate "
                    "for other grids.")
     x0, v0, load = check_problem(model, x0, v0, load)
     damped = system.damped
     check_dense_memory(system.size, 32 if damped else 6, "exact_solve")
-    trajectory, result = _exact(model, ts, x0, v0, load, dofs=check_dofs(dofs, model.size),
-                                displacement=displacement, velocity=velocity)
+    options = dict(dofs=check_dofs(dofs, model.size), displacement=displacement,
+                   velocity=velocity)
+    if not spectral:
+        trajectory, result = _exact(model, ts, x0, v0, load, **options)
+        return raise_result(trajectory, result)
+    trajectory, ok = spectral_solve_with_result(model, ts, x0, v0, load, **options)
+    uniform = _is_uniform(ts)
+    try:
+        holds = bool(ok)  # concrete eagerly and under jax.grad: no dense path compiled
+    except jax.errors.ConcretizationTypeError:  # a caller's jit or vmap: choose inside
+        trajectory, result = _spectral_or_dense(trajectory, ok, model, ts, x0, v0, load,
+                                                uniform=bool(uniform), **options)
+        return raise_result(trajectory, result)
+    if holds:
+        return trajectory
+    trajectory, result = _exact(model, ts, x0, v0, load, uniform=bool(uniform), **options)
     return raise_result(trajectory, result)

@@ -89,6 +89,15 @@ def test_exact_solve_full_model_traces_once():
     def call(system, x0=X0, v0=None):
         return mj.exact_solve(system, TS, x0, v0, dofs=[3, 17], velocity=True)
 
+    # a chain with a damper takes the spectral path
+    assert_traced_once(lambda: call(chain()), "spectral_solve_with_result",
+                       solver_changes(call, tolerances=False))
+
+
+def test_exact_solve_dense_path_traces_once():
+    def call(system, x0=X0, v0=None):
+        return mj.exact_solve(system, TS, x0, v0, dofs=[4, 18], velocity=True, method="dense")
+
     assert_traced_once(lambda: call(chain()), "_exact", solver_changes(call, tolerances=False))
 
 

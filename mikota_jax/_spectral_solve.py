@@ -1,0 +1,186 @@
+"""Responses from the damped modes: ``exact_solve``'s spectral path, on any increasing time grid.
+
+Conventions as in ``_spectral``: eta are the M-orthonormal modal coordinates (x = U eta), the 2n
+damped roots lambda_j with modal eigenvectors y_j (``DampedModes.vectors()``). Free vibration
+from (q0, p0) = (U^T M x0, U^T M v0) at t0 = ts[0] is eta(t) = sum_j a_j exp(lambda_j (t - t0))
+y_j, a = ``coefficients(q0, p0)``. A constant modal force g = U^T f switched on at t_b from rest
+adds sum_j b_j (exp(lambda_j (t - t_b)) - 1) / lambda_j y_j for t >= t_b, b =
+``load_coefficients(g)``; a ``Pulse`` on [start, start + duration) is its switch-on minus its
+switch-off, written as b_j / lambda_j expm1(lambda_j w) exp(lambda_j (t - t_off)) after the pulse
+(w its width): the static parts cancel analytically, so a short pulse loses no digits. Velocities
+are the time derivatives of the same sums.
+
+Cost: the modes (one n x n eigendecomposition, then the secular equation, O(k^2 n^2) a sweep),
+O(n^2) coefficients, the (2n, N) table of exp(lambda_j t), and the outputs of d requested DOFs at
+all N times as one real matrix product: X = Re[(U[dofs] Y) C] with C_jt = a_j exp(lambda_j t) (+
+the load's terms), O(N d n) in BLAS-3, no time stepping. The sum runs over all 2n roots and takes
+the real part, rather than twice the upper-half-plane roots plus the real ones: it needs no pairing
+of the conjugates, which is fragile exactly where a pair splits onto the real axis (two roots with
+imaginary parts at rounding level, neither the other's conjugate) and would depend on the root
+layout; it costs twice the flops of the paired sum.
+
+Only for a ``SecondOrderSystem`` whose damping is discrete dampers (no internal damping, as
+``_modal_data``). The result is a pair (``Trajectory``, ok); where not ok (a root did not
+converge, two damped roots nearly coincide -- critical damping, where the expansion's
+coefficients blow up like 1 / separation -- or a non-finite output) the caller must use the
+dense path.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from ._dampers import Dampers
+from ._integrate import Trajectory
+from ._modal import modal_projection
+from ._spectral import (
+    DEFECTIVE_SEPARATION,
+    _complex_arithmetic,
+    _differentiable_roots,
+    _modal_data,
+    modal_damped_modes,
+)
+from ._system import SecondOrderSystem
+
+
+def spectral_applies(model) -> str | None:
+    """Why the spectral path does not apply to ``model`` (one phrase), or None when it does."""
+    if not isinstance(model, SecondOrderSystem):
+        return f"model is a {type(model).__name__}, not a full SecondOrderSystem"
+    if model.internal is not None:
+        return "the system has internal damping"
+    if model.damping is None:
+        return "the system is undamped"
+    if not isinstance(model.damping, Dampers):
+        return (f"the damping is a {type(model.damping).__name__}, not discrete dampers "
+                "(GroundedDamper, RelativeDamper)")
+    return None
+
+
+def _exp(lam, tau):
+    """exp(lambda tau), real or complex, as exp(Re) (cos, sin) for complex (cheaper than XLA's
+    complex exp)."""
+    if not jnp.iscomplexobj(lam):
+        return jnp.exp(lam * tau)
+    magnitude = jnp.exp(jnp.real(lam) * tau)
+    phase = jnp.imag(lam) * tau
+    return jax.lax.complex(magnitude * jnp.cos(phase), magnitude * jnp.sin(phase))
+
+
+@_complex_arithmetic
+def _modal_tables(lam, a, b, ts, load, displacement: bool, velocity: bool):
+    """The (N, m) coefficient tables C_x, C_v of m roots: eta(t_k) = sum_j C_x[k, j] y_j (time
+    major, as the outputs: the matrix product needs no transpose).
+
+    ``lam``, ``a``, ``b``: (m,), real or complex (the real ones for roots on the real axis)."""
+    # Re lambda <= 0 (D_m is positive semi-definite); a rounding-level positive real part is
+    # cut so that exp never overflows on a long grid (where, not minimum: at a tie minimum would
+    # halve the derivative of a root that sits on the imaginary axis, a switched-off damper)
+    lam = jnp.where(jnp.real(lam) > 0, lam - jnp.real(lam), lam)[None, :]
+    tau = (ts - ts[0])[:, None]
+    free = a[None, :] * _exp(lam, tau)
+    cx = free if displacement else None
+    cv = lam * free if velocity else None
+    if load is None:
+        return cx, cv
+    # a jump at or before ts[0] belongs to the initial load value: the pulse acts on
+    # [max(start, t0), max(end, t0)); times before a jump are clipped to it (no exp overflow
+    # in the branch not taken)
+    on = jnp.maximum(load.start, ts[0])
+    off = jnp.maximum(load.start + load.duration, ts[0])
+    since_on = jnp.maximum(ts - on, 0.0)[:, None]
+    since_off = jnp.maximum(ts - off, 0.0)[:, None]
+    width = off - on
+    decay = _exp(lam, since_off)
+    b = b[None, :]
+    if displacement:
+        # (exp(lambda (t - on)) - 1) / lambda while on; after: exp(lambda (t - off)) (exp(lambda
+        # w) - 1) / lambda, the switch-on and switch-off terms combined without cancellation
+        cx = cx + (b / lam) * jnp.expm1(lam * jnp.minimum(since_on, width)) * decay
+    if velocity:
+        after = (ts >= off)[:, None]
+        during = ((ts >= on) & (ts < off))[:, None]
+        cv = cv + b * jnp.where(after, jnp.expm1(lam * width) * decay,
+                                jnp.where(during, _exp(lam, since_on), 0.0))
+    return cx, cv
+
+
+@_complex_arithmetic
+def _conjugate_slots(lam):
+    """n slots for the 2n roots, so that the real sum needs n terms, not 2n.
+
+    Each root's partner is the root nearest its conjugate (itself for a root on the real axis),
+    found from the values, not from the root layout. A conjugate pair fills one slot (its first
+    root, counted twice: Re(c w) of the pair is 2 Re(c_1 w_1)); two real roots share one, packed
+    as c = Re c_1 + i Re c_2, w = Re w_1 - i Re w_2 (Re(c w) = Re(c_1 w_1) + Re(c_2 w_2)). The
+    number of real roots is even when the partners pair up; ``consistent`` says they do.
+    Returns (first, second, real, consistent): (n,) indices, (n,) bool, a bool.
+    """
+    size = lam.shape[0]
+    n = size // 2
+    index = jnp.arange(size)
+    gap = jnp.abs(lam[None, :] - jnp.conj(lam)[:, None])  # |lambda_k - conj(lambda_j)|
+    partner = jnp.argmin(gap, axis=1)
+    consistent = jnp.all(partner[partner] == index)
+    self_conjugate = partner == index
+    key = jnp.where(self_conjugate, 1, jnp.where(index < partner, 0, 2))
+    order = jnp.argsort(key, stable=True)  # pairs' first roots, then the real roots
+    pairs = jnp.sum(key == 0)
+    slot = jnp.arange(n)
+    packed = jnp.clip(pairs + 2 * (slot - pairs), 0, size - 2)
+    real = slot >= pairs
+    first = jnp.where(real, order[packed], order[slot])
+    second = order[packed + 1]
+    return first, second, real, consistent
+
+
+def _real_product(c, w):
+    """Re(c w^T): (N, d) from c (N, m) and w (d, m) complex, as one real matrix product."""
+    stacked = jnp.concatenate([jnp.real(c), jnp.imag(c)], axis=1)  # (N, 2m)
+    rows = jnp.concatenate([jnp.real(w).T, -jnp.imag(w).T], axis=0)  # (2m, d)
+    return stacked @ rows
+
+
+@eqx.filter_jit
+def spectral_solve_with_result(system, ts, x0, v0, load, *, dofs, displacement, velocity):
+    """(``Trajectory``, ok): the response from the damped modes on any increasing grid ``ts``.
+
+    ``system``: a ``SecondOrderSystem`` with dampers only (``spectral_applies``); ``ts`` (N,);
+    ``x0``, ``v0`` (n,); ``load`` None or a ``Pulse``; ``dofs`` a tuple of 1-based DOFs. ok is
+    False where the roots did not converge, two damped roots nearly coincide (relative
+    separation below ``DEFECTIVE_SEPARATION``) or an output is not finite: then the
+    trajectory must not be used. Differentiable in the system's values and the initial state,
+    through one Newton step on the secular equation at the roots (``_differentiable_roots``).
+    """
+    omega, modes_u, factor, weights = _modal_data(system)
+    frozen = modal_damped_modes(*jax.lax.stop_gradient((omega, factor, weights)))
+    modes = _differentiable_roots(eqx.tree_at(lambda m: (m.omega, m.factor, m.weights), frozen,
+                                              (omega, factor, weights)))
+    project = modal_projection(system, modes_u)
+    a = modes.coefficients(project(x0), project(v0))
+    b = None if load is None else modes.load_coefficients(modes_u.T @ load.direction)
+    lam = modes.eigenvalues
+    first, second, real, consistent = _conjugate_slots(jax.lax.stop_gradient(lam))
+    real_part = lambda z: None if z is None else jnp.real(z[second])  # noqa: E731
+    # the first root of every slot in complex arithmetic; the second (real roots only) in real
+    cx, cv = _modal_tables(lam[first], a[first], None if b is None else b[first], ts, load,
+                           displacement, velocity)
+    rx, rv = _modal_tables(real_part(lam), real_part(a), real_part(b), ts, load, displacement,
+                           velocity)
+    index = None if dofs == tuple(range(1, system.size + 1)) else jnp.asarray(dofs) - 1
+    rows = modes_u if index is None else modes_u[index]
+    y = modes.vectors()  # (n, 2n)
+    y_first = y[:, first]
+    w1 = jax.lax.complex(rows @ jnp.real(y_first), rows @ jnp.imag(y_first))  # U[dofs] Y
+    w2 = rows @ jnp.real(y[:, second])
+    w = jnp.where(real[None, :], jax.lax.complex(jnp.real(w1), -w2), w1)
+
+    def pack(c, r):
+        return jnp.where(real[None, :], jax.lax.complex(jnp.real(c), r), 2 * c)
+
+    x = None if cx is None else _real_product(pack(cx, rx), w)
+    v = None if cv is None else _real_product(pack(cv, rv), w)
+    finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(y)) for y in (x, v) if y is not None]))
+    ok = (frozen.converged & (frozen.separation > DEFECTIVE_SEPARATION) & consistent
+          & finite)
+    return Trajectory(ts, x, v, dofs, None), ok
