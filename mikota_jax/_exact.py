@@ -169,17 +169,19 @@ def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = 
     ``Trajectory`` of (N, d) arrays, ``num_steps`` None. No integration error.
 
     ``method``: "spectral", "dense" or "auto" (spectral where it applies, else dense). The
-    spectral path applies to a full ``SecondOrderSystem`` whose damping is discrete dampers only
-    (``GroundedDamper``, ``RelativeDamper``; no internal damping): x(t) = Re sum_j a_j
-    exp(lambda_j t) U y_j over the 2n damped modes (``_spectral``), every requested output at
-    every time as one matrix product; any increasing grid; one n x n eigendecomposition, the
-    secular equation for the roots (O(k^2 n^2) a sweep, k dampers) and O(N d n) for the
-    outputs. Where its modes do not hold (a root not converged, or two roots within 1e-6: a
-    critically damped mode) it falls back to the dense path, also under ``jit``. The dense path
-    (the only one for a ``ReducedModel``, a user's damping matrix, internal damping or an
-    undamped system): modal coordinates and a matrix exponential; any increasing grid when
-    undamped (a rotation per mode), a uniform grid when damped (one 2n x 2n matrix exponential
-    serves every step); one eigendecomposition and O(n^2) per time step. Dense memory limits n
+    spectral path applies to a full ``SecondOrderSystem`` whose damping is discrete dampers
+    (``GroundedDamper``, ``RelativeDamper``), with or without internal damping that is diagonal
+    in modal coordinates (``Rayleigh``, ``ModalDamping``): x(t) = Re sum_j a_j exp(lambda_j t) U
+    y_j over the 2n damped modes (``_spectral``), every requested output at every time as one
+    matrix product; any increasing grid; the undamped modes (O(n^2) for a fixed-free chain,
+    else one dense eigendecomposition), the secular equation for the roots (O(k^2 n^2) a sweep,
+    k damper columns) and O(N d n) for the outputs. Where its modes do not hold (a root not
+    converged, or two roots within 1e-6: a critically damped mode) it falls back to the dense
+    path, also under ``jit``. The dense path (the only one for a ``ReducedModel``, a user's
+    damping matrix or an undamped system): modal coordinates and a matrix exponential; any
+    increasing grid when undamped (a rotation per mode), a uniform grid when damped (one 2n x 2n
+    matrix exponential serves every step); one eigendecomposition and O(n^2) per time step.
+    Dense memory limits n
     on both paths (``simulate`` is O(n)).
     """
     check_x64()
@@ -192,8 +194,8 @@ def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = 
         raise ValueError(MARK + "ask for displacement and/or velocity; nothing would be saved.")
     refusal = spectral_applies(model)
     if method == "spectral" and refusal is not None:
-        raise ValueError(MARK + f"method='spectral' needs a full system with discrete dampers "
-                         f"only, but {refusal}; use method='dense'.")
+        raise ValueError(MARK + f"method='spectral' does not apply: {refusal}; use "
+                         "method='dense'.")
     spectral = refusal is None and method != "dense"
     ts = check_times(ts)
     system = model.system if isinstance(model, ReducedModel) else model

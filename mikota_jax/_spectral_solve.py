@@ -13,33 +13,27 @@ are the time derivatives of the same sums.
 Cost: the modes (one n x n eigendecomposition, then the secular equation, O(k^2 n^2) a sweep),
 O(n^2) coefficients, the (2n, N) table of exp(lambda_j t), and the outputs of d requested DOFs at
 all N times as one real matrix product: X = Re[(U[dofs] Y) C] with C_jt = a_j exp(lambda_j t) (+
-the load's terms), O(N d n) in BLAS-3, no time stepping. The sum runs over all 2n roots and takes
-the real part, rather than twice the upper-half-plane roots plus the real ones: it needs no pairing
-of the conjugates, which is fragile exactly where a pair splits onto the real axis (two roots with
-imaginary parts at rounding level, neither the other's conjugate) and would depend on the root
-layout; it costs twice the flops of the paired sum.
+the load's terms), O(N d n) in BLAS-3, no time stepping. The roots are grouped in n slots by
+their values (each root's partner is the root nearest its conjugate, not a layout rule): a
+conjugate pair fills one slot, counted twice; two real roots share one, packed as Re c1 + i Re c2
+(exact by linearity, no threshold on a rounding-level imaginary part); an inconsistent pairing
+makes the result not ok.
 
-Only for a ``SecondOrderSystem`` whose damping is discrete dampers (no internal damping, as
-``_modal_data``). The result is a pair (``Trajectory``, ok); where not ok (a root did not
-converge, two damped roots nearly coincide -- critical damping, where the expansion's
-coefficients blow up like 1 / separation -- or a non-finite output) the caller must use the
-dense path.
+For a ``SecondOrderSystem`` whose damping is discrete dampers, with or without internal damping
+diagonal in modal coordinates (``_spectral.spectral_applies``). The result is a pair
+(``Trajectory``, ok); where not ok (a root did not converge, two damped roots nearly coincide --
+critical damping, where the expansion's coefficients blow up like 1 / separation -- or a
+non-finite output) the caller must use the dense path.
 """
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ._dampers import Dampers
 from ._integrate import Trajectory
 from ._modal import modal_projection
-from ._spectral import (
-    DEFECTIVE_SEPARATION,
-    _complex_arithmetic,
-    _differentiable_roots,
-    _modal_data,
-    modal_damped_modes,
-)
+from ._spectral import complex_arithmetic, live_modes
+from ._spectral import spectral_applies as system_applies
 from ._system import SecondOrderSystem
 
 
@@ -47,14 +41,9 @@ def spectral_applies(model) -> str | None:
     """Why the spectral path does not apply to ``model`` (one phrase), or None when it does."""
     if not isinstance(model, SecondOrderSystem):
         return f"model is a {type(model).__name__}, not a full SecondOrderSystem"
-    if model.internal is not None:
-        return "the system has internal damping"
-    if model.damping is None:
+    if not model.damped:
         return "the system is undamped"
-    if not isinstance(model.damping, Dampers):
-        return (f"the damping is a {type(model.damping).__name__}, not discrete dampers "
-                "(GroundedDamper, RelativeDamper)")
-    return None
+    return system_applies(model)
 
 
 def _exp(lam, tau):
@@ -67,7 +56,7 @@ def _exp(lam, tau):
     return jax.lax.complex(magnitude * jnp.cos(phase), magnitude * jnp.sin(phase))
 
 
-@_complex_arithmetic
+@complex_arithmetic
 def _modal_tables(lam, a, b, ts, load, displacement: bool, velocity: bool):
     """The (N, m) coefficient tables C_x, C_v of m roots: eta(t_k) = sum_j C_x[k, j] y_j (time
     major, as the outputs: the matrix product needs no transpose).
@@ -105,7 +94,7 @@ def _modal_tables(lam, a, b, ts, load, displacement: bool, velocity: bool):
     return cx, cv
 
 
-@_complex_arithmetic
+@complex_arithmetic
 def _conjugate_slots(lam):
     """n slots for the 2n roots, so that the real sum needs n terms, not 2n.
 
@@ -150,12 +139,9 @@ def spectral_solve_with_result(system, ts, x0, v0, load, *, dofs, displacement, 
     False where the roots did not converge, two damped roots nearly coincide (relative
     separation below ``DEFECTIVE_SEPARATION``) or an output is not finite: then the
     trajectory must not be used. Differentiable in the system's values and the initial state,
-    through one Newton step on the secular equation at the roots (``_differentiable_roots``).
+    through one Newton step on the secular equation at the roots (``differentiable_roots``).
     """
-    omega, modes_u, factor, weights = _modal_data(system)
-    frozen = modal_damped_modes(*jax.lax.stop_gradient((omega, factor, weights)))
-    modes = _differentiable_roots(eqx.tree_at(lambda m: (m.omega, m.factor, m.weights), frozen,
-                                              (omega, factor, weights)))
+    modes, modes_u, modes_ok = live_modes(system)
     project = modal_projection(system, modes_u)
     a = modes.coefficients(project(x0), project(v0))
     b = None if load is None else modes.load_coefficients(modes_u.T @ load.direction)
@@ -181,6 +167,5 @@ def spectral_solve_with_result(system, ts, x0, v0, load, *, dofs, displacement, 
     x = None if cx is None else _real_product(pack(cx, rx), w)
     v = None if cv is None else _real_product(pack(cv, rv), w)
     finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(y)) for y in (x, v) if y is not None]))
-    ok = (frozen.converged & (frozen.separation > DEFECTIVE_SEPARATION) & consistent
-          & finite)
+    ok = modes_ok & consistent & finite
     return Trajectory(ts, x, v, dofs, None), ok
