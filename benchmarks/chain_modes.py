@@ -21,8 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import mikota_jax as mj
-from mikota_jax._chain_modes import chain_mode_data, chain_modes
-from mikota_jax._modal import generalized_modes
+from mikota_jax.testing import chain_mode_data, chain_modes, generalized_modes
 
 EPS = float(np.finfo(np.float64).eps)
 

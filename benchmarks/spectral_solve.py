@@ -34,8 +34,7 @@ from _common import (
 )
 
 import mikota_jax as mj
-from mikota_jax._exact import _exact
-from mikota_jax._spectral_solve import spectral_solve_with_result
+from mikota_jax.testing import dense_solve_with_result, spectral_solve_with_result
 
 TARGETS = {"error": 1e-12, "vs_scipy_expm": 3.0, "vs_dop853": 20.0}
 
@@ -90,7 +89,8 @@ def main(argv=None) -> None:
     compiled = {
         "spectral": Compiled(lambda s, x: spectral_solve_with_result(s, ts_j, x, zeros, None,
                                                                      **options), system, x0_j),
-        "dense": Compiled(lambda s, x: _exact(s, ts_j, x, zeros, None, **options), system, x0_j),
+        "dense": Compiled(lambda s, x: dense_solve_with_result(s, ts_j, x, zeros, None,
+                                                               **options), system, x0_j),
     }
     methods = {
         "exact_solve spectral": lambda: np.asarray(

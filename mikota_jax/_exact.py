@@ -224,3 +224,6 @@ def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = 
         return trajectory
     trajectory, result = _exact(model, ts, x0, v0, load, uniform=bool(uniform), **options)
     return raise_result(trajectory, result)
+
+
+dense_solve_with_result = _exact  # the dense path by name (``mikota_jax.testing``)

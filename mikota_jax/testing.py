@@ -11,9 +11,17 @@ the private modules:
   the structure of an array.
 """
 
+from ._chain_modes import chain_mode_data as chain_mode_data
+from ._chain_modes import chain_modes as chain_modes
+from ._exact import dense_solve_with_result as dense_solve_with_result
+from ._modal import generalized_modes as generalized_modes
 from ._operators import Dense as Dense
 from ._operators import Diagonal as Diagonal
 from ._operators import Sparse as Sparse
 from ._solver_choice import stiffness_rate as stiffness_rate
+from ._spectral import damped_modes as damped_modes
+from ._spectral_solve import spectral_solve_with_result as spectral_solve_with_result
 
-__all__ = ["Dense", "Diagonal", "Sparse", "stiffness_rate"]
+__all__ = ["Dense", "Diagonal", "Sparse", "chain_mode_data", "chain_modes", "damped_modes",
+           "dense_solve_with_result", "generalized_modes", "spectral_solve_with_result",
+           "stiffness_rate"]
