@@ -47,8 +47,8 @@ from ._integrate import (
     unpack,
 )
 from ._modal import modal_projection, scaled_modal, state_matrix
-from ._spectral import spectral_applies
 from ._spectral_objectives import spectral_energy_with_result, spectral_trace_with_result
+from ._spectral_solve import spectral_applies
 
 DOUBLINGS_FINITE = 16  # first step at most T / 2^16: Van Loan's exponential stays well scaled
 _DOUBLINGS_MAX = 60  # ... and at least T / 2^60: ||A h|| <= 8 up to rates of 1e17 / T
@@ -128,9 +128,8 @@ def van_loan_energy_with_result(model, horizon, x0, v0):
 
 
 def takes_spectral(model) -> bool:
-    """Whether the spectral path applies: a full system with discrete dampers (and internal
-    damping diagonal in modal coordinates, if any)."""
-    return not isinstance(model, ReducedModel) and spectral_applies(model) is None
+    """Whether the spectral path applies (the same rule as ``exact_solve``'s)."""
+    return spectral_applies(model) is None
 
 
 def _spectral_or_dense(spectral, dense):
@@ -193,10 +192,8 @@ _EXACT_METHODS = ("exact", "spectral", "dense")
 
 
 def _check_spectral(model, method):
-    if method == "spectral" and not takes_spectral(model):
-        why = ("a reduced model has no discrete dampers of its own" if isinstance(
-            model, ReducedModel) else "the system is undamped" if not model.damped
-            else spectral_applies(model))
+    why = spectral_applies(model) if method == "spectral" else None
+    if why is not None:
         raise ValueError(MARK + f"method='spectral' does not apply: {why}; use method='exact'.")
 
 

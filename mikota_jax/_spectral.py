@@ -422,13 +422,11 @@ def pair_sums(modes: DampedModes):
     """(s, pair): s_jk = lambda_j + lambda_k (2n, 2n) in pole-offset form (a conjugate pair's
     imaginary parts cancel exactly), and which pairs carry energy (two damped roots, or the two
     roots of one mode no damper touches)."""
-    n = modes.omega.shape[0]
     base = modes.poles[modes.anchor]
     s = (base[:, None] + base[None, :]) + (modes.offset[:, None] + modes.offset[None, :])
     active = modes.root_active
     same_mode = modes.modes[:, None] == modes.modes[None, :]
     pair = (active[:, None] & active[None, :]) | (same_mode & ~active[:, None])
-    del n
     return s, pair
 
 
