@@ -149,7 +149,7 @@ def raises_value_error(fn):
     return wrapper
 
 
-def _available_bytes() -> float | None:
+def available_bytes() -> float | None:
     """Memory the default device can still use: its allocator limit, or the host's available RAM."""
     try:
         stats = jax.devices()[0].memory_stats() or {}
@@ -174,7 +174,7 @@ def check_dense_memory(size: int, matrices: float, what: str) -> None:
     for the method, generously); the error names the size and the O(n) alternatives.
     """
     need = matrices * size * size * 8.0
-    available = _available_bytes()
+    available = available_bytes()
     if available is not None and need > available:
         raise ValueError(
             MARK + f"{what} works with dense matrices: at n = {size} it needs about "

@@ -22,6 +22,7 @@ from ._errors import (
     MARK,
     RESULTS,
     as_float,
+    available_bytes,
     check,
     check_x64,
     first_failure,
@@ -265,6 +266,30 @@ def default_atol(rtol, model, ts, x0, v0, load):
     return 1e-2 * rtol * scale
 
 
+SPECTRAL_MATRICES = 12  # float64 n x n arrays the spectral solve holds at its peak, generously
+
+
+def _spectral_if_it_holds(model, ts, x0, v0, load, dofs, displacement, velocity):
+    """``simulate(solver="auto")``'s first choice: the exact spectral trajectory, or None where
+    it does not apply (a reduced model, a user's damping matrix, an undamped system, a general
+    load), would not fit in memory, the values are traced, or its modes do not hold."""
+    from ._spectral_solve import spectral_applies, spectral_solve_with_result  # (imports this)
+
+    if load is not None and not isinstance(load, Pulse):
+        return None
+    if spectral_applies(model) is not None:
+        return None
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((model, ts, x0, v0))):
+        return None
+    available = available_bytes()
+    if available is not None and SPECTRAL_MATRICES * 8.0 * model.size**2 > available:
+        return None
+    trajectory, ok = spectral_solve_with_result(
+        model, ts, x0, v0, load, dofs=check_dofs(dofs, model.size), displacement=displacement,
+        velocity=velocity)
+    return trajectory if bool(ok) else None
+
+
 @raises_value_error
 def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | None = None,
              v0: Vector | None = None, load=None, *, dofs: Sequence[int] | None = None,
@@ -286,9 +311,12 @@ def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | No
 
     ``solver``: "dopri8" (default; explicit, the most accurate per step), "tsit5", "dopri5",
     "kvaerno5" (L-stable implicit ESDIRK whose stage equations are solved exactly in the chain's
-    O(n) structure: for stiff cases, large n or a strong damper), "auto" (``choose_solver``:
-    "kvaerno5" when the highest eigenfrequency or damper rate times the span exceeds 1e5), or a
-    diffrax solver instance (diffrax's own implicit solvers factor a dense 2n x 2n Jacobian).
+    O(n) structure: for stiff cases, large n or a strong damper), "auto", or a diffrax solver
+    instance (diffrax's own implicit solvers factor a dense 2n x 2n Jacobian). "auto" takes the
+    exact spectral solution (``exact_solve(method="spectral")``: no integration error,
+    ``num_steps`` None) for a full system with discrete dampers, no load or a ``Pulse``, where
+    its O(n^2) memory fits and its modes hold; otherwise ``choose_solver``: "kvaerno5" when the
+    highest eigenfrequency or damper rate times the span exceeds 1e5, else "dopri8".
 
     ``adjoint`` is how derivatives pass through the solve (diffrax's; default
     ``RecursiveCheckpointAdjoint``, for reverse mode); use ``diffrax.ForwardMode()`` under
@@ -308,6 +336,10 @@ def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | No
     if atol is None:
         atol = default_atol(as_float(rtol, "rtol"), model, ts, x0, v0, load)
     rtol, atol, adjoint = check_solve_options(rtol, atol, max_steps, adjoint)
+    if solver == "auto":
+        exact = _spectral_if_it_holds(model, ts, x0, v0, load, dofs, displacement, velocity)
+        if exact is not None:
+            return exact
     if isinstance(solver, str):
         solver = SOLVERS[choose_solver(model, ts) if solver == "auto" else solver]()
     trajectory, result = simulate_with_result(

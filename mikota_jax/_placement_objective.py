@@ -80,7 +80,7 @@ def objective_function(problem: DamperProblem, reduced):
     Reverse-mode differentiable. A ``_ModalROM`` is exact (matrix exponentials, reverse mode);
     every diffrax solve is differentiated in forward mode, wrapped in a custom VJP (the design
     has only 2 x dampers parameters, so forward mode is the cheap direction). The full model's
-    "energy" uses the ODE (8x cheaper than its exact integral at n = 300). No check inside: the
+    free-vibration "energy" is the spectral closed form (``Energy``). No check inside: the
     optimiser's designs are valid by construction, so its compiled steps hold no callback of ours.
     """
     if isinstance(reduced, _ModalROM):

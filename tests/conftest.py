@@ -26,3 +26,20 @@ def assert_close(actual, expected, rtol=1e-10, atol=0.0, what=""):
 @pytest.fixture(scope="session")
 def close():
     return assert_close
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _fresh_compilation_caches():
+    """Drop JAX's in-memory compilation caches after each test module.
+
+    One long process otherwise keeps every executable of the run (several GiB by the end of the
+    default run), and XLA's CPU compiler crashed late in such runs (issue 23). Executables are
+    not shared between modules in any way a test relies on."""
+    yield
+    jax.clear_caches()
+    if os.environ.get("MIKOTA_JAX_TEST_RSS"):
+        import resource
+
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        with open(os.environ["MIKOTA_JAX_TEST_RSS"], "a") as log:
+            log.write(f"peak RSS {peak:.0f} MiB\n")

@@ -70,7 +70,8 @@ def assert_same_roots(ours, reference, rtol):
     assert worst <= rtol, f"worst relative eigenvalue error {worst:.2e}"
 
 
-@pytest.mark.parametrize("coefficient", [1e-8, 1e-2, 1.0, 1e2, 1e4, 1e6, 1e8])
+@pytest.mark.parametrize("coefficient", [1e-8, *(pytest.param(c, marks=pytest.mark.slow) for c in
+                                                   (1e-2, 1e2, 1e4, 1e6)), 1.0, 1e8])
 def test_damped_eigenvalues_match_the_refined_dense_eigenvalues_at_every_position(coefficient):
     n = 30
     for position in (1.0, 7.0, 7.3, float(n)):
@@ -217,7 +218,8 @@ INTERNAL = {
 
 
 @pytest.mark.parametrize("internal", INTERNAL)
-@pytest.mark.parametrize("coefficient", [1e-6, 1.0, 1e4])
+@pytest.mark.parametrize("coefficient", [pytest.param(1e-6, marks=pytest.mark.slow), 1.0,
+                                         pytest.param(1e4, marks=pytest.mark.slow)])
 def test_internal_damping_diagonal_in_modes_matches_the_refined_dense_eigenvalues(internal,
                                                                                   coefficient):
     n = 30
@@ -229,7 +231,8 @@ def test_internal_damping_diagonal_in_modes_matches_the_refined_dense_eigenvalue
     assert_same_roots(np.asarray(modes.eigenvalues), physical_roots(system), 1e-10)
 
 
-@pytest.mark.parametrize("internal", INTERNAL)
+@pytest.mark.parametrize("internal", ["rayleigh", *(pytest.param(name, marks=pytest.mark.slow)
+                                                   for name in ("modal", "overdamped"))])
 def test_the_spectral_energy_with_internal_damping_equals_the_van_loan_energy(internal, close):
     n = 30
     v0 = np.linspace(0.0, 1.0, n)
@@ -323,6 +326,7 @@ def lyapunov_trace(system, lowest=None):
     return np.trace(x)
 
 
+DEFAULT_TRACES = {("one grounded", None), ("three dampers, no internal", 5), ("rayleigh", 1)}
 TRACE_SYSTEMS = {
     "one grounded": lambda n: mj.mikota_chain(n, dampers=[mj.GroundedDamper(n / 2 + 0.3, 1.0)],
                                               internal_damping=mj.ModalDamping(0.002)),
@@ -335,8 +339,9 @@ TRACE_SYSTEMS = {
 }
 
 
-@pytest.mark.parametrize("name", TRACE_SYSTEMS)
-@pytest.mark.parametrize("lowest", [None, 1, 5])
+@pytest.mark.parametrize(("name", "lowest"), [  # the other six pairs under -m slow
+    pytest.param(name, lowest, marks=() if (name, lowest) in DEFAULT_TRACES else pytest.mark.slow)
+    for lowest in (None, 1, 5) for name in TRACE_SYSTEMS])
 def test_the_spectral_trace_equals_scipys_lyapunov_trace(name, lowest, close):
     n = 24
     system = TRACE_SYSTEMS[name](n)

@@ -275,3 +275,32 @@ def test_the_spectral_method_is_refused_where_it_does_not_apply_with_the_reason(
         mj.exact_solve(reduced, TS, np.ones(5), method="spectral")
     with pytest.raises(ValueError, match="method must be"):
         mj.exact_solve(damped, TS, np.ones(5), method="modal")
+
+
+# --- simulate(solver="auto") and the optimiser's certification take the spectral path ------------
+
+
+def test_simulate_auto_takes_the_exact_spectral_solution_where_it_applies(close):
+    system = chain(mj.GroundedDamper(7.3, 0.5))
+    exact = mj.exact_solve(system, TS, X0, V0, velocity=True, method="dense")
+    auto = mj.simulate(system, TS, X0, V0, velocity=True, solver="auto")
+    assert auto.num_steps is None  # no integration: the modal expansion
+    for got, want in ((auto.displacement, exact.displacement), (auto.velocity, exact.velocity)):
+        close(got, want, rtol=0, atol=1e-12 * float(np.max(np.abs(np.asarray(want)))))
+    # a general load is integrated (Dopri8 here: rho T is small), to its tolerance
+    load = lambda t: jnp.zeros(N).at[0].set(jnp.sin(t))  # noqa: E731
+    ode = mj.simulate(system, TS, X0, V0, load, solver="auto")
+    assert ode.num_steps is not None and int(ode.num_steps) > 0
+
+
+def test_the_full_energy_the_optimiser_certifies_with_is_the_exact_one(close):
+    system = chain(mj.GroundedDamper(4.0, 0.8))
+    problem = mj.DamperProblem(system, jnp.linspace(0.0, 20.0, 11), X0, V0)
+    objective = mj.placement_objective(problem)  # the full model
+    value = objective(jnp.array([4.0]), jnp.array([0.8]))
+    close(value, mj.integrated_energy(system, 20.0, X0, V0, method="dense"), rtol=1e-11)
+    gradient = jax.grad(objective, argnums=1)(jnp.array([4.0]), jnp.array([0.8]))
+    h = 1e-5
+    central = (objective(jnp.array([4.0]), jnp.array([0.8 + h]))
+               - objective(jnp.array([4.0]), jnp.array([0.8 - h]))) / (2 * h)
+    close(gradient[0], central, rtol=1e-7)
