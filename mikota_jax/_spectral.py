@@ -204,6 +204,31 @@ def _partner(anchor, n):
     return (anchor + n) % (2 * n)
 
 
+def small_solve(a, b):
+    """x with a x = b for a batch of small systems: a (..., k, k), b (..., k, m).
+
+    Gauss-Jordan elimination with partial pivoting, unrolled over the static k in elementwise
+    operations. Not ``jnp.linalg.solve``: jaxlib's batched LAPACK kernels (getrf/trsm) split
+    their batch over XLA's intra-op thread pool and wait for it, and two of them running at once
+    on a 2-core machine deadlocked with both pool threads waiting (seen at n = 801 and 10^4: the
+    process idle at 0 % CPU, gdb showing two ``lapack_ztrsm_ffi`` in ``ParallelBatchMap``).
+    For the k <= a few damper columns here, O(k^3) elementwise work per system is also cheaper.
+    """
+    k = a.shape[-1]
+    rows = jnp.arange(k)
+    aug = jnp.concatenate([a, b], axis=-1)
+    for i in range(k):
+        below = jnp.where(rows >= i, jnp.abs(aug[..., :, i]), -1.0)
+        p = jnp.argmax(below, axis=-1)[..., None, None]  # (..., 1, 1)
+        row_p = jnp.take_along_axis(aug, p, axis=-2)  # (..., 1, k + m)
+        row_i = aug[..., i:i + 1, :]
+        here = rows[:, None] == i
+        aug = jnp.where(here, row_p, jnp.where(rows[:, None] == p, row_i, aug))
+        pivot_row = aug[..., i:i + 1, :] / aug[..., i:i + 1, i:i + 1]
+        aug = jnp.where(here, pivot_row, aug - aug[..., :, i:i + 1] * pivot_row)
+    return aug[..., :, k:]
+
+
 def _secular(poles, gamma, factor, weights, active, anchor, offset):
     """Per root: (phi, phi', sum of the other poles' log-derivative + tr H^-1 H', c = H^-1 f_J,
     the size of phi's terms)."""
@@ -218,8 +243,8 @@ def _secular(poles, gamma, factor, weights, active, anchor, offset):
     h = jnp.eye(k)[None] + lam[:, None, None] * jnp.einsum("jl,lab->jab", r, ff)
     h_prime = jnp.einsum("jl,lab->jab", r_prime, ff)
     f = factor[mode]  # (2n, k)
-    solved = jnp.linalg.solve(h, jnp.stack([f.astype(h.dtype)] + [h_prime[:, :, i] for i in
-                                                                  range(k)], axis=-1))
+    solved = small_solve(h, jnp.stack([f.astype(h.dtype)] + [h_prime[:, :, i] for i in
+                                                             range(k)], axis=-1))
     c = solved[..., 0]  # H^-1 f_J
     h_inv_h_prime = solved[..., 1:]
     trace = jnp.trace(h_inv_h_prime, axis1=-2, axis2=-1)
