@@ -215,15 +215,16 @@ def small_solve(a, b):
     For the k <= a few damper columns here, O(k^3) elementwise work per system is also cheaper.
     """
     k = a.shape[-1]
-    rows = jnp.arange(k)
+    batch = (1,) * (a.ndim - 2)
+    rows = jnp.arange(k).reshape(batch + (k,))  # no implicit rank promotion
     aug = jnp.concatenate([a, b], axis=-1)
     for i in range(k):
         below = jnp.where(rows >= i, jnp.abs(aug[..., :, i]), -1.0)
         p = jnp.argmax(below, axis=-1)[..., None, None]  # (..., 1, 1)
         row_p = jnp.take_along_axis(aug, p, axis=-2)  # (..., 1, k + m)
         row_i = aug[..., i:i + 1, :]
-        here = rows[:, None] == i
-        aug = jnp.where(here, row_p, jnp.where(rows[:, None] == p, row_i, aug))
+        here = rows[..., None] == i
+        aug = jnp.where(here, row_p, jnp.where(rows[..., None] == p, row_i, aug))
         pivot_row = aug[..., i:i + 1, :] / aug[..., i:i + 1, i:i + 1]
         aug = jnp.where(here, pivot_row, aug - aug[..., :, i:i + 1] * pivot_row)
     return aug[..., :, k:]
