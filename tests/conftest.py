@@ -32,14 +32,8 @@ def close():
 def _fresh_compilation_caches():
     """Drop JAX's in-memory compilation caches after each test module.
 
-    One long process otherwise keeps every executable of the run (several GiB by the end of the
+    One long process otherwise keeps every executable of the run (peak RSS 3 GiB by the end of the
     default run), and XLA's CPU compiler crashed late in such runs (issue 23). Executables are
     not shared between modules in any way a test relies on."""
     yield
     jax.clear_caches()
-    if os.environ.get("MIKOTA_JAX_TEST_RSS"):
-        import resource
-
-        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-        with open(os.environ["MIKOTA_JAX_TEST_RSS"], "a") as log:
-            log.write(f"peak RSS {peak:.0f} MiB\n")
