@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._custom_types import Array, Basis, Float, Matrix, ScalarLike, Vector
-from ._errors import MARK, as_float, check
+from ._errors import MARK, as_float, check, integer_indices
 from ._operators import AbstractOperator, LowRank, diagonal
 
 
@@ -49,7 +49,7 @@ class RelativeDamper(eqx.Module):
     coefficient: Float[Array, ""]
 
     def __init__(self, dofs: tuple[int, int], coefficient: ScalarLike):
-        dofs = tuple(int(i) for i in dofs)
+        dofs = integer_indices(dofs, "RelativeDamper dofs")
         if len(dofs) != 2 or dofs[0] == dofs[1]:
             raise ValueError(MARK + f"RelativeDamper dofs must be two different DOFs, got {dofs}.")
         self.dofs = dofs

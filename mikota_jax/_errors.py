@@ -181,3 +181,18 @@ def check_dense_memory(size: int, matrices: float, what: str) -> None:
             f"{need / 2**30:.1f} GiB, more than the {available / 2**30:.1f} GiB available. Use "
             "simulate(..., solver='kvaerno5') or integrated_energy(..., method='ode') (O(n) "
             "memory), or a reduced model.")
+
+
+def integer_indices(values, name: str) -> tuple[int, ...]:
+    """``values`` (a scalar or a sequence) as Python ints; a non-integer (2.5, True, "3", a
+    complex) is refused by name, never rounded."""
+    try:
+        array = np.atleast_1d(np.asarray(values))
+    except (TypeError, ValueError):
+        raise ValueError(MARK + f"{name} must be integers, got {values!r}.") from None
+    kind = array.dtype.kind
+    if kind == "f" and np.all(np.isfinite(array)) and np.all(array == np.round(array)):
+        return tuple(int(v) for v in array.ravel())
+    if kind not in "iu":
+        raise ValueError(MARK + f"{name} must be integers, got {values!r}.")
+    return tuple(int(v) for v in array.ravel())

@@ -48,6 +48,14 @@ from ._spectral_solve import spectral_applies, spectral_solve_with_result
 
 _PULSE_ERROR = 1e-6
 _UNIFORM = 1e-9  # relative spread of the steps within which one propagator serves them all
+
+
+def _step_tolerance(ts, first):
+    """How far a step may differ from the first and still count as uniform: 1e-9 of it, or the
+    rounding of t itself (8 ulps of the largest |t|): start + step k in float64 spreads the steps
+    by ulp(t), 1.5e-8 of a 1e-3 step at t = 1e5 (such grids were refused as non-uniform)."""
+    scale = jnp.maximum(jnp.abs(ts[0]), jnp.abs(ts[-1]))
+    return jnp.maximum(_UNIFORM * jnp.abs(first), 8 * jnp.finfo(ts.dtype).eps * scale)
 METHODS = ("auto", "spectral", "dense")
 
 
@@ -81,7 +89,9 @@ def _exact(model, ts, x0, v0, load, *, dofs, displacement, velocity, uniform=Tru
     n = omega.shape[0]
     propagate = _propagator(omega, damping_modal)
     if damping_modal is not None:  # one expm for the whole (uniform) grid
-        first = ts[1] - ts[0] if ts.shape[0] > 1 else jnp.zeros(())
+        # the mean step: (t_N - t_0) / (N - 1) is exact to ulp(t) / N, the first gap only to
+        # ulp(t), an error the propagator would repeat N times (far from t = 0)
+        first = (ts[-1] - ts[0]) / (ts.shape[0] - 1) if ts.shape[0] > 1 else jnp.zeros(())
         fixed = propagate(first)
         step_of = lambda k: fixed
         if not uniform:  # any grid (the spectral path's fallback): an expm where a step differs
@@ -90,7 +100,7 @@ def _exact(model, ts, x0, v0, load, *, dofs, displacement, velocity, uniform=Tru
 
             def step_of(k):
                 h = ts[k + 1] - ts[k]
-                p = jax.lax.cond(jnp.abs(h - first) <= _UNIFORM * jnp.abs(first),
+                p = jax.lax.cond(jnp.abs(h - first) <= _step_tolerance(ts, first),
                                  lambda: fixed_matrix,
                                  lambda: jsl.expm(a * h, max_squarings=_MAX_SQUARINGS))
                 return lambda z: p @ z
@@ -150,7 +160,7 @@ def _is_uniform(ts) -> bool | None:
     if ts.shape[0] <= 2:
         return True
     gaps = jnp.diff(ts)
-    return bool(jnp.max(jnp.abs(gaps - gaps[0])) <= _UNIFORM * jnp.abs(gaps[0]))
+    return bool(jnp.max(jnp.abs(gaps - gaps[0])) <= _step_tolerance(ts, gaps[0]))
 
 
 @eqx.filter_jit
@@ -209,7 +219,7 @@ def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = 
     system = model.system if isinstance(model, ReducedModel) else model
     if ts.shape[0] > 2 and system.damped and not spectral:
         gaps = jnp.diff(ts)
-        ts = check(ts, jnp.max(jnp.abs(gaps - gaps[0])) > _UNIFORM * jnp.abs(gaps[0]),
+        ts = check(ts, jnp.max(jnp.abs(gaps - gaps[0])) > _step_tolerance(ts, gaps[0]),
                    "ts must be a uniform grid for exact_solve of a damped system; use simulate "
                    "for other grids.")
     x0, v0, load = check_problem(model, x0, v0, load)

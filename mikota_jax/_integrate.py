@@ -8,13 +8,13 @@ O(r p) instead of a dense r x 2r product. Only what the caller asks for is saved
 1-based DOFs (lifted back for a reduced model), displacement and/or velocity.
 """
 
+import warnings
 from collections.abc import Sequence
 
 import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from ._custom_types import Array, Float, Times, Vector
 from ._dampers import Dampers
@@ -26,6 +26,7 @@ from ._errors import (
     check,
     check_x64,
     first_failure,
+    integer_indices,
     raise_result,
     raises_value_error,
 )
@@ -73,7 +74,7 @@ def check_times(ts) -> Times:
 def check_dofs(dofs, n: int) -> tuple[int, ...]:
     if dofs is None:
         return tuple(range(1, n + 1))
-    dofs = tuple(int(d) for d in np.atleast_1d(np.asarray(dofs)))
+    dofs = integer_indices(dofs, "dofs")
     if not dofs or not all(1 <= d <= n for d in dofs):
         raise ValueError(MARK + f"dofs must be 1-based DOFs in 1..{n}, got {dofs}.")
     return dofs
@@ -235,8 +236,13 @@ def check_solve_options(rtol, atol, max_steps, adjoint):
     if not isinstance(max_steps, int) or max_steps < 1:
         raise ValueError(MARK + f"max_steps must be an integer >= 1, got {max_steps!r}.")
     rtol, atol = as_float(rtol, "rtol"), as_float(atol, "atol")
-    rtol = check(rtol, ~(rtol > 0), "rtol must be > 0.")
-    atol = check(atol, ~(atol > 0), "atol must be > 0.")
+    # rtol >= 1 allows a 100 % error per step: Dopri8 returned 5.5x (rtol 0.5) to 1e22x
+    # (rtol 1e300) errors, silently (issue 18); above 1e-2 it is allowed, with a warning
+    rtol = check(rtol, ~((rtol > 0) & (rtol < 1)), "rtol must be > 0 and < 1.")
+    atol = check(atol, ~((atol > 0) & jnp.isfinite(atol)), "atol must be > 0 and finite.")
+    if not isinstance(rtol, jax.core.Tracer) and float(rtol) > 1e-2:
+        warnings.warn(f"mikota_jax: rtol = {float(rtol):g} allows errors of that order per step "
+                      "and more over the run; 1e-2 or below gives results to trust.", stacklevel=3)
     if adjoint is None:
         adjoint = diffrax.RecursiveCheckpointAdjoint()
     elif not isinstance(adjoint, diffrax.AbstractAdjoint):

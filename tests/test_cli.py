@@ -99,3 +99,27 @@ def test_help_is_plain_text_without_rest_markup(capsys):
     text = capsys.readouterr().out
     assert stop.value.code == 0 and "python -m mikota_jax reproduce" in text
     assert "``" not in text
+
+
+def test_results_json_respects_the_umask(tmp_path):
+    from mikota_jax.app.results import write_json
+
+    old = os.umask(0o022)
+    try:
+        path = write_json({"a": 1.0}, tmp_path / "out" / "results.json")
+    finally:
+        os.umask(old)
+    assert (path.stat().st_mode & 0o777) == 0o644  # not mkstemp's 0600
+
+
+def test_an_unusable_out_or_cache_folder_is_one_line_before_any_work(tmp_path, capsys,
+                                                                     monkeypatch):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    monkeypatch.setenv("MIKOTA_JAX_CACHE", "1")
+    monkeypatch.setenv("MIKOTA_JAX_CACHE_DIR", str(blocker))  # the cache cannot live there
+    assert main(["run", "section5_damped", "--out", str(blocker)]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 2, err
+    assert err[0].startswith("warning: no compilation cache") and "is not a folder" in err[0]
+    assert err[1] == f"error: mikota_jax: --out {str(blocker)!r} exists and is not a folder."

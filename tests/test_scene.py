@@ -83,6 +83,11 @@ def test_an_undamped_scene_builds_no_damping_matrix():
     (scene_text(solver='method = "euler"'), r"\[solver\] method.*one of"),
     (scene_text(load='type = "pulse"\ndof = 1\nduration = 0.0'), r"\[load\] duration.*> 0"),
     ("this is = not toml [", r"not valid TOML"),
+    # sizes refused from the scene, with the numbers, before anything is allocated (issue 18)
+    (SMALL.replace("end = 4.0", "end = 1e9").replace("step = 0.05", "step = 0.001"),
+     r"\[time\] step.*1e\+12 output times.*at most 1e\+08"),
+    (SMALL.replace("step = 0.05", "step = 1e-300"), r"\[time\] step.*at most 1e\+08"),
+    (SMALL.replace("n = 12", "n = 1_000_000_000"), r"\[chain\] n.*GiB.*available"),
 ])
 def test_bad_scene_input_names_the_key(text, match):
     with pytest.raises(ValueError, match=match):
@@ -92,6 +97,19 @@ def test_bad_scene_input_names_the_key(text, match):
 def test_a_missing_scene_file_is_a_clear_error(tmp_path):
     with pytest.raises(ValueError, match="does not exist"):
         mj.load_scene(tmp_path / "nope.toml")
+    with pytest.raises(ValueError, match="is a directory, not a TOML file"):
+        mj.load_scene(tmp_path)
+    (tmp_path / "latin1.toml").write_bytes(b"name = \"caf\xe9\"\n")
+    with pytest.raises(ValueError, match="latin1.toml.*is not UTF-8 text"):
+        mj.load_scene(tmp_path / "latin1.toml")
+
+
+def test_a_scene_path_with_an_equals_sign_is_a_path(tmp_path):
+    folder = tmp_path / "a=b"
+    folder.mkdir()
+    (folder / "scene.toml").write_text(scene_text(output="dofs = [2]"))
+    scene = mj.load_scene(str(folder / "scene.toml"))
+    assert scene.output.dofs == (2,) and scene.name == "scene"
 
 
 def test_a_scene_without_reduction_or_velocity_computes_neither():

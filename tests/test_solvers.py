@@ -300,11 +300,14 @@ def test_wrong_initial_state_shape_or_precision_is_rejected(solve, undamped):
 def test_unknown_solver_and_non_positive_tolerances_are_rejected(undamped):
     with pytest.raises(ValueError, match="solver must be .auto., one of"):
         mj.simulate(undamped, TS, np.ones(N), solver="rk4")
-    for rtol in (0.0, -1e-8, np.nan):
-        with pytest.raises(ValueError, match="rtol must be > 0"):
+    for rtol in (0.0, -1e-8, np.nan, 1.0, 10.0, 1e300, np.inf):
+        with pytest.raises(ValueError, match="rtol must be > 0 and < 1"):
             mj.simulate(undamped, TS, np.ones(N), rtol=rtol)
-    with pytest.raises(ValueError, match="atol must be > 0"):
-        mj.simulate(undamped, TS, np.ones(N), atol=0.0)
+    for atol in (0.0, np.inf):
+        with pytest.raises(ValueError, match="atol must be > 0 and finite"):
+            mj.simulate(undamped, TS, np.ones(N), atol=atol)
+    with pytest.warns(UserWarning, match="rtol = 0.5 allows errors"):
+        mj.simulate(undamped, TS, np.ones(N), rtol=0.5)
     with pytest.raises(ValueError, match="max_steps must be an integer"):
         mj.simulate(undamped, TS, np.ones(N), max_steps=0)
     with pytest.raises(ValueError, match="ask for displacement and/or velocity"):
@@ -346,3 +349,12 @@ def test_each_adjoint_gives_the_central_difference_derivative(adjoint, close):
 def test_an_adjoint_that_is_not_a_diffrax_adjoint_is_refused(undamped):
     with pytest.raises(ValueError, match="adjoint must be a diffrax adjoint"):
         mj.simulate(undamped, TS, np.ones(N), adjoint="forward")
+
+
+@pytest.mark.parametrize("dofs", [[2.5], [True], ["3"], [1 + 2j]])
+def test_non_integer_dofs_and_damper_pairs_are_refused_never_rounded(undamped, dofs):
+    with pytest.raises(ValueError, match="dofs must be integers"):
+        mj.simulate(undamped, TS, np.ones(N), dofs=dofs)
+    with pytest.raises(ValueError, match="RelativeDamper dofs must be integers"):
+        mj.RelativeDamper((2.7, 3), 1.0)
+    assert mj.simulate(undamped, TS, np.ones(N), dofs=[2.0]).dofs == (2,)  # an integral value

@@ -304,3 +304,15 @@ def test_the_full_energy_the_optimiser_certifies_with_is_the_exact_one(close):
     central = (objective(jnp.array([4.0]), jnp.array([0.8 + h]))
                - objective(jnp.array([4.0]), jnp.array([0.8 - h]))) / (2 * h)
     close(gradient[0], central, rtol=1e-7)
+
+
+def test_a_uniform_grid_far_from_zero_is_uniform_to_the_rounding_of_t(close):
+    # start + step k in float64 spreads the steps by ulp(t): 1.5e-8 of the step at t = 1e5
+    system = chain(mj.GroundedDamper(3.0, 0.5), n=4)
+    shifted = 1e5 + 1e-3 * np.arange(201)
+    at_zero = 1e-3 * np.arange(201)
+    x0 = X0[:4]
+    for method in ("dense", "spectral"):
+        far = mj.exact_solve(system, shifted, x0, method=method).displacement
+        near = mj.exact_solve(system, at_zero, x0, method=method).displacement
+        close(far, near, rtol=0, atol=1e-9 * float(np.max(np.abs(np.asarray(near)))))

@@ -52,13 +52,43 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _writable_folder(out: str) -> Path:
+    """``--out`` made (with its parents) and checked writable before anything is computed."""
+    path = Path(out)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"mikota_jax: --out {out!r} exists and is not a folder.")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise ValueError(f"mikota_jax: --out {out!r} cannot be made: {error.strerror}.") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise ValueError(f"mikota_jax: --out {out!r} is not writable.")
+    return path
+
+
+def _enable_cache() -> None:
+    """The persistent compilation cache, or one warning line and none (an unusable folder)."""
+    from .._cache import default_cache_dir, enable_compilation_cache
+
+    path = default_cache_dir()
+    try:
+        if path.exists() and not path.is_dir():
+            raise OSError(f"{path} is not a folder")
+        path.mkdir(parents=True, exist_ok=True)
+        if not os.access(path, os.W_OK | os.X_OK):
+            raise OSError(f"{path} is not writable")
+        enable_compilation_cache(path)
+    except OSError as error:
+        print(f"warning: no compilation cache ({error}); set MIKOTA_JAX_CACHE_DIR to a writable "
+              "folder, or MIKOTA_JAX_CACHE=0 to silence this.", file=sys.stderr)
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     if os.environ.get("MIKOTA_JAX_CACHE", "1") != "0":
-        from .._cache import enable_compilation_cache
-
-        enable_compilation_cache()
+        _enable_cache()
     try:
+        _writable_folder(args.out)
         if args.command == "reproduce":
             from .reproduction import reproduce
 
@@ -94,4 +124,7 @@ def main(argv=None) -> int:
         return 0
     except ValueError as error:
         print(f"error: {str(error).splitlines()[0]}", file=sys.stderr)
+        return 2
+    except OSError as error:  # writing the results (the folder was checked before computing)
+        print(f"error: mikota_jax: could not write the results: {error}", file=sys.stderr)
         return 2

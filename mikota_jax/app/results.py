@@ -98,6 +98,13 @@ def _default(value):
     raise TypeError(f"not JSON serialisable: {type(value).__name__}")
 
 
+def _umask() -> int:
+    """The process's umask (read by setting it, then restoring it)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def write_json(data: dict, path: str | Path, *, newline: bool = False) -> Path:
     """Write ``data`` to ``path`` atomically (a failed run leaves no partial file), without its
     top-level ``_`` keys; arrays become lists (``to_plain``); NaN or inf is a ``ValueError``.
@@ -112,6 +119,7 @@ def write_json(data: dict, path: str | Path, *, newline: bool = False) -> Path:
     try:
         with os.fdopen(fd, "w") as handle:
             handle.write(text + ("\n" if newline else ""))
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; a plain open() respects the umask
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._custom_types import Times, Vector
-from .._errors import MARK
+from .._errors import MARK, available_bytes
 from .._excitation import Pulse, pulse
 from .._integrate import SOLVERS
 from .._metrics import AGGREGATES
@@ -73,6 +73,20 @@ def _load_from(data, n: int) -> Pulse | None:
     return pulse(n, dof, float(amplitude), float(duration), float(start))
 
 
+MAX_OUTPUTS = 1e8  # output times of a scene (a full solve saves N x n numbers)
+
+
+def _check_output_memory(ts, n: int, output: Output, reduction) -> None:
+    """Refuse, with the numbers, a scene whose saved outputs cannot fit in memory."""
+    saved = n if reduction is not None or output.dofs is None else len(output.dofs)
+    need = 2 * 8.0 * ts.shape[0] * saved * (2 if reduction is not None else 1)
+    available = available_bytes()
+    if available is not None and need > available:
+        _fail("[time] step", f"{ts.shape[0]} output times x {saved} DOFs need about "
+              f"{need / 2**30:.1f} GiB, more than the {available / 2**30:.1f} GiB available: "
+              "take a longer step, fewer [output] dofs, or a shorter span.")
+
+
 def _times_from(data) -> Times:
     table = _table(data, "time", {"start", "end", "step"}, required=True)
     start = float(_number(table, "[time]", "start", default=0.0))
@@ -81,6 +95,9 @@ def _times_from(data) -> Times:
     if end <= start:
         _fail("[time] end", f"must be greater than start = {start}, got {end}.")
     count = (end - start) / step
+    if not np.isfinite(count) or count > MAX_OUTPUTS:
+        _fail("[time] step", f"gives {count:.3g} output times on [{start}, {end}]; at most "
+              f"{MAX_OUTPUTS:.0e}: take a longer step or a shorter span.")
     if abs(count - round(count)) > 1e-9 * max(1.0, count):
         _fail("[time] step", f"must divide end - start = {end - start} into whole steps.")
     return start + step * jnp.arange(round(count) + 1, dtype=jnp.float64)
@@ -174,7 +191,15 @@ def scene_from_dict(data: Mapping, name: str = "scene", base: str | Path | None 
     ts = _times_from(data)
     reduction = _reduction_from(data, ts, n)
     output = _output_from(data, n, reduction is not None)
+    _check_output_memory(ts, n, output, reduction)
     return Scene(system, ts, x0, v0, load, reduction, output, name=name, **_solver_from(data))
+
+
+def _is_file(path: Path) -> bool:
+    try:
+        return path.is_file()
+    except (OSError, ValueError):  # a name too long, or with a NUL: TOML text after all
+        return False
 
 
 def load_scene(source: str | Path | Mapping) -> Scene:
@@ -204,13 +229,24 @@ def load_scene(source: str | Path | Mapping) -> Scene:
         return scene_from_dict(tomllib.loads(text), name=source)
     path = Path(source)
     base = None  # TOML text: matrix files relative to the current directory
-    if isinstance(source, str) and ("\n" in source or "=" in source):  # TOML text, not a path
+    # TOML text, not a path: a line break or "=" and no such file (a path that exists is a path,
+    # "=" in its name or not)
+    is_text = (isinstance(source, str) and ("\n" in source or "=" in source)
+               and not ("\n" not in source and _is_file(path)))
+    if is_text:
         text, name = source, "scene"
     else:
+        if path.is_dir():
+            raise ValueError(MARK + f"scene file {str(path)!r} is a directory, not a TOML file.")
         if not path.is_file():
             raise ValueError(MARK + f"scene file {str(path)!r} does not exist (or name one of "
                              f"{list(PAPER_SCENES)}).")
-        text, name, base = path.read_text(), path.stem, path.parent
+        try:
+            text = path.read_text(encoding="utf-8")
+        except UnicodeDecodeError as error:
+            raise ValueError(MARK + f"scene file {str(path)!r} is not UTF-8 text ({error.reason} "
+                             f"at byte {error.start}).") from None
+        name, base = path.stem, path.parent
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:
