@@ -123,3 +123,25 @@ def test_an_unusable_out_or_cache_folder_is_one_line_before_any_work(tmp_path, c
     assert len(err) == 2, err
     assert err[0].startswith("warning: no compilation cache") and "is not a folder" in err[0]
     assert err[1] == f"error: mikota_jax: --out {str(blocker)!r} exists and is not a folder."
+
+
+def test_ctrl_c_stops_a_long_run_within_seconds_and_writes_nothing(tmp_path):
+    import signal
+    import time
+
+    scene = tmp_path / "long.toml"  # a Dopri8 run of half a minute or more
+    scene.write_text('[chain]\ntype = "mikota"\nn = 5000\n\n[[damper]]\ntype = "grounded"\n'
+                     "position = 7\ncoefficient = 1.0\n\n[initial]\ndisplacement = { 3 = 1.0 }"
+                     '\n\n[time]\nend = 40.0\nstep = 0.01\n\n[solver]\nmethod = "dopri8"\n')
+    env = dict(os.environ, MIKOTA_JAX_CACHE="0", OPENBLAS_NUM_THREADS="1")
+    proc = subprocess.Popen([sys.executable, "-m", "mikota_jax", "run", str(scene), "--out",
+                             str(tmp_path / "out")], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env)
+    time.sleep(10)  # imported, compiling or solving
+    assert proc.poll() is None, proc.communicate()
+    start = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert time.monotonic() - start < 5, err
+    assert proc.returncode == 130 and "interrupted" in err and "Traceback" not in err, err
+    assert not (tmp_path / "out" / "results.json").exists()

@@ -270,6 +270,7 @@ def test_a_mode_at_critical_internal_damping_is_flagged_and_the_energy_falls_bac
           rtol=1e-10)
 
 
+@pytest.mark.slow  # 20-30 s; the energy gradient without internal damping stays in the default run
 def test_the_energy_gradient_with_internal_damping_matches_central_differences(close):
     n = 20
 
