@@ -30,10 +30,14 @@ def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path:
 
     Default: ``$MIKOTA_JAX_CACHE_DIR``, else ``$XDG_CACHE_HOME/mikota_jax/xla`` (``~/.cache/...``).
     Changes JAX's global configuration for this process; every executable is stored, however short
-    its compile time.
+    its compile time. An ``OSError`` (nothing changed) where the folder cannot be used.
     """
     path = Path(path).expanduser() if path is not None else default_cache_dir()
+    if path.exists() and not path.is_dir():
+        raise OSError(f"{path} is not a folder")
     path.mkdir(parents=True, exist_ok=True)
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise OSError(f"{path} is not writable")
     jax.config.update("jax_compilation_cache_dir", str(path))
     # Every solve is worth caching: the default threshold (1 s) would skip the smaller ones.
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)

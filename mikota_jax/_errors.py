@@ -167,15 +167,20 @@ def available_bytes() -> float | None:
     return None
 
 
+def fits_in_memory(size: int, matrices: float) -> bool:
+    """Whether ``matrices`` float64 size x size arrays fit in the memory available now."""
+    available = available_bytes()
+    return available is None or matrices * size * size * 8.0 <= available
+
+
 def check_dense_memory(size: int, matrices: float, what: str) -> None:
     """Refuse a dense O(size^2) computation that cannot fit in memory, before it is attempted.
 
     ``matrices`` is how many float64 size x size arrays the computation holds at its peak (counted
     for the method, generously); the error names the size and the O(n) alternatives.
     """
-    need = matrices * size * size * 8.0
-    available = available_bytes()
-    if available is not None and need > available:
+    if not fits_in_memory(size, matrices):
+        need, available = matrices * size * size * 8.0, available_bytes()
         raise ValueError(
             MARK + f"{what} works with dense matrices: at n = {size} it needs about "
             f"{need / 2**30:.1f} GiB, more than the {available / 2**30:.1f} GiB available. Use "

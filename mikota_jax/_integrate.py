@@ -22,10 +22,10 @@ from ._errors import (
     MARK,
     RESULTS,
     as_float,
-    available_bytes,
     check,
     check_x64,
     first_failure,
+    fits_in_memory,
     integer_indices,
     raise_result,
     raises_value_error,
@@ -287,8 +287,7 @@ def _spectral_if_it_holds(model, ts, x0, v0, load, dofs, displacement, velocity)
         return None
     if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((model, ts, x0, v0))):
         return None
-    available = available_bytes()
-    if available is not None and SPECTRAL_MATRICES * 8.0 * model.size**2 > available:
+    if not fits_in_memory(model.size, SPECTRAL_MATRICES):
         return None
     trajectory, ok = spectral_solve_with_result(
         model, ts, x0, v0, load, dofs=check_dofs(dofs, model.size), displacement=displacement,

@@ -446,68 +446,6 @@ def damped_modes(system) -> DampedModes:
 
 
 @complex_arithmetic
-def pair_sums(modes: DampedModes):
-    """(s, pair): s_jk = lambda_j + lambda_k (2n, 2n) in pole-offset form (a conjugate pair's
-    imaginary parts cancel exactly), and which pairs carry energy (two damped roots, or the two
-    roots of one mode no damper touches)."""
-    base = modes.poles[modes.anchor]
-    s = (base[:, None] + base[None, :]) + (modes.offset[:, None] + modes.offset[None, :])
-    active = modes.root_active
-    same_mode = modes.modes[:, None] == modes.modes[None, :]
-    pair = (active[:, None] & active[None, :]) | (same_mode & ~active[:, None])
-    return s, pair
-
-
-@complex_arithmetic
-def modal_gram(modes: DampedModes, y) -> Array:
-    """G_jk = y_j^T Omega^2 y_k + lambda_j lambda_k y_j^T y_k, (2n, 2n), zero where the roots
-    do not interact: the energy inner product of the state eigenvectors (Omega y_j, lambda_j
-    y_j).
-
-    From the eigen-equations of j and k (symmetric D_m), G_jk = -2 lambda_j lambda_k y_j^T D_m
-    y_k / (lambda_j + lambda_k); with y^T F = -c / lambda this is -2 c_j^T diag(d) c_k /
-    (lambda_j + lambda_k) for dampers alone (Cauchy-like, O(k n^2), no cancellation), plus -2
-    lambda_j lambda_k y_j^T diag(gamma) y_k / (lambda_j + lambda_k) with internal damping (one
-    (2n, n, 2n) product, O(n^3): internal damping breaks the low rank). A conjugate pair (and
-    a real root with itself), where lambda_j + lambda_k is below the rounding of lambda, is
-    summed directly, O(n) per root; a mode no damper touches has unit vectors.
-    """
-    omega, weights, c = modes.omega, modes.weights, modes.null
-    lam = modes.eigenvalues
-    s, pair = pair_sums(modes)
-    active = modes.root_active
-    s_safe = jnp.where(pair & (s != 0), s, 1.0)
-    cauchy = (c * weights[None, :]) @ c.T
-    if modes.internal:
-        cauchy = cauchy + (lam[:, None] * lam[None, :]) * ((y * modes.gamma[None, :]) @ y.T)
-    gram = -2 * cauchy / s_safe
-    base = modes.poles[modes.anchor]
-    conj_gap = jnp.abs((base[None, :] - jnp.conj(base)[:, None])
-                       + (modes.offset[None, :] - jnp.conj(modes.offset)[:, None]))
-    partner = jnp.argmin(jnp.where(pair, conj_gap, jnp.inf), axis=1)
-    direct = jnp.sum((omega[None, :] ** 2 + (lam * lam[partner])[:, None]) * y * y[partner],
-                     axis=1)
-    rows = jnp.arange(lam.shape[0])
-    gram = gram.at[rows, partner].set(jnp.where(active, direct, gram[rows, partner]))
-    own = omega[modes.modes] ** 2
-    unit = own[:, None] + lam[:, None] * lam[None, :]
-    gram = jnp.where(active[:, None] | active[None, :], gram, unit)
-    return jnp.where(pair, gram, 0.0)
-
-
-def growth(s, horizon):
-    """(e^{s T} - 1) / s, also for tiny |s T| (series) and T = inf (-1 / s, Re s < 0)."""
-    if horizon is None:
-        return -1 / jnp.where(s != 0, s, -1.0)
-    small = jnp.abs(s * horizon) < 1e-3
-    s_large = jnp.where(small, 1.0, s)  # no 0 / 0 in the branch not taken (its gradient)
-    return jnp.where(small,
-                     horizon * (1 + s * horizon / 2 + (s * horizon) ** 2 / 6
-                                + (s * horizon) ** 3 / 24),
-                     jnp.expm1(s_large * horizon) / s_large)
-
-
-@complex_arithmetic
 def differentiable_roots(modes: DampedModes) -> DampedModes:
     """The same roots with the derivative of one Newton step on phi_J at them (implicit
     differentiation: dlambda = -dphi / phi'); the iteration itself carries no derivative."""

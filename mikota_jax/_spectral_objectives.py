@@ -23,15 +23,79 @@ fall back to their dense (Van Loan) paths where it does not.
 import equinox as eqx
 import jax.numpy as jnp
 
+from ._custom_types import Array
 from ._modal import modal_projection
-from ._spectral import (
-    DampedModes,
-    complex_arithmetic,
-    growth,
-    live_modes,
-    modal_gram,
-    pair_sums,
-)
+from ._spectral import DampedModes, complex_arithmetic, live_modes
+
+# --- the energy kernels: Gram matrix of the damped modes, pair sums, time integrals ----------
+
+
+@complex_arithmetic
+def pair_sums(modes: DampedModes):
+    """(s, pair): s_jk = lambda_j + lambda_k (2n, 2n) in pole-offset form (a conjugate pair's
+    imaginary parts cancel exactly), and which pairs carry energy (two damped roots, or the two
+    roots of one mode no damper touches)."""
+    base = modes.poles[modes.anchor]
+    s = (base[:, None] + base[None, :]) + (modes.offset[:, None] + modes.offset[None, :])
+    active = modes.root_active
+    same_mode = modes.modes[:, None] == modes.modes[None, :]
+    pair = (active[:, None] & active[None, :]) | (same_mode & ~active[:, None])
+    return s, pair
+
+
+@complex_arithmetic
+def modal_gram(modes: DampedModes, y) -> Array:
+    """G_jk = y_j^T Omega^2 y_k + lambda_j lambda_k y_j^T y_k, (2n, 2n), zero where the roots
+    do not interact: the energy inner product of the state eigenvectors (Omega y_j, lambda_j
+    y_j).
+
+    From the eigen-equations of j and k (symmetric D_m), G_jk = -2 lambda_j lambda_k y_j^T D_m
+    y_k / (lambda_j + lambda_k); with y^T F = -c / lambda this is -2 c_j^T diag(d) c_k /
+    (lambda_j + lambda_k) for dampers alone (Cauchy-like, O(k n^2), no cancellation), plus -2
+    lambda_j lambda_k y_j^T diag(gamma) y_k / (lambda_j + lambda_k) with internal damping (one
+    (2n, n, 2n) product, O(n^3): internal damping breaks the low rank). A conjugate pair (and
+    a real root with itself), where lambda_j + lambda_k is below the rounding of lambda, is
+    summed directly, O(n) per root; a mode no damper touches has unit vectors.
+    """
+    omega, weights, c = modes.omega, modes.weights, modes.null
+    lam = modes.eigenvalues
+    s, pair = pair_sums(modes)
+    active = modes.root_active
+    s_safe = jnp.where(pair & (s != 0), s, 1.0)
+    cauchy = (c * weights[None, :]) @ c.T
+    if modes.internal:
+        cauchy = cauchy + (lam[:, None] * lam[None, :]) * ((y * modes.gamma[None, :]) @ y.T)
+    gram = -2 * cauchy / s_safe
+    base = modes.poles[modes.anchor]
+    conj_gap = jnp.abs((base[None, :] - jnp.conj(base)[:, None])
+                       + (modes.offset[None, :] - jnp.conj(modes.offset)[:, None]))
+    partner = jnp.argmin(jnp.where(pair, conj_gap, jnp.inf), axis=1)
+    direct = jnp.sum((omega[None, :] ** 2 + (lam * lam[partner])[:, None]) * y * y[partner],
+                     axis=1)
+    rows = jnp.arange(lam.shape[0])
+    gram = gram.at[rows, partner].set(jnp.where(active, direct, gram[rows, partner]))
+    own = omega[modes.modes] ** 2
+    unit = own[:, None] + lam[:, None] * lam[None, :]
+    gram = jnp.where(active[:, None] | active[None, :], gram, unit)
+    return jnp.where(pair, gram, 0.0)
+
+
+def growth(s, horizon):
+    """(e^{s T} - 1) / s, also for tiny |s T| (series) and T = inf (-1 / s, Re s < 0)."""
+    if horizon is None:
+        return -1 / jnp.where(s != 0, s, -1.0)
+    small = jnp.abs(s * horizon) < 1e-3
+    s_large = jnp.where(small, 1.0, s)  # no 0 / 0 in the branch not taken (its gradient)
+    return jnp.where(small,
+                     horizon * (1 + s * horizon / 2 + (s * horizon) ** 2 / 6
+                                + (s * horizon) ** 3 / 24),
+                     jnp.expm1(s_large * horizon) / s_large)
+
+
+
+# --- the objectives --------------------------------------------------------------------------
+
+
 
 
 @complex_arithmetic

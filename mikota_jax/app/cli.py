@@ -68,16 +68,10 @@ def _writable_folder(out: str) -> Path:
 
 def _enable_cache() -> None:
     """The persistent compilation cache, or one warning line and none (an unusable folder)."""
-    from .._cache import default_cache_dir, enable_compilation_cache
+    from .._cache import enable_compilation_cache
 
-    path = default_cache_dir()
     try:
-        if path.exists() and not path.is_dir():
-            raise OSError(f"{path} is not a folder")
-        path.mkdir(parents=True, exist_ok=True)
-        if not os.access(path, os.W_OK | os.X_OK):
-            raise OSError(f"{path} is not writable")
-        enable_compilation_cache(path)
+        enable_compilation_cache()
     except OSError as error:
         print(f"warning: no compilation cache ({error}); set MIKOTA_JAX_CACHE_DIR to a writable "
               "folder, or MIKOTA_JAX_CACHE=0 to silence this.", file=sys.stderr)
