@@ -22,6 +22,7 @@ import scipy.linalg as sl  # noqa: E402
 import mikota_jax as mj  # noqa: E402
 
 DAMPING, PARAMETERS = "Damping extremes", "Parameter extremes"
+BOUNDS = "Physical bounds and refusals (issue 18)"
 N, M_, K_ = 10, 1.3, 0.9
 OMEGA = np.sqrt(K_ / M_)
 TS = np.linspace(0.0, 20.0, 201)
@@ -286,9 +287,54 @@ def _parameter_rows():
     return rows
 
 
+def _bound_rows():
+    """Issue 18: the physical bound 0 < J <= E0 T over strong dampers, and the refusals."""
+    rows = []
+    n, horizon = 30, 20.0
+    x0 = np.zeros(n)
+    x0[2] = 1.0
+    e0_t = float(np.asarray(mj.mikota_chain(n).stiffness.as_matrix())[2, 2]) / 2 * horizon
+    cells = {"exact": [], "dense": []}
+    for d in (1e8, 1e10, 1e12, 1e13, 1e14, 1e16):
+        system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(7, d)])
+        for method in cells:
+            try:
+                j = float(mj.integrated_energy(system, horizon, x0, method=method))
+                ok = 0 < j <= e0_t * (1 + 1e-14)
+                cells[method].append(f"{d:.0e}: {j:.6g}{'' if ok else ' (ABOVE E0 T)'}")
+            except ValueError as error:
+                cells[method].append(f"{d:.0e}: refused ({str(error)[12:60]}...)")
+    rows.append(_row(BOUNDS, f"n = 30, T = 20, damper at DOF 7, E0 T = {e0_t:g}: "
+                     "integrated_energy (the default, spectral)", "; ".join(cells["exact"]),
+                     "test_a_damper_rate_beyond_the_dense_energys_range_is_refused_and_the_spectral_path_holds"))
+    rows.append(_row(BOUNDS, "the same, method='dense' (Van Loan; the default before)",
+                     "; ".join(cells["dense"]) + " (the dense path loses the bound past "
+                     "~1e12; only user damping matrices and ROMs still take it)",
+                     "test_a_damper_rate_beyond_the_dense_energys_range_is_refused_and_the_spectral_path_holds"))
+    system = mj.mikota_chain(4, dampers=[mj.GroundedDamper(2, 0.5)])
+    ts, start = np.linspace(0.0, 1.0, 11), np.eye(4)[2]
+    for rtol in (1.0, 10.0, 1e300):
+        rows.append(_row(BOUNDS, f"simulate dopri8 rtol = {rtol:g}",
+                         _loud(lambda r=rtol: mj.simulate(system, ts, start, solver="dopri8",
+                                                          rtol=r), "rtol"),
+                         "test_unknown_solver_and_non_positive_tolerances_are_rejected"))
+    far = 1e5 + 1e-3 * np.arange(1001)
+    dense = mj.exact_solve(system, far, start, method="dense").displacement
+    spectral = mj.exact_solve(system, far, start, method="spectral").displacement
+    rows.append(_row(BOUNDS, "uniform grid far from 0 (t = 1e5 + 1e-3 k): dense vs spectral",
+                     _verdict(_rel(dense, spectral), 1e-8),
+                     "test_a_uniform_grid_far_from_zero_is_uniform_to_the_rounding_of_t"))
+    for case, call in (("m = 1 + 2j", lambda: mj.mikota_chain(4, m=1 + 2j)),
+                       ("dofs = [2.5]", lambda: mj.exact_solve(system, ts, start, dofs=[2.5])),
+                       ("RelativeDamper((2.7, 3))",
+                        lambda: mj.mikota_chain(4, dampers=[mj.RelativeDamper((2.7, 3), 1.0)]))):
+        rows.append(_row(BOUNDS, case, _loud(call, "must"), "tests/test_fuzz.py"))
+    return rows
+
+
 def rows() -> list[dict]:
     """One dict per extreme case: area, case, measured (computed now), test."""
-    return _damping_rows() + _parameter_rows()
+    return _damping_rows() + _parameter_rows() + _bound_rows()
 
 
 if __name__ == "__main__":

@@ -13,8 +13,11 @@ Each n runs in its own Python process (so its peak memory can be read) and measu
 apart from run time (``Compiled``: ``jax.jit(f).lower(...).compile()``), run time as the median of
 repeats ended by ``block_until_ready``:
 
-* reference: ``mj.exact_solve`` for n <= 1000 (dense n x n eigh, 2n x 2n expm), else Dopri8 at
-  rtol 1e-12; both exist for n <= 1000, where they must agree before anything is timed;
+* reference: ``mj.exact_solve(method="dense")`` for n <= 1000 (n x n eigh, 2n x 2n expm), else
+  Dopri8 at rtol 1e-12; both exist for n <= 1000, where they must agree before anything is timed;
+* full model, spectral: ``mj.exact_solve(method="spectral")`` (the default path: damped modes from
+  the secular equation, O(n^2)) for n <= 3000, its error against the
+  reference recorded; n = 10^4 is ``spectral_large.py``'s;
 * full model, best explicit: ``mj.simulate`` Dopri8 (tridiagonal O(n) operator) at rtol 1e-8 and
   1e-4 (atol = 1e-2 rtol, one executable: tolerances are traced), num_steps recorded; "full at equal
   accuracy" is the loosest of the two that meets the accuracy target below;
@@ -91,6 +94,7 @@ RTOL, REFERENCE_RTOL = 1e-8, 1e-12
 FULL_RTOLS = (RTOL, 1e-6, 1e-4)  # "equal accuracy": the loosest of these that meets TARGET
 TARGET = 1e-3  # ROM (and "equal accuracy" full) error at the saved DOFs / max |x_ref| there
 EXACT_MAX_N = 1000  # exact_solve of the full model (dense eigh + 2n x 2n expm) up to here
+SPECTRAL_MAX_N = 3000  # exact_solve's spectral path (12 n^2 floats; n = 10^4: spectral_large.py)
 IMPLICIT_STEP_MAX_N = 1000  # kvaerno5 cost per step measured up to here (short window)
 IMPLICIT_RUN_MAX_N = 300  # kvaerno5 on the whole horizon up to here
 QUICK_IMPLICIT_MAX_N = 0  # --quick: no kvaerno5 (its compile alone takes ~5 s)
@@ -224,7 +228,12 @@ def measure(n: int, quick: bool) -> dict:
                                                    atol=rtol * 1e-2), system, x0, RTOL)
     exact = None
     if n <= EXACT_MAX_N:
-        exact = Compiled(lambda s, x: mj.exact_solve(s, ts, x, dofs=dofs), system, x0)
+        exact = Compiled(lambda s, x: mj.exact_solve(s, ts, x, dofs=dofs, method="dense"),
+                         system, x0)
+    spectral = None
+    if n <= SPECTRAL_MAX_N:
+        spectral = Compiled(lambda s, x: mj.exact_solve(s, ts, x, dofs=dofs, method="spectral"),
+                            system, x0)
     say("compiled full-model executables")
 
     # ---- reference and correctness checks, before any timing
@@ -277,6 +286,12 @@ def measure(n: int, quick: bool) -> dict:
         run_s, times = more(exact_times, exact, system, x0, repeats=repeats)
         out["full_exact"] = {"compile_s": exact.compile_s, "run_s": run_s, "run_times_s": times,
                              "memory": xla_memory(exact)}
+    if spectral is not None:
+        result, run_s, times = timed(spectral, system, x0, repeats=repeats)
+        error = max_error(result.displacement, reference)
+        out["full_spectral"] = {"compile_s": spectral.compile_s, "run_s": run_s,
+                                "run_times_s": times, "memory": xla_memory(spectral),
+                                "error": error, "relative_error": error / scale}
     say("full model timed")
 
     # ---- full model: implicit (kvaerno5), dense Jacobian per step
@@ -426,6 +441,8 @@ def summarise(results: list[dict]) -> tuple[list[dict], dict]:
                "full_equal_s": equal["run_s"] if equal else None,
                "equal_rtol": equal["rtol"] if equal else None,
                "exact_s": res.get("full_exact", {}).get("run_s"),
+               "spectral_s": res.get("full_spectral", {}).get("run_s"),
+               "spectral_error": res.get("full_spectral", {}).get("relative_error"),
                "implicit_step_s": (implicit["window"]["per_step_s"] if implicit["measured"]
                                    else None),
                "implicit_s": implicit.get("horizon", {}).get("run_s"),
@@ -438,6 +455,7 @@ def summarise(results: list[dict]) -> tuple[list[dict], dict]:
                "rom_steps": (rom.get("dopri8") or {}).get("steps"),
                "compile_full_s": full["compile_s"], "compile_snap_s": rom["snapshots"]["compile_s"],
                "compile_exact_s": res.get("full_exact", {}).get("compile_s"),
+               "compile_spectral_s": res.get("full_spectral", {}).get("compile_s"),
                "compile_kv5_s": implicit.get("compile_s"),
                "compile_rom_exact_s": rom.get("exact", {}).get("compile_s"),
                "compile_rom_dopri_s": (rom.get("dopri8") or {}).get("compile_s"),
@@ -463,7 +481,9 @@ def summarise(results: list[dict]) -> tuple[list[dict], dict]:
 
     tail = [r for r in rows if r["n"] >= 1000]
     curves = {"full_s": "full Dopri8 rtol 1e-8", "full_equal_s": "full Dopri8 at equal accuracy",
-              "exact_s": "full exact_solve", "implicit_step_s": "full Kvaerno5 per step",
+              "exact_s": "full exact_solve (dense)",
+              "spectral_s": "full exact_solve (spectral)",
+              "implicit_step_s": "full Kvaerno5 per step",
               "implicit_s": "full Kvaerno5 whole horizon (measured)",
               "implicit_estimate_s": "full Kvaerno5 whole horizon (extrapolated lower bound)",
               "offline_s": "ROM offline", "online_s": "ROM online (best)",
@@ -531,6 +551,7 @@ def plot(rows, summary, quick: bool, meta: dict):
     curve(cost, "full_s", "full Dopri8, rtol 1e-8", "o-", color="C0")
     curve(cost, "full_equal_s", "full Dopri8, equal accuracy", "o--", color="C0", mfc="none")
     curve(cost, "exact_s", "full exact_solve (dense)", "s-", color="C7")
+    curve(cost, "spectral_s", "full exact_solve (spectral, the default)", "p-", color="k")
     curve(cost, "implicit_s", "full Kvaerno5 (measured)", "v-", color="C3")
     curve(cost, "implicit_estimate_s", "full Kvaerno5 (EXTRAPOLATED, lower bound)", "v:",
           color="C3", mfc="none")
@@ -624,14 +645,16 @@ def main(argv=None) -> dict:
     print_table(rows, [
         ("n", "n", "d"), ("steps", "dopri8 steps", "d"), ("full_s", "full 1e-8 s", ".3g"),
         ("full_equal_s", "full eq.acc s", ".3g"), ("equal_rtol", "eq.acc rtol", ".0e"),
-        ("exact_s", "full exact s", ".3g"), ("implicit_step_s", "kv5 s/step", ".3g"),
+        ("exact_s", "full dense s", ".3g"), ("spectral_s", "full spectral s", ".3g"),
+        ("implicit_step_s", "kv5 s/step", ".3g"),
         ("implicit_s", "kv5 s", ".3g"), ("implicit_estimate_s", "kv5 est. s", ".3g"),
         ("rank", "r", "d"), ("offline_s", "ROM off s", ".3g"),
         ("rom_exact_s", "ROM exact s", ".3g"),
         ("rom_dopri_s", "ROM dopri8 s", ".3g"), ("speedup_online", "speed-up", ".3g"),
         ("break_even_queries", "queries", ".3g")])
     print_table(rows, [
-        ("n", "n", "d"), ("full_error", "full rel.err", ".1e"), ("rom_error", "ROM rel.err", ".1e"),
+        ("n", "n", "d"), ("full_error", "full rel.err", ".1e"),
+        ("spectral_error", "spectral rel.err", ".1e"), ("rom_error", "ROM rel.err", ".1e"),
         ("snap_s", "snapshots s", ".3g"), ("pod_s", "POD s", ".3g"),
         ("peak_mb", "peak RSS MiB", ".0f"), ("peak_delta_mb", "RSS - setup MiB", ".0f"),
         ("full_xla_mb", "full XLA MiB", ".3g"), ("rom_steps", "ROM dopri8 steps", "d"),
@@ -639,7 +662,8 @@ def main(argv=None) -> dict:
     print("\ncompile times [s] (trace + lower + XLA compile, once per n):", end="")
     print_table(rows, [
         ("n", "n", "d"), ("compile_full_s", "full dopri8", ".2f"),
-        ("compile_snap_s", "snapshot run", ".2f"), ("compile_exact_s", "full exact", ".2f"),
+        ("compile_snap_s", "snapshot run", ".2f"), ("compile_exact_s", "full dense", ".2f"),
+        ("compile_spectral_s", "full spectral", ".2f"),
         ("compile_kv5_s", "kvaerno5", ".2f"), ("compile_rom_exact_s", "ROM exact", ".2f"),
         ("compile_rom_dopri_s", "ROM dopri8", ".2f")])
     print("\nfitted exponents (cost ~ n^p, least squares in log-log; all n / n >= 1000):")

@@ -6,7 +6,8 @@ T = M^-1/2 K M^-1/2 = C^T C, C = diag(sqrt k) L M^-1/2, held in the qd form T = 
 bidiagonal C: ``q`` (the pivots k_i / m_i), ``e`` (k_i / m_{i-1}) and the off-diagonal ``t``, in
 *work order* (DOF n first, so that C^T C is an L D L^T and not a U D U^T factorisation).
 
-* Eigenvalues: bisection on Sturm counts of L D L^T - tau I by the differential stationary qd
+* Eigenvalues: for Mikota's chain (recognised from the data) exactly l^2 k / m; otherwise
+  bisection on Sturm counts of L D L^T - tau I by the differential stationary qd
   transform (dstqds), vectorised over all n eigenvalues (one O(n) scan per step over an (n,) vector
   of shifts), geometric midpoints while an interval spans more than a factor 4, arithmetic after.
   The qd entries determine the eigenvalues to high relative accuracy and dstqds is mixed relatively
@@ -92,7 +93,32 @@ def _count_below(q, e, tau, dtype):
     return count
 
 
+_MIKOTA_ULPS = 8  # m_i i and k_i / (n - i + 1) equal to this many ulps: Mikota's chain
+
+
+def _mikota_ratio(masses, springs):
+    """(whether the data are Mikota's chain m_i = m / i, k_i = (n - i + 1) k to a few ulps, k / m).
+
+    Its eigenvalues are then exactly l^2 k / m, l = 1..n (Weber & Zastrau 2018, eq. 2.4; Mikota
+    2001); taken from the data m = m_1, k = k_n, they carry two roundings, as close as bisection
+    gets (entries perturbed by a few ulps move each eigenvalue by a few ulps relative)."""
+    i = jnp.arange(1, masses.shape[0] + 1, dtype=masses.dtype)
+    m, k = masses * i, springs / (masses.shape[0] + 1 - i)
+    tol = _MIKOTA_ULPS * _EPS
+    same = (jnp.all(jnp.abs(m - m[0]) <= tol * m[0])
+            & jnp.all(jnp.abs(k - k[-1]) <= tol * k[-1]))
+    return same, springs[-1] / masses[0]
+
+
 def _eigenvalues(masses, springs):
+    """Ascending eigenvalues of T: l^2 k / m for Mikota's chain (``_mikota_ratio``), otherwise by
+    vectorised bisection, each to about one ulp relative."""
+    mikota, ratio = _mikota_ratio(masses, springs)
+    squares = jnp.arange(1, masses.shape[0] + 1, dtype=masses.dtype) ** 2
+    return jax.lax.cond(mikota, lambda: squares * ratio, lambda: _bisection(masses, springs))
+
+
+def _bisection(masses, springs):
     """Ascending eigenvalues of T by vectorised bisection, each to about one ulp relative."""
     q, e, _ = _qd(masses, springs)
     index = jnp.arange(q.shape[0])

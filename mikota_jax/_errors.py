@@ -31,6 +31,14 @@ def as_float(x, name: str) -> jax.Array:
         raise ValueError(MARK + f"{name} must be float64, got {dtype}; pass float64 arrays.")
     if dtype is not None and jnp.issubdtype(dtype, jnp.complexfloating):
         raise ValueError(MARK + f"{name} must be real, got {dtype}.")
+    if dtype is None:  # Python numbers, lists, strings: what numpy makes of them
+        try:
+            kind = np.asarray(x).dtype
+        except (TypeError, ValueError) as error:  # ragged lists
+            raise ValueError(MARK + f"{name} must be real, got {x!r:.60}.") from error
+        if not (np.issubdtype(kind, np.number) or kind == np.bool_) or np.issubdtype(
+                kind, np.complexfloating):
+            raise ValueError(MARK + f"{name} must be real, got {x!r:.60}.")
     return jnp.asarray(x, dtype=jnp.float64)
 
 
@@ -72,9 +80,11 @@ class RESULTS(eqx.Enumeration):
         "loses digits as eps / (omega_1 duration) (more than 1e-6 here); use its Dirac limit "
         "v0 = M^-1 (amplitude duration) e_dof, or simulate.")
     out_of_range = (
-        "integrated_energy: the fastest rate times the horizon (||A|| T) exceeds 8 * 2^60 ~ 9e18, "
-        "beyond the exact energy's range (or the result is not finite); a damper that strong "
-        "pins its DOF: model that DOF as fixed, or shorten the horizon.")
+        "integrated_energy: the fastest rate times the horizon (||A|| T) exceeds 4.5e11, beyond "
+        "which the dense (Van Loan) energy loses more than ~1e-5 to rounding (or the result is "
+        "not finite); a full system with discrete dampers takes the spectral path "
+        "(method='exact'), which has no such limit; else shorten the horizon, or model a DOF "
+        "that a strong damper pins as fixed.")
     not_damped = (
         "total_average_energy: some mode is undamped (the Lyapunov solution does not exist); "
         "place a damper where every mode moves, or restrict Z with lowest=s.")

@@ -229,6 +229,8 @@ def load_matrix(path: str | Path, key: str | None = None, *, dense: bool = False
     n <= ``DENSE_LIMIT``); ``dense=True`` always returns a NumPy array.
     """
     path = Path(path)
+    if path.is_dir():
+        _fail(path, "is a directory, not a matrix file.")
     if not path.is_file():
         _fail(path, "does not exist.")
     name = path.name.lower()

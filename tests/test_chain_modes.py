@@ -1,4 +1,5 @@
-"""O(n^2) chain modes (``_chain_modes``): exact Mikota frequencies, orthonormality, relative
+"""O(n^2) chain modes (``_chain_modes``): exact Mikota frequencies (recognised from the data,
+and by bisection alone), orthonormality, relative
 accuracy for masses over twelve decades (against 50-digit decimal bisection), agreement with the
 dense SVD path (``generalized_modes``), the chunked mode data, and derivatives by central
 differences."""
@@ -11,7 +12,7 @@ from _helpers import sign_rule
 from test_extremes import ORDERS, SPRINGS, bisection_eigenvalues
 
 import mikota_jax as mj
-from mikota_jax._chain_modes import chain_mode_data, chain_modes
+from mikota_jax._chain_modes import _bisection, _mikota_ratio, chain_mode_data, chain_modes
 from mikota_jax._modal import generalized_modes
 
 M_, K_ = 1.3, 0.9
@@ -45,6 +46,24 @@ def test_mikota_frequencies_are_l_squared_k_over_m_to_a_few_ulps_and_modes_ortho
     l = np.arange(1, n + 1)
     close(omega2, l**2 * K_ / M_, rtol=30 * np.finfo(float).eps)  # measured 12 ulps at n = 3000
     assert_modal(masses, springs, omega2, modes, tol=1e-12)  # measured 6e-13 at n = 3000
+
+
+@pytest.mark.parametrize("n", [2, 300])
+def test_bisection_alone_finds_mikota_frequencies_and_a_near_mikota_chain_is_not_taken_for_one(
+        n, close):
+    masses, springs = mikota(n)
+    l = np.arange(1, n + 1)
+    # the general path on data whose exact eigenvalues are known (exact zero pivots included)
+    close(jax.jit(_bisection)(masses, springs), l**2 * K_ / M_, rtol=30 * np.finfo(float).eps)
+    assert bool(_mikota_ratio(masses, springs)[0])
+    # one mass off by 1e-9 relative: not Mikota's chain, its own eigenvalues (dense reference)
+    nearby = masses.at[n // 2].multiply(1 + 1e-9)
+    assert not bool(_mikota_ratio(nearby, springs)[0])
+    omega2, _ = chain_modes(nearby, springs)
+    reference, _ = generalized_modes(mj.chain(nearby, springs))
+    close(omega2, reference, rtol=1e-11)
+    close(omega2, _bisection(nearby, springs), rtol=0.0)
+    assert np.max(np.abs(np.asarray(omega2) / (l**2 * K_ / M_) - 1)) > 1e-12
 
 
 @pytest.mark.parametrize("seed", [0, 1])

@@ -6,12 +6,15 @@ structure (n, the number of grounded dampers, the relative dampers' DOF pairs), 
 properties take n in SOLVED_SIZES, two grounded dampers and one relative damper on DOFs (1, n) --
 their positions and coefficients, zero included, are drawn -- while the operator properties, which
 compile no solver, draw n in SIZES and dampers on any DOFs. Derandomized: CI sees the same cases.
+Over wide ranges (issue 18: k/m 1e-8..1e8, damper coefficients 0 and 1e-4..1e16 in units of
+m sqrt(k/m)): the energy integral stays within 0 < J <= E0 T, the energy never grows, and the
+exact and Dopri8 integrals agree where Dopri8 is not stiff.
 """
 
 import jax.numpy as jnp
 import numpy as np
 import scipy.linalg
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 import mikota_jax as mj
@@ -135,3 +138,49 @@ def test_reduced_eigenvalues_interlace_the_full_spectrum(case, seed, data):
     slack = 1e-9 * np.abs(full) + 1e-13 * full[-1]
     assert np.all(reduced >= (full - slack)[:r]), (reduced, full)
     assert np.all(reduced <= (full + slack)[n - r:]), (reduced, full)
+
+
+# ---------------------------------------------------------------- wide ranges (issue 18)
+
+WIDE = settings(SETTINGS, max_examples=8)
+
+
+@st.composite
+def wide_chains(draw):
+    """(system, x0, v0, T, d, k/m): Mikota's chain (n = 4) with k / m over sixteen decades and a
+    grounded damper of coefficient 0 or 1e-4 .. 1e16 (relative to m sqrt(k/m)) anywhere."""
+    ratio = 10.0 ** draw(st.floats(-8.0, 8.0))  # k / m
+    m = 10.0 ** draw(st.floats(-3.0, 3.0))
+    scale = m * np.sqrt(ratio)  # a damper coefficient of order one for the chain
+    d = draw(st.one_of(st.just(0.0), st.floats(-4.0, 16.0).map(lambda e: 10.0**e)))
+    position = draw(st.floats(1.0, 4.0))
+    system = mj.mikota_chain(4, m, m * ratio, [mj.GroundedDamper(position, d * scale)])
+    horizon = 10.0 / np.sqrt(ratio)  # about two periods of the lowest mode
+    return system, draw(vectors(4)), draw(vectors(4)), horizon, d, ratio
+
+
+@WIDE
+@given(case=wide_chains())
+def test_over_wide_ranges_the_energy_integral_is_bounded_and_the_energy_never_grows(case):
+    system, x0, v0, horizon, d, ratio = case
+    assume(np.any(x0 != 0) or np.any(v0 != 0))
+    M, _, K = (np.asarray(a) for a in system.dense())
+    e0 = (x0 @ K @ x0 + v0 @ M @ v0) / 2
+    j = float(mj.integrated_energy(system, horizon, x0, v0))
+    # a damped free chain dissipates: 0 < J <= E0 T (equality only without damping)
+    assert 0 < j <= e0 * horizon * (1 + 1e-12), (j, e0 * horizon)
+    ts = np.linspace(0.0, horizon, 41)
+    e = energy(system, mj.exact_solve(system, ts, x0, v0, velocity=True))
+    assert np.all(np.isfinite(e)) and abs(e[0] / e0 - 1) < 1e-10
+    assert np.all(np.diff(e) <= 1e-10 * e0), np.max(np.diff(e)) / e0
+
+
+@WIDE
+@given(case=wide_chains())
+def test_over_wide_ranges_the_exact_and_dopri8_energies_agree_where_both_apply(case, close):
+    system, x0, v0, horizon, d, ratio = case
+    assume(d <= 1e2)  # stiffer: Dopri8 needs ~d steps; the bound test above covers those
+    assume(np.any(x0 != 0) or np.any(v0 != 0))
+    exact = mj.integrated_energy(system, horizon, x0, v0)
+    ode = mj.integrated_energy(system, horizon, x0, v0, method="ode", rtol=1e-11, atol=1e-14)
+    close(ode, exact, rtol=1e-8)

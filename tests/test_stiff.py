@@ -163,7 +163,7 @@ def test_dense_methods_refuse_a_size_that_cannot_fit_in_memory():
 def test_a_damper_rate_beyond_the_dense_energys_range_is_refused_and_the_spectral_path_holds():
     system = mj.mikota_chain(4, dampers=[mj.GroundedDamper(2.0, 1e19)])
     start = np.eye(4)[2]  # the damped DOF displaced: as d grows it is pinned, nothing dissipates
-    with pytest.raises(ValueError, match="beyond the exact energy's range"):
+    with pytest.raises(ValueError, match="beyond which the dense .* energy loses"):
         mj.integrated_energy(system, 20.0, start, method="dense")
     # the spectral path (the default here) stays inside the physical bound 0 < J <= E0 T and
     # tends to E0 T from below as d grows
@@ -173,3 +173,18 @@ def test_a_damper_rate_beyond_the_dense_energys_range_is_refused_and_the_spectra
         energy = float(mj.integrated_energy(strong, 20.0, start))
         assert 0.0 < energy <= e0 * 20.0 * (1 + 1e-14), (d, energy)
         assert energy > e0 * 20.0 * (1 - 1e-6), (d, energy)
+
+
+def test_the_dense_energy_is_refused_where_rounding_would_cost_it_its_digits(close):
+    # issue 18: n = 30, T = 20, damper at DOF 7; the dense energy was 533.9 at d = 1e13 and 569
+    # (above E0 T = 550) at 1e14, with no error
+    start = np.eye(30)[2]
+    for d, refused in ((1e8, False), (1e12, True), (1e14, True)):
+        system = mj.mikota_chain(30, dampers=[mj.GroundedDamper(7.0, d)])
+        exact = float(mj.integrated_energy(system, 20.0, start))
+        assert 0 < exact <= 550.0 * (1 + 1e-14)
+        if refused:
+            with pytest.raises(ValueError, match="spectral path"):
+                mj.integrated_energy(system, 20.0, start, method="dense")
+        else:
+            close(mj.integrated_energy(system, 20.0, start, method="dense"), exact, rtol=1e-6)

@@ -32,12 +32,17 @@ from .toml_checks import table as _table
 PAPER_SCENES = ("section4_first_mode", "section4_impulse", "section5_damped")
 
 
+def _is_count(text: str) -> bool:
+    """ASCII digits only (str.isdigit also takes "²", which int() refuses)."""
+    return text.isascii() and text.isdecimal()
+
+
 def _state_from(value, n: int, where: str, mode) -> Vector | None:
     if value is None or value == {} or value == []:
         return None
     if isinstance(value, str):
         words = value.split()
-        if len(words) == 2 and words[0] == "mode" and words[1].isdigit():
+        if len(words) == 2 and words[0] == "mode" and _is_count(words[1]):
             number = int(words[1])
             if not 1 <= number <= n:
                 _fail(where, f"mode number must lie in 1..{n}, got {number}.")
@@ -47,7 +52,7 @@ def _state_from(value, n: int, where: str, mode) -> Vector | None:
     if isinstance(value, Mapping):
         x = np.zeros(n)
         for dof, v in value.items():
-            if not str(dof).isdigit() or not 1 <= int(dof) <= n:
+            if not _is_count(str(dof)) or not 1 <= int(dof) <= n:
                 _fail(where, f"DOF keys must be integers in 1..{n}, got {dof!r}.")
             if isinstance(v, bool) or not isinstance(v, int | float) or not np.isfinite(v):
                 _fail(where, f"value at DOF {dof} must be a finite number, got {v!r}.")
@@ -164,7 +169,8 @@ def _solver_from(data) -> dict:
     method = _choice(table, "[solver]", "method", ("exact", "auto", *SOLVERS), "exact")
     return dict(
         solver=method,
-        rtol=float(_number(table, "[solver]", "rtol", default=1e-10, low=0, strict_low=True)),
+        rtol=float(_number(table, "[solver]", "rtol", default=1e-10, low=0, strict_low=True,
+                           high=1, strict_high=True)),
         atol=float(_number(table, "[solver]", "atol", default=1e-12, low=0, strict_low=True)),
         max_steps=_number(table, "[solver]", "max_steps", default=100_000, low=1, integer=True))
 

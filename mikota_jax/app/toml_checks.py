@@ -34,7 +34,7 @@ def table(data: Mapping, key: str, allowed: set[str], required: bool = False) ->
 
 
 def number(values: dict, where: str, key: str, *, default=None, low=None, high=None,
-           strict_low: bool = False, integer: bool = False):
+           strict_low: bool = False, strict_high: bool = False, integer: bool = False):
     """``values[key]``, a finite number (an int with ``integer``) in the given range; required
     unless a ``default`` is given."""
     if key not in values:
@@ -48,8 +48,8 @@ def number(values: dict, where: str, key: str, *, default=None, low=None, high=N
              f"got {value!r}.")
     if low is not None and (value <= low if strict_low else value < low):
         fail(f"{where} {key}", f"must be {'>' if strict_low else '>='} {low}, got {value!r}.")
-    if high is not None and value > high:
-        fail(f"{where} {key}", f"must be <= {high}, got {value!r}.")
+    if high is not None and (value >= high if strict_high else value > high):
+        fail(f"{where} {key}", f"must be {'<' if strict_high else '<='} {high}, got {value!r}.")
     return value
 
 
