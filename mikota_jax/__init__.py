@@ -66,6 +66,8 @@ from ._sweep import grid as grid
 from ._sweep import sweep as sweep
 from ._system import SecondOrderSystem as SecondOrderSystem
 from ._user_matrices import system as system
+from ._viscosity import ViscosityResult as ViscosityResult
+from ._viscosity import optimise_viscosities as optimise_viscosities
 
 __version__ = "0.1.0"
 

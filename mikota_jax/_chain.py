@@ -15,7 +15,7 @@ import jax.numpy as jnp
 
 from ._custom_types import ScalarLike, Vector
 from ._dampers import GroundedDamper, RelativeDamper
-from ._errors import MARK, as_float, check, positive_scalar
+from ._errors import MARK, as_float, check, check_chain_size, positive_scalar
 from ._internal_damping import ModalDamping, Rayleigh, as_internal
 from ._operators import Diagonal, SymmetricTridiagonal
 from ._system import SecondOrderSystem, dampers_operator
@@ -67,6 +67,7 @@ def mikota_chain(n: int, m: ScalarLike = 1.0, k: ScalarLike = 1.0,
     if isinstance(n, bool) or not isinstance(n, int | jnp.integer) or n < 1:
         raise ValueError(MARK + f"n must be an integer >= 1, got {n!r}.")
     n = int(n)
+    check_chain_size(n)
     m, k = positive_scalar(m, "m"), positive_scalar(k, "k")
     i = jnp.arange(1, n + 1, dtype=jnp.float64)
     return chain(m / i, (n - i + 1) * k, dampers, internal_damping=internal_damping)

@@ -198,6 +198,30 @@ def check_dense_memory(size: int, matrices: float, what: str) -> None:
             "memory), or a reduced model.")
 
 
+BYTES_PER_DOF = 8 * 200  # float64 vectors of length n a solve holds, generously
+
+
+def check_chain_size(n: int, name: str = "n") -> None:
+    """Refuse a chain of n DOFs whose O(n) solver vectors alone cannot fit in memory (n = 10^9
+    aborted inside XLA after 80 s before)."""
+    available = available_bytes()
+    if available is not None and BYTES_PER_DOF * n > available:
+        raise ValueError(MARK + f"{name} = {n} needs about {BYTES_PER_DOF * n / 2**30:.0f} GiB "
+                         f"for the O(n) solvers' vectors, more than the "
+                         f"{available / 2**30:.1f} GiB available.")
+
+
+def check_output_memory(count: int, width: int, what: str) -> None:
+    """Refuse ``count`` output times of ``width`` float64 values each (outputs and their
+    per-time work arrays) that cannot fit in the memory available now, before compiling."""
+    need, available = 8.0 * count * width, available_bytes()
+    if available is not None and need > available:
+        raise ValueError(
+            MARK + f"{what}: {count} output times x {width} values need about "
+            f"{need / 2**30:.1f} GiB, more than the {available / 2**30:.1f} GiB available; ask "
+            "for fewer times (ts) or fewer dofs.")
+
+
 def integer_indices(values, name: str) -> tuple[int, ...]:
     """``values`` (a scalar or a sequence) as Python ints; a non-integer (2.5, True, "3", a
     complex) is refused by name, never rounded."""

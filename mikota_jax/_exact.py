@@ -28,6 +28,7 @@ from ._errors import (
     RESULTS,
     check,
     check_dense_memory,
+    check_output_memory,
     check_x64,
     first_failure,
     raise_result,
@@ -228,6 +229,9 @@ def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = 
                        "exact_solve")
     options = dict(dofs=check_dofs(dofs, model.size), displacement=displacement,
                    velocity=velocity)
+    # the outputs and the (N, n) complex coefficient tables of the modal sums
+    check_output_memory(ts.shape[0], len(options["dofs"]) * (displacement + velocity)
+                        + 4 * system.size, "exact_solve")
     if not spectral:
         trajectory, result = _exact(model, ts, x0, v0, load, **options)
         return raise_result(trajectory, result)

@@ -23,6 +23,7 @@ from ._errors import (
     RESULTS,
     as_float,
     check,
+    check_output_memory,
     check_x64,
     first_failure,
     fits_in_memory,
@@ -341,6 +342,8 @@ def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | No
     if atol is None:
         atol = default_atol(as_float(rtol, "rtol"), model, ts, x0, v0, load)
     rtol, atol, adjoint = check_solve_options(rtol, atol, max_steps, adjoint)
+    check_output_memory(ts.shape[0], len(check_dofs(dofs, model.size)) * (displacement + velocity)
+                        + 2 * model.size, "simulate")
     if solver == "auto":
         exact = _spectral_if_it_holds(model, ts, x0, v0, load, dofs, displacement, velocity)
         if exact is not None:

@@ -16,6 +16,7 @@ the same cases; ``-m slow`` runs many more.
 import json
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -264,3 +265,30 @@ def test_a_directory_given_as_a_matrix_file_is_named_a_directory(tmp_path):
         mj.load_matrix(tmp_path)
     with pytest.raises(ValueError, match="does not exist"):
         mj.load_matrix(tmp_path / "missing.npz")
+
+
+def test_the_runtime_running_out_of_memory_is_one_line(tmp_path, capsys, monkeypatch):
+    import mikota_jax
+
+    def exhausted(scene):
+        raise jax.errors.JaxRuntimeError("RESOURCE_EXHAUSTED: Out of memory while trying to "
+                                         "allocate 7.3TiB.\n(traceback lines)")
+
+    monkeypatch.setattr(mikota_jax, "run_scene", exhausted)
+    code, message = run_scene(tmp_path, toml_text(BASE), capsys)
+    assert code == 2 and "ran out of memory" in message and "[chain]" in message
+
+
+def test_outputs_that_cannot_fit_in_memory_are_refused_before_compiling(monkeypatch):
+    from mikota_jax import _errors
+
+    monkeypatch.setattr(_errors, "available_bytes", lambda: 2.0**20)  # 1 MiB left
+    ts = jnp.linspace(0.0, 1.0, 100_001)  # ~10 MB of outputs and tables
+    for call in (lambda: mj.simulate(SYSTEM, ts, X0), lambda: mj.exact_solve(SYSTEM, ts, X0)):
+        with pytest.raises(ValueError, match="output times x .* GiB, more than"):
+            call()
+
+
+def test_a_chain_too_long_for_memory_is_refused_by_name():
+    with pytest.raises(ValueError, match=r"n = 1000000000 needs about \d+ GiB"):
+        mj.mikota_chain(10**9)

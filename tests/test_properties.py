@@ -142,7 +142,7 @@ def test_reduced_eigenvalues_interlace_the_full_spectrum(case, seed, data):
 
 # ---------------------------------------------------------------- wide ranges (issue 18)
 
-WIDE = settings(SETTINGS, max_examples=8)
+WIDE = settings(SETTINGS, max_examples=6)
 
 
 @st.composite

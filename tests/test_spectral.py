@@ -355,6 +355,7 @@ def test_the_spectral_trace_equals_scipys_lyapunov_trace(name, lowest, close):
 def test_the_trace_gradient_matches_central_differences(close):
     n = 16
 
+    @jax.jit  # one compile for the six differences
     def trace(position, coefficient, zeta):
         system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(position, coefficient),
                                              mj.RelativeDamper((2, 11), 0.5 * coefficient)],

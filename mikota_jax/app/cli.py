@@ -122,3 +122,26 @@ def main(argv=None) -> int:
     except OSError as error:  # writing the results (the folder was checked before computing)
         print(f"error: mikota_jax: could not write the results: {error}", file=sys.stderr)
         return 2
+    except MemoryError:
+        print(f"error: {_OUT_OF_MEMORY}", file=sys.stderr)
+        return 2
+    except RuntimeError as error:  # the XLA runtime: out of memory, or a check under jit
+        message = _runtime_message(error)
+        if message is None:
+            raise
+        print(f"error: {message}", file=sys.stderr)
+        return 2
+
+
+_OUT_OF_MEMORY = ("mikota_jax: the computation ran out of memory; make the scene smaller ([chain] "
+                  "n, [time] end / step, [output] dofs) or use a reduced model.")
+
+
+def _runtime_message(error: RuntimeError) -> str | None:
+    """One line for a runtime error of the XLA runtime (out of memory, or one of our checks that
+    fired inside a compiled computation); None for anything else (a bug: its traceback shows)."""
+    text = str(error)
+    if "RESOURCE_EXHAUSTED" in text or "Out of memory" in text:
+        return _OUT_OF_MEMORY
+    ours = [line.strip() for line in text.splitlines() if "mikota_jax:" in line]
+    return ours[0][ours[0].index("mikota_jax:"):] if ours else None

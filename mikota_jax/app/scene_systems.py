@@ -27,15 +27,13 @@ from .. import (
     system,
 )
 from .._custom_types import Vector
-from .._errors import MARK, available_bytes
+from .._errors import BYTES_PER_DOF, MARK, available_bytes
 from .toml_checks import choice as _choice
 from .toml_checks import fail as _fail
 from .toml_checks import is_number as _is_number
 from .toml_checks import number as _number
 from .toml_checks import positive_list as _positive_list
 from .toml_checks import table as _table
-
-_BYTES_PER_DOF = 8 * 200  # float64 vectors of length n a solve holds, generously
 
 _CHAIN_KEYS = {
     "mikota": ("n", "m", "k"),
@@ -163,8 +161,8 @@ def _chain_from(data, base: Path | None) -> tuple[str, dict, int]:
         return _branched_from(table)
     n = _number(table, "[chain]", "n", low=1, integer=True)
     available = available_bytes()
-    if available is not None and _BYTES_PER_DOF * n > available:
-        _fail("[chain] n", f"= {n} needs about {_BYTES_PER_DOF * n / 2**30:.0f} GiB for the O(n) "
+    if available is not None and BYTES_PER_DOF * n > available:
+        _fail("[chain] n", f"= {n} needs about {BYTES_PER_DOF * n / 2**30:.0f} GiB for the O(n) "
               f"solvers' vectors, more than the {available / 2**30:.1f} GiB available.")
     m = _number(table, "[chain]", "m", default=1.0, low=0, strict_low=True)
     k = _number(table, "[chain]", "k", default=1.0, low=0, strict_low=True)

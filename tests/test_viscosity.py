@@ -1,0 +1,103 @@
+"""Optimal viscosities at full order (``optimise_viscosities``): a grounded and a relative damper
+on a small chain, checked against scipy's L-BFGS-B on the same function, a grid around the
+optimum, the first-order conditions at a bound, and the refusals."""
+
+import jax
+import numpy as np
+import pytest
+import scipy.optimize
+
+import mikota_jax as mj
+from mikota_jax._viscosity import _criterion
+
+N, LOWEST = 12, 5
+
+
+def two_dampers(grounded=4.0, relative=1.0):
+    return mj.mikota_chain(N, dampers=[mj.GroundedDamper(4.0, grounded),
+                                       mj.RelativeDamper((2, 9), relative)],
+                           internal_damping=mj.ModalDamping(0.02))
+
+
+@pytest.fixture(scope="module")
+def optimum():
+    return mj.optimise_viscosities(two_dampers(), "average_energy", lowest=LOWEST)
+
+
+@pytest.fixture(scope="module")
+def criterion():
+    function = _criterion(two_dampers(), "average_energy", LOWEST, None, None, None)
+    return lambda d: tuple(np.asarray(a, dtype=float) for a in function(np.asarray(d)))
+
+
+def test_the_optimum_of_a_grounded_and_a_relative_damper_is_scipys_and_the_grids(
+        optimum, criterion, close):
+    assert optimum.converged and optimum.relative_gradient < 1e-6, optimum.status
+    assert np.all(optimum.coefficients > 0)
+    # an independent search on the same function: scipy's L-BFGS-B from another start
+    reference = scipy.optimize.minimize(criterion, np.array([0.5, 0.5]), jac=True,
+                                        method="L-BFGS-B", bounds=[(0, None)] * 2,
+                                        options=dict(ftol=1e-15, gtol=1e-12, maxiter=500))
+    close(optimum.value, reference.fun, rtol=1e-10)
+    assert optimum.value <= reference.fun * (1 + 1e-12)
+    close(optimum.coefficients, reference.x, rtol=1e-4)
+    # no point of a grid around the optimum is lower (the trace is smooth: a local optimum)
+    grid = optimum.coefficients * np.stack(np.meshgrid([0.9, 1.0, 1.1], [0.9, 1.0, 1.1]),
+                                           axis=-1).reshape(-1, 2)
+    assert min(float(criterion(d)[0]) for d in grid) >= optimum.value * (1 - 1e-13)
+    # the reported value and gradient are the function's there
+    value, gradient = criterion(optimum.coefficients)
+    close(optimum.value, value, rtol=1e-14)
+    close(optimum.gradient, gradient, rtol=1e-12, atol=1e-14 * np.max(np.abs(gradient)))
+    assert optimum.history[0][0] > optimum.value  # it went downhill from the start
+
+
+def test_an_upper_bound_holds_its_damper_with_the_gradient_pushing_out(optimum, criterion):
+    cap = 0.5 * optimum.coefficients[0]
+    bounded = mj.optimise_viscosities(two_dampers(), "average_energy", lowest=LOWEST,
+                                      upper=[cap, np.inf])
+    assert bounded.converged, bounded.status
+    assert bounded.coefficients[0] == cap and bounded.gradient[0] < 0  # KKT at the upper bound
+    assert bounded.value > optimum.value
+    # the free one is optimal given the held one: its own derivative vanishes
+    assert abs(bounded.gradient[1] * bounded.coefficients[1]) < 1e-6 * bounded.value
+    fixed = mj.optimise_viscosities(two_dampers(relative=0.7), "average_energy", lowest=LOWEST,
+                                    free=[0])
+    assert fixed.coefficients[1] == 0.7 and fixed.converged
+
+
+def test_the_energy_of_a_free_vibration_is_optimised_in_one_coefficient(close):
+    system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(5.0, 1.0)])
+    x0 = np.eye(N)[2]
+    result = mj.optimise_viscosities(system, "energy", horizon=20.0, x0=x0)
+    assert result.converged, result.status
+    energy = _criterion(system, "energy", None, 20.0, jax.numpy.asarray(x0),
+                        jax.numpy.zeros(N))
+    c = result.coefficients
+    value, gradient = energy(c)
+    close(value, result.value, rtol=1e-14)
+    close(gradient, 0.0, atol=1e-6 * result.value / c[0])
+    # against central differences of the value: the gradient the search used is the function's
+    h = 1e-4 * c[0]
+    close(gradient[0], (energy(c + h)[0] - energy(c - h)[0]) / (2 * h), atol=1e-6 * value / c[0])
+    for factor in (0.98, 1.02):  # a minimum along the only direction
+        assert float(energy(c * factor)[0]) > result.value
+
+
+@pytest.mark.parametrize("kwargs,match", [
+    (dict(criterion="h2"), "criterion must be one of"),
+    (dict(lowest=0), "lowest must be None or an integer"),
+    (dict(free=[5]), "free must be indices in 0..1"),
+    (dict(lower=-1.0), "0 <= lower <= upper"),
+    (dict(upper=[1.0, -1.0]), "0 <= lower <= upper"),
+    (dict(tolerance=0.0), "tolerance must lie in"),
+    (dict(criterion="energy"), "horizon must be a finite time > 0"),
+    (dict(criterion="energy", horizon=1.0), "needs an excitation")])
+def test_bad_arguments_are_refused_by_name(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        mj.optimise_viscosities(two_dampers(), **kwargs)
+
+
+def test_a_system_without_the_spectral_path_is_refused():
+    with pytest.raises(ValueError, match="GroundedDamper/RelativeDamper"):
+        mj.optimise_viscosities(mj.mikota_chain(N))
