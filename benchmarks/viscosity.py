@@ -28,7 +28,7 @@ import scipy.optimize
 from spectral_objectives import fod_system
 
 import mikota_jax as mj
-from mikota_jax._viscosity import _criterion
+from mikota_jax.testing import criterion_function
 
 NAME = "viscosity"
 START = (100.0, 100.0, 100.0)
@@ -48,7 +48,7 @@ def main(argv=None):
           f"relative gradient {result.relative_gradient:.1e}, {result.iterations} iterations, "
           f"{result.evaluations} evaluations", flush=True)
 
-    function = _criterion(system, "average_energy", LOWEST, None, None, None)
+    function = criterion_function(system, "average_energy", LOWEST, None, None, None)
     evaluate = lambda d: tuple(np.asarray(a, dtype=float) for a in function(np.asarray(d)))  # noqa: E731
     published_value, published_gradient = evaluate(np.asarray(PUBLISHED))
     evaluate(np.asarray(START))  # compiled already; warm the call path

@@ -1,18 +1,22 @@
 """Undamped modes and the scaled modal coordinates every exact computation works in.
 
-K U = M U diag(omega^2) with U^T M U = I (eq. 2.7); for a fixed-free chain by the SVD of its
-bidiagonal factor (full relative accuracy), else by eigh. In the scaled modal coordinates
-z = (Omega eta, eta'), x = U eta, the state matrix is A = [[0, Omega], [-Omega, -U^T D U]] and the
-energy (x^T K x + x'^T M x') / 2 is |z|^2 / 2: used by ``exact_solve``, the energies of
-``_objectives`` and the optimiser's modal reduced model.
+K U = M U diag(omega^2) with U^T M U = I (eq. 2.7); for a fixed-free chain from its bidiagonal
+factor to full relative accuracy (O(n^2) ``_chain_modes`` from n = 256, the SVD below), else by
+eigh. In the scaled modal
+coordinates z = (Omega eta, eta'), x = U eta, the state matrix is A = [[0, Omega], [-Omega,
+-U^T D U]] and the energy (x^T K x + x'^T M x') / 2 is |z|^2 / 2: used by ``exact_solve``, the
+energies of ``_objectives`` and the optimiser's modal reduced model.
 """
 
 import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 
+from ._chain_modes import unchecked_chain_modes
 from ._errors import RESULTS, check
 from ._operators import Diagonal, SymmetricTridiagonal
+
+CHAIN_MODES_FROM = 256  # chains this long or longer: O(n^2) ``chain_modes``; shorter: the SVD
 
 
 def generalized_modes(system):
@@ -20,10 +24,17 @@ def generalized_modes(system):
     omega^2 is not checked."""
     stiffness = system.stiffness
     springs = stiffness.springs if isinstance(stiffness, SymmetricTridiagonal) else None
+    if isinstance(system.mass, Diagonal) and springs is not None and springs.shape[0] >= (
+            CHAIN_MODES_FROM):
+        # a long fixed-free chain, K = L^T diag(k) L (``springs`` is None once links are added):
+        # O(n^2) modes to full relative accuracy from the qd form of C = diag(sqrt k) L M^-1/2
+        # (``_chain_modes``; the SVD below is O(n^3): 34 s against 1.7 s at n = 3000)
+        return unchecked_chain_modes(system.mass.diagonal, springs)
     if isinstance(system.mass, Diagonal) and springs is not None:
-        # K = L^T diag(k) L: the singular values of C = diag(sqrt k) L M^-1/2 are the omega_l, to
+        # a short chain: the singular values of C = diag(sqrt k) L M^-1/2 are the omega_l, to
         # full relative accuracy (eigh of M^-1/2 K M^-1/2 only to eps ||K||: the lowest omega of
-        # a chain with masses over 12 decades came out 1e-3 off); C^T C = M^-1/2 K M^-1/2.
+        # a chain with masses over 12 decades came out 1e-3 off); C^T C = M^-1/2 K M^-1/2. One
+        # LAPACK call compiles in a fraction of ``_chain_modes``' loops, and is as fast here.
         scale = 1 / jnp.sqrt(system.mass.diagonal)
         n = scale.shape[0]
         factor = jnp.sqrt(springs)[:, None] * (jnp.eye(n) - jnp.eye(n, k=-1)) * scale[None, :]

@@ -89,7 +89,7 @@ def _value_and_gradient(d, system, criterion, lowest, horizon, x0, v0):
     return jax.value_and_grad(value)(d)
 
 
-def _criterion(system, criterion, lowest, horizon, x0, v0):
+def criterion_function(system, criterion, lowest, horizon, x0, v0):
     """d -> (f, df/dd), compiled once per system structure (``_value_and_gradient``)."""
     return lambda d: _value_and_gradient(jnp.asarray(d, dtype=jnp.float64), system, criterion,
                                          lowest, horizon, x0, v0)
@@ -160,7 +160,7 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
     fixed_lo, fixed_hi = np.where(mask, lo, d), np.where(mask, hi, d)
     d = np.clip(d, fixed_lo, fixed_hi)
 
-    evaluate_jit = _criterion(system, criterion, lowest, horizon, x0, v0)
+    evaluate_jit = criterion_function(system, criterion, lowest, horizon, x0, v0)
     evaluations = 0
 
     def evaluate(point):

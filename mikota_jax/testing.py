@@ -8,7 +8,9 @@ the private modules:
 * ``Diagonal(diagonal)``, ``Dense(matrix)``, ``Sparse(rows, cols, values, n)``: the matrix
   operators a system holds (0-based coordinate indices for ``Sparse``, both triangles stored),
   to hand ``system`` an explicit form (e.g. a dense mass operator) instead of letting it choose
-  the structure of an array.
+  the structure of an array;
+* ``criterion_function(system, criterion, lowest, horizon, x0, v0)``: d -> (f, df/dd), the
+  compiled criterion ``optimise_viscosities`` minimises over the coefficient vector d.
 """
 
 from ._chain_modes import chain_mode_data as chain_mode_data
@@ -21,7 +23,8 @@ from ._operators import Sparse as Sparse
 from ._solver_choice import stiffness_rate as stiffness_rate
 from ._spectral import damped_modes as damped_modes
 from ._spectral_solve import spectral_solve_with_result as spectral_solve_with_result
+from ._viscosity import criterion_function as criterion_function
 
 __all__ = ["Dense", "Diagonal", "Sparse", "chain_mode_data", "chain_modes", "damped_modes",
            "dense_solve_with_result", "generalized_modes", "spectral_solve_with_result",
-           "stiffness_rate"]
+           "stiffness_rate", "criterion_function"]

@@ -26,7 +26,7 @@ from hypothesis import strategies as st
 import mikota_jax as mj
 from mikota_jax.app.cli import main
 
-FAST = settings(max_examples=10, deadline=None, derandomize=True, database=None,
+FAST = settings(max_examples=8, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 SLOW = settings(FAST, max_examples=150)
 

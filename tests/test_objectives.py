@@ -79,6 +79,7 @@ def test_objectives_of_a_full_rank_reduced_model_equal_the_full_model(close):
     close(mj.total_average_energy(reduced), mj.total_average_energy(system), rtol=1e-9)
 
 
+@pytest.mark.slow  # 37 s; the spectral energy and trace gradients are checked in test_spectral
 def test_gradients_in_damper_position_and_coefficient_match_central_differences(close):
     def energy(p, c):
         return mj.integrated_energy(damped(p, c), T, X0, V0)

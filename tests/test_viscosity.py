@@ -8,7 +8,7 @@ import pytest
 import scipy.optimize
 
 import mikota_jax as mj
-from mikota_jax._viscosity import _criterion
+from mikota_jax.testing import criterion_function
 
 N, LOWEST = 12, 5
 
@@ -26,7 +26,7 @@ def optimum():
 
 @pytest.fixture(scope="module")
 def criterion():
-    function = _criterion(two_dampers(), "average_energy", LOWEST, None, None, None)
+    function = criterion_function(two_dampers(), "average_energy", LOWEST, None, None, None)
     return lambda d: tuple(np.asarray(a, dtype=float) for a in function(np.asarray(d)))
 
 
@@ -71,7 +71,7 @@ def test_the_energy_of_a_free_vibration_is_optimised_in_one_coefficient(close):
     x0 = np.eye(N)[2]
     result = mj.optimise_viscosities(system, "energy", horizon=20.0, x0=x0)
     assert result.converged, result.status
-    energy = _criterion(system, "energy", None, 20.0, jax.numpy.asarray(x0),
+    energy = criterion_function(system, "energy", None, 20.0, jax.numpy.asarray(x0),
                         jax.numpy.zeros(N))
     c = result.coefficients
     value, gradient = energy(c)
