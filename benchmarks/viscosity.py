@@ -7,7 +7,8 @@ modes). ``optimise_viscosities`` from their start [100, 100, 100], timed whole (
 included, one process, nothing warm), against:
 
 * the viscosities the issue quotes as the published optimum, [561, 652, 311] (found there in
-  3320 s with finite-difference gradients): our trace at them, and how far our optimum is;
+  3320 s with finite-difference gradients), which are ours when read in the order (DOF 50,
+  DOF 120, relative): our trace at them (in both readings), and how far our optimum is;
 * scipy's L-BFGS-B on the same compiled value and gradient (no compile in its time: it runs
   second), for the iteration and evaluation counts.
 
@@ -32,7 +33,10 @@ from mikota_jax.testing import criterion_function
 
 NAME = "viscosity"
 START = (100.0, 100.0, 100.0)
-PUBLISHED = (561.0, 652.0, 311.0)
+# the issue quotes the published optimum as [561, 652, 311]; read as (DOF 50, DOF 120, relative)
+# it is (561, 311, 652) in our order (DOF 50, relative (550, 520), DOF 120)
+PUBLISHED_AS_QUOTED = (561.0, 652.0, 311.0)
+PUBLISHED = (561.0, 311.0, 652.0)
 LOWEST = 27
 TARGET_S = 60.0
 
@@ -51,6 +55,7 @@ def main(argv=None):
     function = criterion_function(system, "average_energy", LOWEST, None, None, None)
     evaluate = lambda d: tuple(np.asarray(a, dtype=float) for a in function(np.asarray(d)))  # noqa: E731
     published_value, published_gradient = evaluate(np.asarray(PUBLISHED))
+    quoted_order_value = float(evaluate(np.asarray(PUBLISHED_AS_QUOTED))[0])
     evaluate(np.asarray(START))  # compiled already; warm the call path
     counts = {"evaluations": 0}
 
@@ -58,10 +63,12 @@ def main(argv=None):
         counts["evaluations"] += 1
         return evaluate(d)
 
+    # scipy's pgtol is absolute: the same stopping point as our relative 1e-6, max |g_i| d_i / f
+    gtol = 1e-6 * result.value / float(np.max(result.coefficients))
     start = time.perf_counter()
     reference = scipy.optimize.minimize(counted, np.asarray(START), jac=True, method="L-BFGS-B",
                                         bounds=[(0, None)] * 3,
-                                        options=dict(ftol=1e-15, gtol=1e-10, maxiter=500))
+                                        options=dict(ftol=1e-13, gtol=gtol, maxiter=100))
     scipy_s = time.perf_counter() - start
     rows = [
         dict(method="optimise_viscosities (projected BFGS)", seconds=result.seconds,
@@ -71,7 +78,7 @@ def main(argv=None):
         dict(method="scipy L-BFGS-B, same function (compiled already)", seconds=scipy_s,
              iterations=reference.nit, evaluations=counts["evaluations"], trace=reference.fun,
              d1=reference.x[0], d2=reference.x[1], d3=reference.x[2]),
-        dict(method="published optimum (as the issue quotes it)", seconds=3320.0,
+        dict(method="published optimum, read as (DOF 50, DOF 120, relative)", seconds=3320.0,
              iterations=None, evaluations=None, trace=float(published_value), d1=PUBLISHED[0],
              d2=PUBLISHED[1], d3=PUBLISHED[2]),
     ]
@@ -83,7 +90,8 @@ def main(argv=None):
                                / published_value)
     print(f"at the published viscosities our trace is {published_value:.10g} "
           f"({published_value / result.value - 1:+.2e} relative to our optimum), relative "
-          f"gradient {relative_published:.1e}", flush=True)
+          f"gradient {relative_published:.1e}; in the order the issue quotes them (DOF 50, "
+          f"relative, DOF 120) it would be {quoted_order_value:.10g}", flush=True)
     met = result.converged and result.seconds < TARGET_S
     print(f"target: < {TARGET_S:.0f} s with relative gradient < 1e-6: "
           f"{'met' if met else 'MISSED'} ({result.seconds:.1f} s, "
@@ -113,6 +121,7 @@ def main(argv=None):
     save_figure(fig, NAME, args.quick)
     write_json(NAME, args.quick, dict(
         n=system.size, lowest=LOWEST, start=list(START), published=list(PUBLISHED),
+        published_as_quoted=list(PUBLISHED_AS_QUOTED), quoted_order_trace=quoted_order_value,
         result=dict(coefficients=result.coefficients.tolist(), value=result.value,
                     relative_gradient=result.relative_gradient, converged=result.converged,
                     iterations=result.iterations, evaluations=result.evaluations,
