@@ -119,6 +119,7 @@ def test_smooth_peak_lies_between_the_bounds_of_the_maximum(order):
     assert top * values.size ** (-1.0 / order) <= peak <= top
 
 
+@pytest.mark.slow  # 29 s in CI
 def test_smooth_peak_of_a_simulated_response_has_the_central_difference_gradient(close):
     ts = np.linspace(0.0, T, 201)
 

@@ -167,6 +167,7 @@ def x0():
     return np.linalg.solve(K, np.ones(N))
 
 
+@pytest.mark.slow  # 24 s; test_properties checks a full basis on random chains
 def test_full_rank_galerkin_with_a_random_orthonormal_basis_is_the_full_model(damped, x0, close):
     basis = orthonormal(N, N, 8)
     reduced = mj.galerkin(damped, jnp.asarray(basis))

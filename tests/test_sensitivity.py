@@ -65,7 +65,7 @@ LINEARITY = {"energy": 2.0, "displacement": None, "phase_error": 0.0, "singular_
 
 
 @pytest.mark.parametrize("output,model,mode", [
-    ("energy", "full", "forward"),  # 45 s; the others 35-110 s under load, so -m slow
+    pytest.param("energy", "full", "forward", marks=pytest.mark.slow),  # 30-110 s each
     pytest.param("energy", "reduced", "forward", marks=pytest.mark.slow),
     pytest.param("displacement", "full", "forward", marks=pytest.mark.slow),
     pytest.param("displacement", "reduced", "forward", marks=pytest.mark.slow),

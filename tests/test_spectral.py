@@ -244,6 +244,7 @@ def test_the_spectral_energy_with_internal_damping_equals_the_van_loan_energy(in
         close(value, dense_energy(system, T, unit(n, 3), v0), rtol=1e-10)
 
 
+@pytest.mark.slow  # 22 s; the critical-damping test below covers the deflated mode
 def test_a_mode_no_damper_touches_decays_by_its_internal_damping_alone(close):
     # a damper at DOF 60 of a 60-mass chain does not touch mode 60: it keeps its own poles
     n = 60
@@ -352,6 +353,7 @@ def test_the_spectral_trace_equals_scipys_lyapunov_trace(name, lowest, close):
     close(mj.total_average_energy(system, lowest, method="dense"), expected, rtol=1e-8)
 
 
+@pytest.mark.slow  # 39 s in CI; the spectral energy's gradient check stays in the default run
 def test_the_trace_gradient_matches_central_differences(close):
     n = 16
 

@@ -226,6 +226,7 @@ def test_branched_chain_stiffness_and_frequencies_match_the_assembled_system():
     np.testing.assert_allclose(system.stiffness.mv(v), k @ np.asarray(v), atol=1e-13)
 
 
+@pytest.mark.slow  # 20 s in CI; test_stiff covers the structured solver
 def test_branched_chain_stiff_solver_keeps_the_structure_and_is_exact():
     masses, springs = branched()
     dampers = [mj.GroundedDamper(2.0, 0.5), mj.RelativeDamper((4, 9), 0.3)]
@@ -444,6 +445,7 @@ def bar(n):
             (np.diag(stiff) - np.diag(edge, 1) - np.diag(edge, -1)) / h)
 
 
+@pytest.mark.slow  # 35 s in CI
 def test_a_consistent_mass_is_solved_in_its_tridiagonal_structure():
     n = 20
     m, k = bar(n)
