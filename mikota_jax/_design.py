@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 
 from ._dampers import Dampers, GroundedDamper, RelativeDamper
-from ._errors import MARK, RESULTS, check_x64
+from ._errors import MARK, RESULTS, check_lowest, check_x64
 from ._excitation import as_load
 from ._integrate import check_dofs, check_times, initial_vector, simulate_with_result
 from ._objectives import (
@@ -131,9 +131,7 @@ def _objective(name: str, n: int, lowest, dof, order):
     """The objective Module of a public name; its arguments checked for every name, as ever."""
     if name not in OBJECTIVES:
         raise ValueError(MARK + f"objective must be one of {list(OBJECTIVES)}, got {name!r}.")
-    if lowest is not None and (isinstance(lowest, bool) or not isinstance(lowest, int)
-                               or not 1 <= lowest <= n):
-        raise ValueError(MARK + f"lowest must be None or an integer in 1..{n}, got {lowest!r}.")
+    check_lowest(lowest, n)
     if isinstance(order, bool) or not isinstance(order, int) or order < 2 or order % 2:
         raise ValueError(MARK + f"order must be an even integer >= 2, got {order!r}.")
     if name == "peak":

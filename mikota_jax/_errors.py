@@ -33,13 +33,20 @@ def as_float(x, name: str) -> jax.Array:
         raise ValueError(MARK + f"{name} must be real, got {dtype}.")
     if dtype is None:  # Python numbers, lists, strings: what numpy makes of them
         try:
-            kind = np.asarray(x).dtype
+            x = np.asarray(x)
         except (TypeError, ValueError) as error:  # ragged lists
             raise ValueError(MARK + f"{name} must be real, got {x!r:.60}.") from error
-        if not (np.issubdtype(kind, np.number) or kind == np.bool_) or np.issubdtype(
-                kind, np.complexfloating):
+        if not (np.issubdtype(x.dtype, np.number) or x.dtype == np.bool_) or np.issubdtype(
+                x.dtype, np.complexfloating):
             raise ValueError(MARK + f"{name} must be real, got {x!r:.60}.")
     return jnp.asarray(x, dtype=jnp.float64)
+
+
+def check_lowest(lowest, n: int) -> None:
+    """``lowest``: None or the number of lowest modes, an integer in 1..n."""
+    if lowest is not None and (isinstance(lowest, bool) or not isinstance(lowest, int)
+                               or not 1 <= lowest <= n):
+        raise ValueError(MARK + f"lowest must be None or an integer in 1..{n}, got {lowest!r}.")
 
 
 def is_traced(x) -> bool:

@@ -342,7 +342,8 @@ def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | No
     if atol is None:
         atol = default_atol(as_float(rtol, "rtol"), model, ts, x0, v0, load)
     rtol, atol, adjoint = check_solve_options(rtol, atol, max_steps, adjoint)
-    check_output_memory(ts.shape[0], len(check_dofs(dofs, model.size)) * (displacement + velocity)
+    checked_dofs = check_dofs(dofs, model.size)
+    check_output_memory(ts.shape[0], len(checked_dofs) * (displacement + velocity)
                         + 2 * model.size, "simulate")
     if solver == "auto":
         exact = _spectral_if_it_holds(model, ts, x0, v0, load, dofs, displacement, velocity)
@@ -351,7 +352,7 @@ def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | No
     if isinstance(solver, str):
         solver = SOLVERS[choose_solver(model, ts) if solver == "auto" else solver]()
     trajectory, result = simulate_with_result(
-        model, ts, x0, v0, load, rtol, atol, solver=solver, dofs=check_dofs(dofs, model.size),
+        model, ts, x0, v0, load, rtol, atol, solver=solver, dofs=checked_dofs,
         displacement=displacement, velocity=velocity, max_steps=max_steps, progress=progress,
         adjoint=adjoint)
     if throw:

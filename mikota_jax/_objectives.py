@@ -32,6 +32,7 @@ from ._errors import (
     as_float,
     check,
     check_dense_memory,
+    check_lowest,
     check_x64,
     first_failure,
     raise_result,
@@ -304,10 +305,7 @@ def total_average_energy(model, lowest: int | None = None, *,
         raise ValueError(MARK + f"method must be 'exact', 'spectral' or 'dense', got {method!r}.")
     check_problem(model, None, None, None)
     modal_size = _modal_size(model)
-    if lowest is not None and (isinstance(lowest, bool) or not isinstance(lowest, int)
-                               or not 1 <= lowest <= modal_size):
-        raise ValueError(MARK + f"lowest must be None or an integer in 1..{modal_size}, "
-                         f"got {lowest!r}.")
+    check_lowest(lowest, modal_size)
     _check_spectral(model, method)
     check_dense_memory(_modal_size(model), 100 if not takes_spectral(model) else 12,
                        "total_average_energy")

@@ -37,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._dampers import Dampers
-from ._errors import MARK, check_x64
+from ._errors import MARK, check_lowest, check_x64
 from ._integrate import initial_vector
 from ._objectives import integrated_energy, total_average_energy
 from ._parameters import with_parameters
@@ -136,9 +136,8 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
         x0, v0 = initial_vector(x0, n, "x0"), initial_vector(v0, n, "v0")
         if not (bool(jnp.any(x0 != 0)) or bool(jnp.any(v0 != 0))):
             raise ValueError(MARK + "criterion 'energy' needs an excitation: x0 or v0.")
-    elif lowest is not None and (isinstance(lowest, bool) or not isinstance(lowest, int)
-                                 or not 1 <= lowest <= n):
-        raise ValueError(MARK + f"lowest must be None or an integer in 1..{n}, got {lowest!r}.")
+    else:
+        check_lowest(lowest, n)
     d = np.concatenate([np.asarray(system.damping.coefficients),
                         np.asarray(system.damping.pair_coefficients)])
     size = d.shape[0]
@@ -188,7 +187,6 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
     status, iterations = "max_iterations reached", 0
     for iterations in range(1, max_iterations + 1):
         if history[-1][1] < tolerance:
-            status = "converged"
             iterations -= 1
             break
         hold = held(d, g)
@@ -226,9 +224,6 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
         if change < 1e-14 and history[-1][1] >= tolerance:
             status = "stalled (f unchanged to 1e-14)"
             break
-    else:
-        if history[-1][1] < tolerance:
-            status = "converged"
     converged = history[-1][1] < tolerance
     if converged:
         status = "converged"
