@@ -46,6 +46,8 @@ from ._modal import modal_decomposition as modal_decomposition
 from ._objectives import integrated_energy as integrated_energy
 from ._objectives import smooth_peak as smooth_peak
 from ._objectives import total_average_energy as total_average_energy
+from ._output_criteria import h2_norm as h2_norm
+from ._output_criteria import output_energy as output_energy
 from ._placement_objective import placement_objective as placement_objective
 from ._pod import POD as POD
 from ._pod import energy_fraction as energy_fraction

@@ -26,9 +26,9 @@ from ._excitation import as_load
 from ._integrate import check_dofs, check_times, initial_vector, simulate_with_result
 from ._objectives import (
     DOUBLINGS_FINITE,
-    DOUBLINGS_INFINITE,
     doubled_gramian,
     first_step_too_long,
+    infinite_gramian,
     integrated_energy_ode_with_result,
     smooth_peak,
     takes_spectral,
@@ -95,8 +95,7 @@ class AverageEnergy(eqx.Module):
         r = omega.shape[0]
         lowest = r if self.lowest is None else min(self.lowest, r)
         select = (jnp.arange(r) < lowest).astype(a.dtype)
-        x, p = doubled_gramian(a, jnp.diag(jnp.concatenate([select, select])),
-                               1.0 / jnp.max(omega), DOUBLINGS_INFINITE)
+        x, p = infinite_gramian(a, jnp.diag(jnp.concatenate([select, select])), omega)
         return jnp.trace(x), ~(jnp.max(jnp.abs(p)) < 1e-8)
 
 

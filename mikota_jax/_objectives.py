@@ -82,6 +82,17 @@ def doubled_gramian(a, q, h, doublings: int):
     return jax.lax.fori_loop(0, doublings, double, (w, p))
 
 
+def infinite_gramian(a, q, omega):
+    """(int_0^inf exp(A^T t) Q exp(A t) dt, exp(A h 2^64)) by ``DOUBLINGS_INFINITE`` doublings
+    from h = min(1 / omega_max, 8 / ||A||_1): the first step shrinks with a strong damper as in
+    ``_finite_gramian`` (with h = 1 / omega_max alone, a relative damper of 40 between DOFs 5
+    and 9 of Mikota's n = 12 chain, ||A h|| = 60, gave trace X = 2798 where the Lyapunov
+    solution is 1062.3)."""
+    norm = jnp.max(jnp.sum(jnp.abs(a), axis=0))
+    h = jnp.minimum(1.0 / jnp.max(omega), _FIRST_STEP_NORM / norm)
+    return doubled_gramian(a, q, h, DOUBLINGS_INFINITE)
+
+
 def _finite_gramian(a, q, horizon):
     """(int_0^T exp(A^T t) Q exp(A t) dt, exp(A T)) by doubling from a first step T / 2^d.
 
@@ -259,7 +270,7 @@ def _dense_trace_with_result(model, *, lowest):
     n = omega.shape[0]
     select = jnp.ones(n) if lowest is None else (jnp.arange(n) < lowest).astype(omega.dtype)
     z = jnp.diag(jnp.concatenate([select, select]))
-    x, p = doubled_gramian(a, z, 1.0 / jnp.max(omega), DOUBLINGS_INFINITE)
+    x, p = infinite_gramian(a, z, omega)
     undamped = ~(jnp.max(jnp.abs(p)) < 1e-8) | ~jnp.all(jnp.isfinite(x))
     return jnp.trace(x), first_failure((not_definite, RESULTS.not_definite),
                                        (undamped, RESULTS.not_damped))

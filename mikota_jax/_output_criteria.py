@@ -1,0 +1,132 @@
+"""Weighted output criteria of a system with dampers: the energy of an output, its average over
+initial states, and the H2 norm of an input-output map; exact, from the damped modes.
+
+For y(t) = C_x x(t) + C_v x'(t) (q outputs) of the free vibration M x'' + D x' + K x = 0,
+
+* ``output_energy`` = sum over initial states z0_i of int_0^T |y(t)|^2 dt = trace(C P C^T)
+  with P = int_0^T exp(A t) Z exp(A^T t) dt, Z = sum_i z0_i z0_i^T, in the first-order
+  coordinates (x, x') with C = [C_x, C_v] (T = inf: A P + P A^T = -Z, a Lyapunov equation);
+* ``h2_norm``: ||G||_H2 for G(s) = (C_x + s C_v)(s^2 M + s D + K)^-1 B, the same with the
+  impulse responses of the inputs' columns as initial states (x(0) = 0, x'(0) = M^-1 B e_i),
+  squared-rooted.
+
+Which coordinates a trace is taken in matters: Veselic's total average energy trace X, A^T X +
+X A = -Z in the scaled modal coordinates z = (Omega eta, eta') of ``total_average_energy`` and
+FastOptimalDamping.jl, is ``output_energy`` with C_x = Omega U^T M, C_v = U^T M (the energy norm
+|z|^2 = x^T K x + x'^T M x') and ``lowest`` s: the 2s unit states (Omega eta = e_i, eta' = e_i)
+of the s lowest modes. Truhar & Veselic (SIAM J. Matrix Anal. Appl. 31:18, 2009) and Benner,
+Tomljanovic & Truhar (2011) weight displacements and velocities in the same coordinates; a trace
+of the physical (x, x') Gramian with C = I is another number (different bases give different
+traces). The H2 norm is the criterion of Tomljanovic, Beattie & Gugercin (2018) for damping
+optimisation with inputs and outputs.
+
+Cost: O((q + m) n^2 + k n^2) after the undamped modes, where q is the number of outputs and m of
+initial states (``_spectral_objectives.output_energy_from_modes``); differentiable in every
+physical value (positions, coefficients, M, K) by the secular equation's implicit derivative.
+Applies where the spectral path does: a full system with discrete dampers and internal damping
+diagonal in modal coordinates.
+"""
+
+import jax.numpy as jnp
+import numpy as np
+
+from ._custom_types import Array, Float
+from ._errors import MARK, as_float, check, check_lowest, check_x64, raises_value_error
+from ._spectral import spectral_applies
+from ._spectral_objectives import spectral_output_energy_with_result
+from ._system import SecondOrderSystem
+
+_NOT_OK = ("the damped modes did not converge, or two roots nearly coincide (a mode at "
+           "critical damping); move the damper coefficients off that point.")
+
+
+def _matrix(value, n: int, name: str, rows: bool):
+    """None, or a float64 matrix: (q, n) when ``rows`` (an output matrix), else (n, m)."""
+    if value is None:
+        return None
+    array = as_float(value, name)
+    if array.ndim == 1:
+        array = array[None, :] if rows else array[:, None]
+    axis = 1 if rows else 0
+    if array.ndim != 2 or array.shape[axis] != n or 0 in array.shape:
+        shape = "(q, n) or (n,)" if rows else "(n, m) or (n,)"
+        raise ValueError(MARK + f"{name} must be {shape} with n = {n}, got shape "
+                         f"{tuple(array.shape)}.")
+    return check(array, ~jnp.all(jnp.isfinite(array)), f"{name} must be finite.")
+
+
+def _outputs(system, cx, cv):
+    if not isinstance(system, SecondOrderSystem):
+        raise ValueError(MARK + f"system must be a SecondOrderSystem, got "
+                         f"{type(system).__name__}.")
+    why = spectral_applies(system)
+    if why is not None:
+        raise ValueError(MARK + f"system: {why}.")
+    n = system.size
+    cx, cv = _matrix(cx, n, "cx", True), _matrix(cv, n, "cv", True)
+    if cx is None and cv is None:
+        raise ValueError(MARK + "give an output: cx (on displacements) and/or cv (on "
+                         "velocities), each (q, n).")
+    if cx is not None and cv is not None and cx.shape[0] != cv.shape[0]:
+        raise ValueError(MARK + f"cx and cv must have the same number of rows (outputs), got "
+                         f"{cx.shape[0]} and {cv.shape[0]}.")
+    zero = jnp.zeros((cx if cv is None else cv).shape)
+    return (zero if cx is None else cx), (zero if cv is None else cv)
+
+
+def _horizon(horizon):
+    """None (T = inf), a checked Python float, or a checked (possibly traced) float64 array."""
+    message = f"horizon must be None (infinite) or a finite time > 0, got {horizon!r}."
+    if horizon is None:
+        return None
+    if isinstance(horizon, int | float) and not isinstance(horizon, bool):
+        if not (np.isfinite(horizon) and horizon > 0):
+            raise ValueError(MARK + message)
+        return float(horizon)
+    value = as_float(horizon, "horizon")
+    return check(value, ~(jnp.isfinite(value) & (value > 0)), message)
+
+
+@raises_value_error
+def output_energy(system: SecondOrderSystem, cx=None, cv=None, *, x0=None, v0=None,
+                  lowest: int | None = None, horizon: float | None = None) -> Float[Array, ""]:
+    """sum_i int_0^T |C_x x_i(t) + C_v x_i'(t)|^2 dt over the free vibrations from the initial
+    states i (see the module docstring; its relation to Veselic's trace is stated there).
+
+    ``cx``, ``cv``: (q, n) output matrices on displacements and velocities (one may be None;
+    an (n,) vector is one output). Initial states: the columns of ``x0``, ``v0`` ((n,) or
+    (n, m); a missing one is zero), or ``lowest`` s: the 2s unit states of the s lowest modes
+    in scaled modal coordinates (the average-energy weight Z of ``total_average_energy``);
+    neither: all 2n of them. ``horizon``: T > 0, or None for T = inf (then infinite where an
+    undamped mode reaches the output). Units: output^2 x time.
+    """
+    check_x64()
+    cx, cv = _outputs(system, cx, cv)
+    n = system.size
+    x0, v0 = _matrix(x0, n, "x0", False), _matrix(v0, n, "v0", False)
+    if x0 is not None and v0 is not None and x0.shape[1] != v0.shape[1]:
+        raise ValueError(MARK + f"x0 and v0 must hold the same number of states (columns), "
+                         f"got {x0.shape[1]} and {v0.shape[1]}.")
+    if lowest is not None and (x0 is not None or v0 is not None):
+        raise ValueError(MARK + "give either lowest (unit modal states) or x0/v0, not both.")
+    check_lowest(lowest, n)
+    if x0 is None and v0 is None and lowest is None:
+        lowest = n
+    value, ok = spectral_output_energy_with_result(system, x0, v0, None, cx, cv,
+                                                   _horizon(horizon), lowest)
+    return check(value, ~ok, _NOT_OK)
+
+
+@raises_value_error
+def h2_norm(system: SecondOrderSystem, inputs, cx=None, cv=None) -> Float[Array, ""]:
+    """||G||_H2 of G(s) = (C_x + s C_v)(s^2 M + s D + K)^-1 B: the square root of the output
+    energy of the impulse responses of ``inputs`` B ((n, m) or (n,): force directions), over
+    [0, inf). ``cx``, ``cv`` as in ``output_energy``. Finite only if every mode the inputs
+    excite and the outputs see is damped (a mode with a node at the damper to rounding, u_l =
+    1e-16, counts as damped at that level: the norm comes out huge, ~1e15, not infinite)."""
+    check_x64()
+    cx, cv = _outputs(system, cx, cv)
+    forces = _matrix(inputs, system.size, "inputs", False)
+    value, ok = spectral_output_energy_with_result(system, None, None, forces, cx, cv, None,
+                                                   None)
+    return jnp.sqrt(check(value, ~ok, _NOT_OK))

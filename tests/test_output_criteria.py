@@ -1,0 +1,134 @@
+"""Weighted output criteria (``output_energy``, ``h2_norm``) against dense Lyapunov solutions
+(scipy), the total average energy and the integrated energy they must reduce to, central
+differences, and the refusals."""
+
+import jax
+import numpy as np
+import pytest
+import scipy.linalg as sl
+
+import mikota_jax as mj
+
+N = 12
+RNG = np.random.default_rng(3)
+CX, CV = RNG.standard_normal((2, N)), RNG.standard_normal((2, N))
+X0, V0 = RNG.standard_normal((N, 3)), RNG.standard_normal((N, 3))
+B = RNG.standard_normal((N, 2))
+
+
+def two_dampers(d=20.0, relative=(5, 9)):
+    return mj.mikota_chain(N, dampers=[mj.GroundedDamper(3, d),
+                                       mj.RelativeDamper(relative, 2 * d)])
+
+
+def lyapunov_output(system, cx, cv, z):
+    """trace(C P C^T), A P + P A^T = -Z in the physical first-order coordinates (x, x')."""
+    m, d, k = (np.asarray(a) for a in system.dense())
+    n = m.shape[0]
+    a = np.block([[np.zeros((n, n)), np.eye(n)],
+                  [-np.linalg.solve(m, k), -np.linalg.solve(m, d)]])
+    p = sl.solve_continuous_lyapunov(a, -z)
+    c = np.hstack([cx, cv])
+    return np.trace(c @ p @ c.T)
+
+
+def energy_outputs(system):
+    """Stacked outputs whose |y|^2 is the energy norm x^T K x + x'^T M x' in scaled modal
+    coordinates: C_x = [Omega U^T M; 0], C_v = [0; U^T M]."""
+    m, _, k = (np.asarray(a) for a in system.dense())
+    omega2, u = sl.eigh(k, m)
+    zero = np.zeros((N, N))
+    return (np.vstack([np.sqrt(omega2)[:, None] * (u.T @ m), zero]),
+            np.vstack([zero, u.T @ m]))
+
+
+# at d = 1e3 the damped rates span 1e5 (the Lyapunov operator's condition grows with it):
+# scipy's Bartels-Stewart solution and the modes' closed form agree to 1.1e-9 there
+@pytest.mark.parametrize("d, rel", [(0.5, 1e-9), (20.0, 1e-9), (1e3, 1e-7)])
+def test_output_energy_and_h2_are_the_lyapunov_solutions(d, rel):
+    system = two_dampers(d)
+    states = np.vstack([X0, V0])
+    expected = lyapunov_output(system, CX, CV, states @ states.T)
+    assert float(mj.output_energy(system, CX, CV, x0=X0, v0=V0)) == pytest.approx(
+        expected, rel=rel)
+    impulses = np.vstack([np.zeros_like(B), np.linalg.solve(np.asarray(system.dense()[0]), B)])
+    h2 = np.sqrt(lyapunov_output(system, CX, CV, impulses @ impulses.T))
+    assert float(mj.h2_norm(system, B, CX, CV)) == pytest.approx(h2, rel=rel)
+
+
+def test_energy_norm_outputs_give_the_total_average_energy_and_twice_the_energy():
+    system = two_dampers()
+    cx, cv = energy_outputs(system)
+    trace = float(mj.total_average_energy(system, 4))
+    assert float(mj.output_energy(system, cx, cv, lowest=4)) == pytest.approx(trace, rel=1e-11)
+    x0, v0 = X0[:, 0], V0[:, 0]
+    energy = float(mj.integrated_energy(system, 3.0, x0, v0))
+    assert float(mj.output_energy(system, cx, cv, x0=x0, v0=v0, horizon=3.0)) == pytest.approx(
+        2 * energy, rel=1e-10)
+
+
+def test_the_dense_total_average_energy_holds_a_strong_relative_damper():
+    # the first doubling step of the infinite Gramian shrinks with ||A||: it was 2.6x too large
+    system = two_dampers()
+    m, d, k = (np.asarray(a) for a in system.dense())
+    omega2, u = sl.eigh(k, m)
+    omega = np.diag(np.sqrt(omega2))
+    a = np.block([[np.zeros((N, N)), omega], [-omega, -u.T @ d @ u]])
+    expected = np.trace(sl.solve_continuous_lyapunov(a.T, -np.eye(2 * N)))
+    assert float(mj.total_average_energy(system, method="dense")) == pytest.approx(expected,
+                                                                                  rel=1e-9)
+
+
+def test_gradients_match_central_differences():
+    @jax.jit
+    def value(c, p):
+        system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(p, c),
+                                             mj.RelativeDamper((5, 9), 3.0)])
+        return mj.output_energy(system, CX, CV, x0=X0, v0=V0, horizon=4.0)
+
+    grad = jax.grad(value, argnums=(0, 1))(2.0, 3.5)
+    for i, h in ((0, 1e-5), (1, 1e-5)):
+        args = [2.0, 3.5]
+        up, down = list(args), list(args)
+        up[i] += h
+        down[i] -= h
+        fd = (float(value(*up)) - float(value(*down))) / (2 * h)
+        assert float(grad[i]) == pytest.approx(fd, rel=1e-6)
+
+
+@pytest.mark.slow
+def test_the_h2_norms_gradient_matches_central_differences():
+    h2 = jax.jit(lambda c: mj.h2_norm(two_dampers(c), B, CX))
+    fd = (float(h2(20.0 + 1e-4)) - float(h2(20.0 - 1e-4))) / 2e-4
+    assert float(jax.grad(lambda c: mj.h2_norm(two_dampers(c), B, CX))(20.0)) == pytest.approx(
+        fd, rel=1e-6)
+
+
+def test_an_undamped_mode_that_reaches_the_output_has_infinite_h2_norm():
+    # Mikota's n = 4 chain: mode 2 has a node at DOF 3, so a damper there leaves it undamped
+    system = mj.mikota_chain(4, dampers=[mj.GroundedDamper(3, 1.0)])
+    m, _, k = (np.asarray(a) for a in system.dense())
+    _, u = sl.eigh(k, m)
+    assert abs(u[2, 1]) < 1e-10
+    finite = float(mj.h2_norm(system, m @ u[:, 0], np.eye(4)))  # mode 1 only: damped
+    # mode 2 only: its node sits at the damper to rounding (u = 6e-16 in the computed modes),
+    # so the norm is infinite or, through that rounding-level coupling, astronomically large
+    untouched = float(mj.h2_norm(system, m @ u[:, 1], np.eye(4)))
+    assert not np.isfinite(untouched) or untouched > 1e6 * finite
+    assert np.isfinite(finite) and finite > 0
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda s: mj.output_energy(s), "give an output"),
+    (lambda s: mj.output_energy(s, np.ones((2, N + 1))), "cx must be"),
+    (lambda s: mj.output_energy(s, np.ones(N), np.ones((2, N))), "same number of rows"),
+    (lambda s: mj.output_energy(s, np.ones(N), x0=np.ones(N), lowest=2), "either lowest"),
+    (lambda s: mj.output_energy(s, np.ones(N), lowest=0), "lowest must be"),
+    (lambda s: mj.output_energy(s, np.ones(N), x0=np.ones(N), horizon=-1.0), "horizon must"),
+    (lambda s: mj.output_energy(s, np.full(N, np.nan)), "cx must be finite"),
+    (lambda s: mj.h2_norm(s, np.ones((N + 1, 2)), np.ones(N)), "inputs must be"),
+    (lambda s: mj.h2_norm(mj.mikota_chain(N), np.ones(N), np.ones(N)), "system:"),
+])
+def test_bad_arguments_are_named(call, match):
+    with pytest.raises(ValueError, match=match):
+        call(two_dampers())
