@@ -55,7 +55,8 @@ def _matrix(value, n: int, name: str, rows: bool):
     return check(array, ~jnp.all(jnp.isfinite(array)), f"{name} must be finite.")
 
 
-def _outputs(system, cx, cv):
+def output_arguments(system, cx, cv):
+    """(C_x, C_v), each (q, n) (a missing one zero), for a system the spectral path takes."""
     if not isinstance(system, SecondOrderSystem):
         raise ValueError(MARK + f"system must be a SecondOrderSystem, got "
                          f"{type(system).__name__}.")
@@ -74,7 +75,25 @@ def _outputs(system, cx, cv):
     return (zero if cx is None else cx), (zero if cv is None else cv)
 
 
-def _horizon(horizon):
+def output_states(n: int, x0, v0, lowest):
+    """The initial states of ``output_energy``: x0, v0 as (n, m) (or None), checked with
+    ``lowest``."""
+    x0, v0 = state_matrix(x0, n, "x0"), state_matrix(v0, n, "v0")
+    if x0 is not None and v0 is not None and x0.shape[1] != v0.shape[1]:
+        raise ValueError(MARK + f"x0 and v0 must hold the same number of states (columns), "
+                         f"got {x0.shape[1]} and {v0.shape[1]}.")
+    if lowest is not None and (x0 is not None or v0 is not None):
+        raise ValueError(MARK + "give either lowest (unit modal states) or x0/v0, not both.")
+    check_lowest(lowest, n)
+    return x0, v0
+
+
+def state_matrix(value, n: int, name: str):
+    """None, or (n, m) float64 columns (an (n,) vector is one column)."""
+    return _matrix(value, n, name, False)
+
+
+def output_horizon(horizon):
     """None (T = inf), a checked Python float, or a checked (possibly traced) float64 array."""
     message = f"horizon must be None (infinite) or a finite time > 0, got {horizon!r}."
     if horizon is None:
@@ -101,19 +120,12 @@ def output_energy(system: SecondOrderSystem, cx=None, cv=None, *, x0=None, v0=No
     undamped mode reaches the output). Units: output^2 x time.
     """
     check_x64()
-    cx, cv = _outputs(system, cx, cv)
-    n = system.size
-    x0, v0 = _matrix(x0, n, "x0", False), _matrix(v0, n, "v0", False)
-    if x0 is not None and v0 is not None and x0.shape[1] != v0.shape[1]:
-        raise ValueError(MARK + f"x0 and v0 must hold the same number of states (columns), "
-                         f"got {x0.shape[1]} and {v0.shape[1]}.")
-    if lowest is not None and (x0 is not None or v0 is not None):
-        raise ValueError(MARK + "give either lowest (unit modal states) or x0/v0, not both.")
-    check_lowest(lowest, n)
+    cx, cv = output_arguments(system, cx, cv)
+    x0, v0 = output_states(system.size, x0, v0, lowest)
     if x0 is None and v0 is None and lowest is None:
-        lowest = n
+        lowest = system.size
     value, ok = spectral_output_energy_with_result(system, x0, v0, None, cx, cv,
-                                                   _horizon(horizon), lowest)
+                                                   output_horizon(horizon), lowest)
     return check(value, ~ok, _NOT_OK)
 
 
@@ -125,8 +137,8 @@ def h2_norm(system: SecondOrderSystem, inputs, cx=None, cv=None) -> Float[Array,
     excite and the outputs see is damped (a mode with a node at the damper to rounding, u_l =
     1e-16, counts as damped at that level: the norm comes out huge, ~1e15, not infinite)."""
     check_x64()
-    cx, cv = _outputs(system, cx, cv)
-    forces = _matrix(inputs, system.size, "inputs", False)
+    cx, cv = output_arguments(system, cx, cv)
+    forces = state_matrix(inputs, system.size, "inputs")
     value, ok = spectral_output_energy_with_result(system, None, None, forces, cx, cv, None,
                                                    None)
     return jnp.sqrt(check(value, ~ok, _NOT_OK))

@@ -15,7 +15,11 @@ Criteria (``CRITERIA``):
   two components in the scaled modal coordinates (the trace depends on the coordinates: these
   are the ones where X is the energy over all initial states of unit energy in those modes);
 * ``"energy"``: the integrated energy of a given free vibration (x0, v0) over [0, T]
-  (``integrated_energy``).
+  (``integrated_energy``);
+* ``"output"``: the energy of an output C_x x + C_v x' (``output_energy``: initial states x0, v0
+  or the ``lowest`` modes' unit states, T = ``horizon`` or infinite), Veselic's trace with a
+  general weight;
+* ``"h2"``: the H2 norm of the map from the columns of ``inputs`` to that output (``h2_norm``).
 
 Search: a projected quasi-Newton method on the box lower <= d <= upper (Bertsekas, SIAM J.
 Control Optim. 20:221, 1982: the variables at a bound whose gradient pushes outwards are held, a
@@ -40,11 +44,19 @@ from ._dampers import Dampers
 from ._errors import MARK, check_lowest, check_x64
 from ._integrate import initial_vector
 from ._objectives import integrated_energy, total_average_energy
+from ._output_criteria import (
+    h2_norm,
+    output_arguments,
+    output_energy,
+    output_horizon,
+    output_states,
+    state_matrix,
+)
 from ._parameters import with_parameters
 from ._spectral import spectral_applies
 from ._system import SecondOrderSystem
 
-CRITERIA = ("average_energy", "energy")
+CRITERIA = ("average_energy", "energy", "output", "h2")
 _ARMIJO = 1e-4
 _BACKTRACKS = 30
 
@@ -74,9 +86,10 @@ class ViscosityResult:
 
 
 @eqx.filter_jit
-def _value_and_gradient(d, system, criterion, lowest, horizon, x0, v0):
+def _value_and_gradient(d, system, criterion, lowest, horizon, x0, v0, outputs=None,
+                        inputs=None):
     """(f, df/dd) for the (g + p,) coefficient vector d: one compile per system structure and
-    criterion (the system's values are traced)."""
+    criterion (the system's values are traced). ``outputs``: (C_x, C_v) of "output"/"h2"."""
     grounded = system.damping.coefficients.shape[0]
 
     def value(d):
@@ -84,15 +97,20 @@ def _value_and_gradient(d, system, criterion, lowest, horizon, x0, v0):
                                                 relative_coefficients=d[grounded:]))
         if criterion == "average_energy":
             return total_average_energy(designed, lowest, method="spectral")
+        if criterion == "output":
+            return output_energy(designed, *outputs, x0=x0, v0=v0, lowest=lowest,
+                                 horizon=horizon)
+        if criterion == "h2":
+            return h2_norm(designed, inputs, *outputs)
         return integrated_energy(designed, horizon, x0, v0, method="spectral")
 
     return jax.value_and_grad(value)(d)
 
 
-def criterion_function(system, criterion, lowest, horizon, x0, v0):
+def criterion_function(system, criterion, lowest, horizon, x0, v0, outputs=None, inputs=None):
     """d -> (f, df/dd), compiled once per system structure (``_value_and_gradient``)."""
     return lambda d: _value_and_gradient(jnp.asarray(d, dtype=jnp.float64), system, criterion,
-                                         lowest, horizon, x0, v0)
+                                         lowest, horizon, x0, v0, outputs, inputs)
 
 
 def _check_bounds(bound, size, name, default):
@@ -105,15 +123,19 @@ def _check_bounds(bound, size, name, default):
 
 def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_energy", *,
                          lowest: int | None = None, horizon: float | None = None, x0=None,
-                         v0=None, free=None, lower=0.0, upper=None, tolerance: float = 1e-6,
+                         v0=None, cx=None, cv=None, inputs=None, free=None, lower=0.0,
+                         upper=None, tolerance: float = 1e-6,
                          max_iterations: int = 200, progress: bool = False) -> ViscosityResult:
     """Optimal damper coefficients of ``system`` at full order (positions fixed).
 
     ``system``: a ``SecondOrderSystem`` with grounded and/or relative dampers (``mikota_chain``,
     ``chain``, ``system``, ``branched_chain``), internal damping diagonal in modal coordinates or
     none; its coefficients are the start. ``criterion``: ``"average_energy"`` (trace over the
-    ``lowest`` modes, all when None) or ``"energy"`` (of the free vibration from ``x0``, ``v0``
-    over [0, ``horizon``]). ``free``: indices into the coefficient vector (grounded dampers
+    ``lowest`` modes, all when None), ``"energy"`` (of the free vibration from ``x0``, ``v0``
+    over [0, ``horizon``]), ``"output"`` (the energy of the output ``cx`` x + ``cv`` x' from
+    ``x0``, ``v0`` or the ``lowest`` modes' unit states, over [0, ``horizon``] or [0, inf) when
+    None: ``output_energy``) or ``"h2"`` (the H2 norm from ``inputs`` to that output:
+    ``h2_norm``). ``free``: indices into the coefficient vector (grounded dampers
     first, then relative ones, each in the order given) that move, default all; the others stay.
     ``lower``, ``upper``: bounds, scalars or (g + p,) (default 0 and none). See the module
     docstring for the method and the stopping rule. Returns a ``ViscosityResult``.
@@ -136,8 +158,15 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
         x0, v0 = initial_vector(x0, n, "x0"), initial_vector(v0, n, "v0")
         if not (bool(jnp.any(x0 != 0)) or bool(jnp.any(v0 != 0))):
             raise ValueError(MARK + "criterion 'energy' needs an excitation: x0 or v0.")
-    else:
+    elif criterion == "average_energy":
         check_lowest(lowest, n)
+    else:  # "output", "h2": checked as the public functions check them, before compiling
+        outputs = output_arguments(system, cx, cv)
+        if criterion == "h2":
+            inputs = state_matrix(inputs, n, "inputs")
+        else:
+            x0, v0 = output_states(n, x0, v0, lowest)
+            horizon = output_horizon(horizon)
     d = np.concatenate([np.asarray(system.damping.coefficients),
                         np.asarray(system.damping.pair_coefficients)])
     size = d.shape[0]
@@ -159,7 +188,8 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
     fixed_lo, fixed_hi = np.where(mask, lo, d), np.where(mask, hi, d)
     d = np.clip(d, fixed_lo, fixed_hi)
 
-    evaluate_jit = criterion_function(system, criterion, lowest, horizon, x0, v0)
+    evaluate_jit = criterion_function(system, criterion, lowest, horizon, x0, v0,
+                                      outputs if criterion in ("output", "h2") else None, inputs)
     evaluations = 0
 
     def evaluate(point):

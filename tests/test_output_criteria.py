@@ -132,3 +132,26 @@ def test_an_undamped_mode_that_reaches_the_output_has_infinite_h2_norm():
 def test_bad_arguments_are_named(call, match):
     with pytest.raises(ValueError, match=match):
         call(two_dampers())
+
+
+def test_optimal_viscosity_for_the_h2_norm_is_the_lyapunov_optimum():
+    # one free grounded damper, a relative one held: the optimum of the dense Lyapunov H2 norm
+    # (scipy, bounded scalar search) is what optimise_viscosities finds through the modes
+    import scipy.optimize
+
+    def system(c):
+        return mj.mikota_chain(N, dampers=[mj.GroundedDamper(4, c), mj.RelativeDamper((2, 9), 1.0)])
+
+    def dense_h2(c):
+        s = system(c)
+        v = np.linalg.solve(np.asarray(s.dense()[0]), B)
+        z = np.vstack([np.zeros_like(v), v])
+        return np.sqrt(lyapunov_output(s, CX, CV, z @ z.T))
+
+    reference = scipy.optimize.minimize_scalar(dense_h2, bounds=(1e-3, 1e3), method="bounded",
+                                               options=dict(xatol=1e-10))
+    result = mj.optimise_viscosities(system(1.0), "h2", inputs=B, cx=CX, cv=CV, free=[0])
+    assert result.converged, result.status
+    assert result.coefficients[1] == 1.0  # held
+    assert result.coefficients[0] == pytest.approx(reference.x, rel=1e-5)
+    assert result.value == pytest.approx(reference.fun, rel=1e-10)
