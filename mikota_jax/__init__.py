@@ -22,6 +22,8 @@ from ._certify import optimise_dampers as optimise_dampers
 from ._chain import branched_chain as branched_chain
 from ._chain import chain as chain
 from ._chain import mikota_chain as mikota_chain
+from ._damper_search import DamperPlacement as DamperPlacement
+from ._damper_search import place_dampers as place_dampers
 from ._dampers import GroundedDamper as GroundedDamper
 from ._dampers import RelativeDamper as RelativeDamper
 from ._design import DamperProblem as DamperProblem

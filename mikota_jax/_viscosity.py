@@ -121,27 +121,10 @@ def _check_bounds(bound, size, name, default):
     return array
 
 
-def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_energy", *,
-                         lowest: int | None = None, horizon: float | None = None, x0=None,
-                         v0=None, cx=None, cv=None, inputs=None, free=None, lower=0.0,
-                         upper=None, tolerance: float = 1e-6,
-                         max_iterations: int = 200, progress: bool = False) -> ViscosityResult:
-    """Optimal damper coefficients of ``system`` at full order (positions fixed).
-
-    ``system``: a ``SecondOrderSystem`` with grounded and/or relative dampers (``mikota_chain``,
-    ``chain``, ``system``, ``branched_chain``), internal damping diagonal in modal coordinates or
-    none; its coefficients are the start. ``criterion``: ``"average_energy"`` (trace over the
-    ``lowest`` modes, all when None), ``"energy"`` (of the free vibration from ``x0``, ``v0``
-    over [0, ``horizon``]), ``"output"`` (the energy of the output ``cx`` x + ``cv`` x' from
-    ``x0``, ``v0`` or the ``lowest`` modes' unit states, over [0, ``horizon``] or [0, inf) when
-    None: ``output_energy``) or ``"h2"`` (the H2 norm from ``inputs`` to that output:
-    ``h2_norm``). ``free``: indices into the coefficient vector (grounded dampers
-    first, then relative ones, each in the order given) that move, default all; the others stay.
-    ``lower``, ``upper``: bounds, scalars or (g + p,) (default 0 and none). See the module
-    docstring for the method and the stopping rule. Returns a ``ViscosityResult``.
-    """
+def checked_criterion(system, criterion, lowest, horizon, x0, v0, cx, cv, inputs):
+    """The criterion's arguments checked before compiling: (criterion, lowest, horizon, x0, v0,
+    outputs or None, inputs or None), the trailing arguments of ``criterion_function``."""
     check_x64()
-    start = time.perf_counter()
     if not isinstance(system, SecondOrderSystem) or not isinstance(system.damping, Dampers):
         raise ValueError(MARK + "system must be a SecondOrderSystem with GroundedDamper/"
                          "RelativeDamper dampers.")
@@ -167,6 +150,32 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
         else:
             x0, v0 = output_states(n, x0, v0, lowest)
             horizon = output_horizon(horizon)
+        return criterion, lowest, horizon, x0, v0, outputs, inputs
+    return criterion, lowest, horizon, x0, v0, None, None
+
+
+def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_energy", *,
+                         lowest: int | None = None, horizon: float | None = None, x0=None,
+                         v0=None, cx=None, cv=None, inputs=None, free=None, lower=0.0,
+                         upper=None, tolerance: float = 1e-6,
+                         max_iterations: int = 200, progress: bool = False) -> ViscosityResult:
+    """Optimal damper coefficients of ``system`` at full order (positions fixed).
+
+    ``system``: a ``SecondOrderSystem`` with grounded and/or relative dampers (``mikota_chain``,
+    ``chain``, ``system``, ``branched_chain``), internal damping diagonal in modal coordinates or
+    none; its coefficients are the start. ``criterion``: ``"average_energy"`` (trace over the
+    ``lowest`` modes, all when None), ``"energy"`` (of the free vibration from ``x0``, ``v0``
+    over [0, ``horizon``]), ``"output"`` (the energy of the output ``cx`` x + ``cv`` x' from
+    ``x0``, ``v0`` or the ``lowest`` modes' unit states, over [0, ``horizon``] or [0, inf) when
+    None: ``output_energy``) or ``"h2"`` (the H2 norm from ``inputs`` to that output:
+    ``h2_norm``). ``free``: indices into the coefficient vector (grounded dampers
+    first, then relative ones, each in the order given) that move, default all; the others stay.
+    ``lower``, ``upper``: bounds, scalars or (g + p,) (default 0 and none). See the module
+    docstring for the method and the stopping rule. Returns a ``ViscosityResult``.
+    """
+    check_x64()
+    start = time.perf_counter()
+    args = checked_criterion(system, criterion, lowest, horizon, x0, v0, cx, cv, inputs)
     d = np.concatenate([np.asarray(system.damping.coefficients),
                         np.asarray(system.damping.pair_coefficients)])
     size = d.shape[0]
@@ -188,8 +197,7 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
     fixed_lo, fixed_hi = np.where(mask, lo, d), np.where(mask, hi, d)
     d = np.clip(d, fixed_lo, fixed_hi)
 
-    evaluate_jit = criterion_function(system, criterion, lowest, horizon, x0, v0,
-                                      outputs if criterion in ("output", "h2") else None, inputs)
+    evaluate_jit = criterion_function(system, *args)
     evaluations = 0
 
     def evaluate(point):

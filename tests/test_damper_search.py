@@ -1,0 +1,76 @@
+"""Where several dampers go (``place_dampers``): the coordinate-wise search against the
+enumeration of every placement (each with its coefficients optimised) on small chains, and the
+refusals."""
+
+import itertools
+
+import numpy as np
+import pytest
+
+import mikota_jax as mj
+
+N, LOWEST = 12, 5
+
+
+def chain(positions, relative=None):
+    dampers = [mj.GroundedDamper(p, 1.0) for p in positions]
+    if relative is not None:
+        dampers.append(mj.RelativeDamper(relative, 1.0))
+    return mj.mikota_chain(N, dampers=dampers, internal_damping=mj.ModalDamping(0.02))
+
+
+def enumeration(count, candidates, relative=None):
+    """min over every placement of ``count`` dampers on ``candidates`` of the optimised trace."""
+    best = None
+    for positions in itertools.combinations(candidates, count):
+        result = mj.optimise_viscosities(chain(positions, relative), lowest=LOWEST)
+        if best is None or result.value < best[0]:
+            best = (result.value, positions)
+    return best
+
+
+def test_two_dampers_and_a_relative_one_reach_the_enumerations_optimum():
+    # start at DOFs 2 and 3, where the search at one coefficient alone stalls (at 10 and 1)
+    candidates = list(range(1, N + 1))
+    value, positions = enumeration(2, candidates, relative=(5, 9))
+    found = mj.place_dampers(chain([2, 3], relative=(5, 9)), lowest=LOWEST)
+    assert found.status.startswith("converged"), found.status
+    assert found.value <= value * (1 + 1e-9)
+    assert sorted(found.positions) == sorted(positions)
+    assert found.coefficients.shape == (3,) and np.all(found.coefficients > 0)
+    # the trace at the returned design is the value reported (an independent evaluation)
+    dampers = [mj.GroundedDamper(p, c) for p, c in zip(found.positions, found.coefficients[:2])]
+    check = mj.mikota_chain(N, dampers=[*dampers, mj.RelativeDamper((5, 9),
+                                                                      found.coefficients[2])],
+                            internal_damping=mj.ModalDamping(0.02))
+    assert float(mj.total_average_energy(check, LOWEST)) == pytest.approx(found.value, rel=1e-12)
+    # fewer polishes than the enumeration's C(12, 2) = 66
+    assert found.polishes < 66
+
+
+@pytest.mark.slow
+def test_three_dampers_on_candidates_reach_the_enumerations_optimum():
+    candidates = [1, 3, 4, 6, 8, 10, 12]
+    value, positions = enumeration(3, candidates)
+    found = mj.place_dampers(chain([1, 3, 4]), lowest=LOWEST, candidates=candidates)
+    assert found.value <= value * (1 + 1e-9)
+    assert sorted(found.positions) == sorted(positions)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(candidates=[0, 3]), "candidates must be"),
+    (dict(candidates=[2.5]), "candidates must be"),
+    (dict(candidates=[3, 3]), "candidates must be"),
+    (dict(keep=0), "keep must be"),
+    (dict(max_sweeps=1.5), "max_sweeps must be"),
+    (dict(criterion="peak"), "criterion must be"),
+])
+def test_bad_arguments_are_named(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        mj.place_dampers(chain([2, 3]), **kwargs)
+
+
+def test_a_system_without_grounded_dampers_is_refused():
+    system = mj.mikota_chain(N, dampers=[mj.RelativeDamper((2, 5), 1.0)])
+    with pytest.raises(ValueError, match="no GroundedDamper"):
+        mj.place_dampers(system)
