@@ -88,8 +88,10 @@ def output_states(n: int, x0, v0, lowest):
     return x0, v0
 
 
-def state_matrix(value, n: int, name: str):
+def state_matrix(value, n: int, name: str, required: bool = False):
     """None, or (n, m) float64 columns (an (n,) vector is one column)."""
+    if required and value is None:
+        raise ValueError(MARK + f"{name} must be (n, m) or (n,) with n = {n}, got None.")
     return _matrix(value, n, name, False)
 
 
@@ -138,7 +140,7 @@ def h2_norm(system: SecondOrderSystem, inputs, cx=None, cv=None) -> Float[Array,
     1e-16, counts as damped at that level: the norm comes out huge, ~1e15, not infinite)."""
     check_x64()
     cx, cv = output_arguments(system, cx, cv)
-    forces = state_matrix(inputs, system.size, "inputs")
+    forces = state_matrix(inputs, system.size, "inputs", required=True)
     value, ok = spectral_output_energy_with_result(system, None, None, forces, cx, cv, None,
                                                    None)
     return jnp.sqrt(check(value, ~ok, _NOT_OK))

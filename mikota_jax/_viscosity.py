@@ -146,7 +146,7 @@ def checked_criterion(system, criterion, lowest, horizon, x0, v0, cx, cv, inputs
     else:  # "output", "h2": checked as the public functions check them, before compiling
         outputs = output_arguments(system, cx, cv)
         if criterion == "h2":
-            inputs = state_matrix(inputs, n, "inputs")
+            inputs = state_matrix(inputs, n, "inputs", required=True)
         else:
             x0, v0 = output_states(n, x0, v0, lowest)
             horizon = output_horizon(horizon)

@@ -79,6 +79,7 @@ def test_the_dense_total_average_energy_holds_a_strong_relative_damper():
                                                                                   rel=1e-9)
 
 
+@pytest.mark.slow  # 28 s; the H2 optimum below (scipy's) needs the gradient right too
 def test_gradients_match_central_differences():
     @jax.jit
     def value(c, p):
@@ -127,6 +128,7 @@ def test_an_undamped_mode_that_reaches_the_output_has_infinite_h2_norm():
     (lambda s: mj.output_energy(s, np.ones(N), x0=np.ones(N), horizon=-1.0), "horizon must"),
     (lambda s: mj.output_energy(s, np.full(N, np.nan)), "cx must be finite"),
     (lambda s: mj.h2_norm(s, np.ones((N + 1, 2)), np.ones(N)), "inputs must be"),
+    (lambda s: mj.h2_norm(s, None, np.ones(N)), "inputs must be"),
     (lambda s: mj.h2_norm(mj.mikota_chain(N), np.ones(N), np.ones(N)), "system:"),
 ])
 def test_bad_arguments_are_named(call, match):

@@ -85,7 +85,9 @@ def test_the_energy_of_a_free_vibration_is_optimised_in_one_coefficient(close):
 
 
 @pytest.mark.parametrize("kwargs,match", [
-    (dict(criterion="h2"), "criterion must be one of"),
+    (dict(criterion="peak"), "criterion must be one of"),
+    (dict(criterion="h2", cx=[1.0] * 12), "inputs must be"),
+    (dict(criterion="output"), "give an output"),
     (dict(lowest=0), "lowest must be None or an integer"),
     (dict(free=[5]), "free must be indices in 0..1"),
     (dict(lower=-1.0), "0 <= lower <= upper"),
