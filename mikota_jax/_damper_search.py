@@ -32,12 +32,7 @@ import numpy as np
 
 from ._errors import MARK
 from ._parameters import with_parameters
-from ._spectral_objectives import (
-    spectral_energy_with_result,
-    spectral_output_energy_with_result,
-    spectral_trace_with_result,
-)
-from ._viscosity import checked_criterion, optimise_viscosities
+from ._viscosity import checked_criterion, criterion_value, optimise_viscosities
 
 # the moved damper's coefficient is screened at these multiples of its current value: the best
 # DOF at one coefficient is often not the best once the coefficient is re-optimised
@@ -66,20 +61,6 @@ class DamperPlacement:
     status: str
 
 
-def _value(system, criterion, lowest, horizon, x0, v0, outputs, inputs):
-    """The criterion and whether it holds, on the spectral path (no check inside)."""
-    if criterion == "average_energy":
-        return spectral_trace_with_result(system, lowest=lowest)
-    if criterion == "energy":
-        return spectral_energy_with_result(system, horizon, x0, v0)
-    if criterion == "h2":
-        value, ok = spectral_output_energy_with_result(system, None, None, inputs, *outputs,
-                                                       None, None)
-        return jnp.sqrt(value), ok
-    states = system.size if (x0 is None and v0 is None and lowest is None) else lowest
-    return spectral_output_energy_with_result(system, x0, v0, None, *outputs, horizon, states)
-
-
 @eqx.filter_jit
 def _screen(system, index, candidates, scales, criterion, lowest, horizon, x0, v0, outputs,
             inputs):
@@ -93,8 +74,7 @@ def _screen(system, index, candidates, scales, criterion, lowest, horizon, x0, v
         moved = with_parameters(system, dict(
             positions=system.damping.positions.at[index].set(position),
             coefficients=system.damping.coefficients.at[index].set(coefficient * scale)))
-        value, ok = _value(moved, criterion, lowest, horizon, x0, v0, outputs, inputs)
-        return jnp.where(ok, value, jnp.inf)
+        return criterion_value(moved, criterion, lowest, horizon, x0, v0, outputs, inputs)
 
     grid = (jnp.repeat(candidates, scales.shape[0]), jnp.tile(scales, candidates.shape[0]))
     return jax.lax.map(one, grid).reshape(candidates.shape[0], scales.shape[0])

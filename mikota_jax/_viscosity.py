@@ -43,17 +43,14 @@ import numpy as np
 from ._dampers import Dampers
 from ._errors import MARK, check_lowest, check_x64
 from ._integrate import initial_vector
-from ._objectives import integrated_energy, total_average_energy
-from ._output_criteria import (
-    h2_norm,
-    output_arguments,
-    output_energy,
-    output_horizon,
-    output_states,
-    state_matrix,
-)
+from ._output_criteria import output_arguments, output_horizon, output_states, state_matrix
 from ._parameters import with_parameters
 from ._spectral import spectral_applies
+from ._spectral_objectives import (
+    spectral_energy_with_result,
+    spectral_output_energy_with_result,
+    spectral_trace_with_result,
+)
 from ._system import SecondOrderSystem
 
 CRITERIA = ("average_energy", "energy", "output", "h2")
@@ -85,6 +82,26 @@ class ViscosityResult:
     status: str
 
 
+def criterion_value(system, criterion, lowest, horizon, x0, v0, outputs, inputs):
+    """The criterion on the spectral path, +inf where it does not hold (a root not converged, a
+    mode at critical damping, a mode no damper reaches): no check inside, so a compiled search
+    meets a failed design as a value to reject, never as an error. Arguments as returned by
+    ``checked_criterion``."""
+    if criterion == "average_energy":
+        value, ok = spectral_trace_with_result(system, lowest=lowest)
+    elif criterion == "energy":
+        value, ok = spectral_energy_with_result(system, horizon, x0, v0)
+    elif criterion == "h2":
+        value, ok = spectral_output_energy_with_result(system, None, None, inputs, *outputs,
+                                                       None, None)
+        value = jnp.sqrt(value)
+    else:  # "output": all 2n unit states when no state is given, as ``output_energy``
+        states = system.size if (x0 is None and v0 is None and lowest is None) else lowest
+        value, ok = spectral_output_energy_with_result(system, x0, v0, None, *outputs, horizon,
+                                                       states)
+    return jnp.where(ok, value, jnp.inf)
+
+
 @eqx.filter_jit
 def _value_and_gradient(d, system, criterion, lowest, horizon, x0, v0, outputs=None,
                         inputs=None):
@@ -95,14 +112,7 @@ def _value_and_gradient(d, system, criterion, lowest, horizon, x0, v0, outputs=N
     def value(d):
         designed = with_parameters(system, dict(coefficients=d[:grounded],
                                                 relative_coefficients=d[grounded:]))
-        if criterion == "average_energy":
-            return total_average_energy(designed, lowest, method="spectral")
-        if criterion == "output":
-            return output_energy(designed, *outputs, x0=x0, v0=v0, lowest=lowest,
-                                 horizon=horizon)
-        if criterion == "h2":
-            return h2_norm(designed, inputs, *outputs)
-        return integrated_energy(designed, horizon, x0, v0, method="spectral")
+        return criterion_value(designed, criterion, lowest, horizon, x0, v0, outputs, inputs)
 
     return jax.value_and_grad(value)(d)
 
