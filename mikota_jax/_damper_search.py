@@ -119,13 +119,13 @@ def place_dampers(system, criterion: str = "average_energy", *, candidates=None,
     options = dict(lowest=lowest, horizon=horizon, x0=x0, v0=v0, cx=cx, cv=cv, inputs=inputs,
                    lower=lower, upper=upper, tolerance=tolerance)
 
+    def at(positions, coefficients):  # the system at a design: (g,) positions, (g + p,) d
+        return with_parameters(system, dict(positions=jnp.asarray(positions, jnp.float64),
+                                            coefficients=jnp.asarray(coefficients[:g]),
+                                            relative_coefficients=jnp.asarray(coefficients[g:])))
+
     def polish(positions, coefficients):
-        grounded = coefficients[:g]
-        moved = with_parameters(system, dict(positions=jnp.asarray(positions, jnp.float64),
-                                             coefficients=jnp.asarray(grounded)))
-        moved = with_parameters(moved, dict(relative_coefficients=jnp.asarray(
-            coefficients[g:]))) if coefficients.shape[0] > g else moved
-        return optimise_viscosities(moved, criterion, **options)
+        return optimise_viscosities(at(positions, coefficients), criterion, **options)
 
     positions = np.asarray(system.damping.positions, dtype=float).copy()
     best = polish(positions, np.concatenate([np.asarray(system.damping.coefficients),
@@ -135,13 +135,9 @@ def place_dampers(system, criterion: str = "average_energy", *, candidates=None,
     for sweeps in range(1, max_sweeps + 1):
         moved_any = False
         for i in range(g):
-            current = with_parameters(system, dict(
-                positions=jnp.asarray(positions), coefficients=jnp.asarray(best.coefficients[:g])))
-            if best.coefficients.shape[0] > g:
-                current = with_parameters(current, dict(
-                    relative_coefficients=jnp.asarray(best.coefficients[g:])))
-            values = np.min(np.asarray(_screen(current, jnp.asarray(i), jnp.asarray(cand),
-                                               jnp.asarray(_SCALES), *args)), axis=1)
+            screened = _screen(at(positions, best.coefficients), jnp.asarray(i),
+                               jnp.asarray(cand), jnp.asarray(_SCALES), *args)
+            values = np.min(np.asarray(screened), axis=1)
             evaluations += cand.shape[0] * len(_SCALES)
             occupied = np.isin(cand, np.delete(positions, i))
             order = [j for j in np.argsort(values) if not occupied[j] and np.isfinite(values[j])

@@ -124,8 +124,6 @@ def output_energy(system: SecondOrderSystem, cx=None, cv=None, *, x0=None, v0=No
     check_x64()
     cx, cv = output_arguments(system, cx, cv)
     x0, v0 = output_states(system.size, x0, v0, lowest)
-    if x0 is None and v0 is None and lowest is None:
-        lowest = system.size
     value, ok = spectral_output_energy_with_result(system, x0, v0, None, cx, cv,
                                                    output_horizon(horizon), lowest)
     return check(value, ~ok, _NOT_OK)

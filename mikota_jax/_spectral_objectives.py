@@ -133,16 +133,19 @@ def spectral_energy_with_result(system, horizon, x0, v0):
     return value, ok & jnp.isfinite(value)
 
 
+def _unit_states(omega, lowest):
+    """(q0, p0), each (n, 2s): the 2s unit states of the s lowest modes in scaled modal
+    coordinates, Omega eta = e_i (eta = e_i / omega_i) and eta' = e_i."""
+    select = jnp.eye(omega.shape[0])[:, :lowest]
+    return (jnp.concatenate([select / omega[:, None], jnp.zeros_like(select)], axis=1),
+            jnp.concatenate([jnp.zeros_like(select), select], axis=1))
+
+
 @complex_arithmetic
 def trace_from_modes(modes: DampedModes, lowest):
     """trace X, A^T X + X A = -Z, Z = I (``lowest`` None) or the s = ``lowest`` lowest modes."""
-    n = modes.omega.shape[0]
     if lowest is not None:
-        # the 2s unit states: Omega eta = e_i (eta = e_i / omega_i) and eta' = e_i
-        select = jnp.eye(n)[:, :lowest]
-        q0 = jnp.concatenate([select / modes.omega[:, None], jnp.zeros_like(select)], axis=1)
-        p0 = jnp.concatenate([jnp.zeros_like(select), select], axis=1)
-        return 2 * jnp.sum(energy_from_modes(modes, q0, p0, None))
+        return 2 * jnp.sum(energy_from_modes(modes, *_unit_states(modes.omega, lowest), None))
     y = modes.vectors().T
     s, pair = pair_sums(modes)
     scale = modes.eigenvalues * modes.normalisers()
@@ -197,14 +200,15 @@ def output_energy_from_modes(modes: DampedModes, q0, p0, cx, cv, horizon):
 def spectral_output_energy_with_result(system, x0, v0, forces, cx, cv, horizon, lowest):
     """(value, ok) of ``output_energy``: the initial states are the 2s unit modal states of the
     ``lowest`` s modes (as ``trace_from_modes``), or the columns of x0, v0 (n, m) plus the
-    impulses of the columns of ``forces`` (n, m) (v0 += M^-1 forces; each None for none);
+    impulses of the columns of ``forces`` (n, m) (v0 += M^-1 forces; each None for none; all
+    None and no ``lowest``: all 2n unit states);
     ``cx``, ``cv`` (q, n) physical output matrices. Where not ok, the value must not be used."""
     modes, modes_u, ok = live_modes(system)
     n = modes_u.shape[0]
+    if lowest is None and x0 is None and v0 is None and forces is None:
+        lowest = n  # no state given: all 2n unit states
     if lowest is not None:
-        select = jnp.eye(n)[:, :lowest]
-        q0 = jnp.concatenate([select / modes.omega[:, None], jnp.zeros_like(select)], axis=1)
-        p0 = jnp.concatenate([jnp.zeros_like(select), select], axis=1)
+        q0, p0 = _unit_states(modes.omega, lowest)
     else:
         project = jax.vmap(modal_projection(system, modes_u), in_axes=1, out_axes=1)
         columns = next(c for c in (x0, v0, forces) if c is not None).shape[1]

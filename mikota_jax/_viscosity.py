@@ -95,10 +95,9 @@ def criterion_value(system, criterion, lowest, horizon, x0, v0, outputs, inputs)
         value, ok = spectral_output_energy_with_result(system, None, None, inputs, *outputs,
                                                        None, None)
         value = jnp.sqrt(value)
-    else:  # "output": all 2n unit states when no state is given, as ``output_energy``
-        states = system.size if (x0 is None and v0 is None and lowest is None) else lowest
+    else:  # "output"
         value, ok = spectral_output_energy_with_result(system, x0, v0, None, *outputs, horizon,
-                                                       states)
+                                                       lowest)
     return jnp.where(ok, value, jnp.inf)
 
 
