@@ -6,6 +6,7 @@ import jax
 import numpy as np
 import pytest
 import scipy.optimize
+from _helpers import lyapunov_trace
 
 import mikota_jax as mj
 from mikota_jax.testing import criterion_function
@@ -103,3 +104,31 @@ def test_bad_arguments_are_refused_by_name(kwargs, match):
 def test_a_system_without_the_spectral_path_is_refused():
     with pytest.raises(ValueError, match="GroundedDamper/RelativeDamper"):
         mj.optimise_viscosities(mj.mikota_chain(N))
+
+
+def triple_chain(n1, d, internal=0.02):
+    """Truhar & Veselic's triple chain (SIAM J. Matrix Anal. Appl. 31:18, 2009): three rows of
+    n1 masses 1, 2, 3 with springs 10, 20, 1, each grounded at its outer end and joined to
+    m_0 = 10, grounded by k_0 = 50; n = 3 n1 + 1; dampers at DOFs 1, n1 and 2 n1 + 1; modal
+    internal damping 2 %."""
+    ones = np.ones(n1)
+    return mj.branched_chain(
+        [ones, 2 * ones, 3 * ones], [10 * np.ones(n1 + 1), 20 * np.ones(n1 + 1), np.ones(n1 + 1)],
+        10.0, 50.0, dampers=[mj.GroundedDamper(1, d[0]), mj.GroundedDamper(n1, d[1]),
+                             mj.GroundedDamper(2 * n1 + 1, d[2])],
+        internal_damping=mj.ModalDamping(internal))
+
+
+def test_truhar_veselic_triple_chain_optimum_is_the_dense_lyapunov_optimum(close):
+    n1, lowest, start = 8, 8, np.array([100.0, 100.0, 100.0])
+    result = mj.optimise_viscosities(triple_chain(n1, start), "average_energy", lowest=lowest)
+    assert result.converged and result.relative_gradient < 1e-6, result.status
+    # independent: scipy's dense Lyapunov trace (its own eigh, Bartels-Stewart) minimised by
+    # L-BFGS-B in log d with finite differences, from the same start
+    dense = lambda logd: lyapunov_trace(triple_chain(n1, np.exp(logd)), lowest)  # noqa: E731
+    reference = scipy.optimize.minimize(dense, np.log(start), method="L-BFGS-B",
+                                        options=dict(ftol=1e-14, gtol=1e-10, maxiter=200))
+    close(result.value, reference.fun, rtol=1e-8)
+    close(result.coefficients, np.exp(reference.x), rtol=2e-3)
+    close(result.value, lyapunov_trace(triple_chain(n1, result.coefficients), lowest), rtol=1e-9)
+    assert result.value < dense(np.log(start))
