@@ -13,7 +13,7 @@ NOTEBOOKS = sorted((Path(__file__).parent.parent / "notebooks").glob("*.ipynb"))
 # the file each notebook writes into MIKOTA_NOTEBOOK_OUT when it has run to the end
 OUTPUTS = {"paper_reproduction.ipynb": "reproduce.json", "damper_placement.ipynb": "placement.json",
            "sensitivity_study.ipynb": "sensitivity.json",
-           "custom_systems.ipynb": "custom_systems.json"}
+           "custom_systems.ipynb": "custom_systems.json", "multi_damper.ipynb": "multi_damper.json"}
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
