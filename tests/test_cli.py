@@ -5,8 +5,11 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
+import scipy.linalg as sl
 
+import mikota_jax as mj
 from mikota_jax.app.cli import main
 
 SCENE = """
@@ -145,3 +148,77 @@ def test_ctrl_c_stops_a_long_run_within_seconds_and_writes_nothing(tmp_path):
     assert time.monotonic() - start < 5, err
     assert proc.returncode == 130 and "interrupted" in err and "Traceback" not in err, err
     assert not (tmp_path / "out" / "results.json").exists()
+
+
+FULL_ORDER_SCENE = """
+[chain]
+type = "mikota"
+n = 12
+
+[[damper]]
+type = "grounded"
+position = 4
+coefficient = 1.0
+
+[[damper]]
+type = "relative"
+dofs = [2, 9]
+coefficient = 1.0
+
+[initial]
+displacement = { 3 = 1.0 }
+
+[time]
+end = 20.0
+step = 0.1
+"""
+
+
+def test_optimise_at_full_order_frees_the_relative_damper_and_takes_the_h2_criterion(
+        tmp_path, capsys, close):
+    scene = tmp_path / "two.toml"
+    scene.write_text(FULL_ORDER_SCENE)
+    out = tmp_path / "out"
+    assert main(["optimise", str(scene), "--out", str(out), "--search", "viscosities",
+                 "--objective", "h2", "--output-dofs", "12", "--input-dofs", "12",
+                 "--no-progress"]) == 0
+    report = json.loads((out / "placement.json").read_text())
+    result = report["result"]
+    assert result["converged"] and result["relative_gradient"] < 1e-6
+    assert result["pairs"] == [[2, 9]] and (out / report["figure"]).exists()
+    assert "relative pairs [[2, 9]]" in capsys.readouterr().out
+    # independent: scipy's dense controllability Gramian at the reported coefficients
+    grounded, relative = result["coefficients"]
+    system = mj.mikota_chain(12, dampers=[mj.GroundedDamper(4, grounded),
+                                          mj.RelativeDamper((2, 9), relative)])
+    m, d, k = (np.asarray(a) for a in system.dense())
+    minv = np.diag(1 / np.diag(m))
+    a = np.block([[np.zeros((12, 12)), np.eye(12)], [-minv @ k, -minv @ d]])
+    b = np.concatenate([np.zeros(12), minv[:, 11]])[:, None]
+    gramian = sl.solve_continuous_lyapunov(a, -b @ b.T)
+    close(result["value"], np.sqrt(gramian[11, 11]), rtol=1e-8)
+    # and the optimum is one: a step either way in either coefficient is no lower
+    for i in range(2):
+        for step in (0.98, 1.02):
+            moved = np.array(result["coefficients"])
+            moved[i] *= step
+            system = mj.mikota_chain(12, dampers=[mj.GroundedDamper(4, moved[0]),
+                                                  mj.RelativeDamper((2, 9), moved[1])])
+            assert float(mj.h2_norm(system, np.eye(12)[:, 11:], np.eye(12)[11:])) >= (
+                result["value"] * (1 - 1e-12))
+
+
+@pytest.mark.parametrize(("argv", "match"), [
+    (["--objective", "h2"], "needs a full-order search"),
+    (["--search", "viscosities", "--objective", "output"], "needs output_dofs"),
+    (["--search", "places", "--objective", "h2", "--output-dofs", "3"], "needs input_dofs"),
+    (["--search", "places", "--objective", "output", "--output-dofs", "13"],
+     "output_dofs must be distinct DOFs in 1..12"),
+])
+def test_full_order_optimise_refuses_missing_or_bad_dofs_in_one_line(tmp_path, capsys, argv,
+                                                                      match):
+    scene = tmp_path / "two.toml"
+    scene.write_text(FULL_ORDER_SCENE)
+    assert main(["optimise", str(scene), "--out", str(tmp_path / "out"), *argv]) == 2
+    err = capsys.readouterr().err
+    assert match in err and len(err.strip().splitlines()) == 1

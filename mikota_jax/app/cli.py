@@ -1,5 +1,7 @@
 """Command line: ``python -m mikota_jax reproduce [--out DIR]``, ``run SCENE.toml --out DIR`` and
-``optimise SCENE.toml [--out DIR]`` (damper placement: ``placement.json`` and ``placement.png``).
+``optimise SCENE.toml [--out DIR]`` (damper placement: ``placement.json`` and ``placement.png``;
+``--search viscosities | places`` at full order, with relative dampers and the ``output`` and
+``h2`` criteria).
 
 Bad input ends with one line on stderr and exit code 2 (no traceback); a run that fails writes no
 partial ``results.json``. Compiled executables are kept in JAX's persistent compilation cache
@@ -28,7 +30,24 @@ def _parser() -> argparse.ArgumentParser:
                               "the full model)")
     opt.add_argument("scene", help="a TOML scene file, or a packaged paper scene name")
     opt.add_argument("--out", default="placement_results", help="folder for JSON and plot")
-    opt.add_argument("--objective", default="energy", choices=["energy", "average_energy", "peak"])
+    opt.add_argument("--search", default="rom", choices=["rom", "viscosities", "places"],
+                     help="rom (default): positions and coefficients of the grounded dampers, "
+                     "screened on the reduced model, certified on the full one; viscosities: "
+                     "every damper's coefficient (grounded and relative) at its place, at full "
+                     "order; places: the grounded dampers moved over --candidates and every "
+                     "coefficient re-optimised, at full order")
+    opt.add_argument("--objective", default="energy",
+                     choices=["energy", "average_energy", "peak", "output", "h2"],
+                     help="energy of the scene's free vibration (default), average_energy "
+                     "(trace over --lowest modes), peak (rom only), output (energy of the "
+                     "displacements at --output-dofs) and h2 (from unit forces at --input-dofs "
+                     "to them): output and h2 at full order only")
+    opt.add_argument("--output-dofs", type=_dofs, metavar="I,J,...",
+                     help="DOFs whose displacements are the output (output, h2)")
+    opt.add_argument("--input-dofs", type=_dofs, metavar="I,J,...",
+                     help="DOFs of the unit forces (h2)")
+    opt.add_argument("--candidates", type=_dofs, metavar="I,J,...",
+                     help="DOFs the dampers may take (places; default all)")
     opt.add_argument("--dof", type=int, help="DOF of the 'peak' objective (1-based)")
     opt.add_argument("--lowest", type=int, help="'average_energy': only the s lowest modes")
     opt.add_argument("--energy", type=float,
@@ -50,6 +69,14 @@ def _parser() -> argparse.ArgumentParser:
                      "best DOFs refined)")
     opt.add_argument("--no-progress", action="store_true", help="no progress bars")
     return parser
+
+
+def _dofs(text: str) -> list[int]:
+    """'3,7,12' -> [3, 7, 12] (1-based DOFs; their range is checked with the scene)."""
+    try:
+        return [int(part) for part in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected DOFs as I,J,..., got {text!r}") from None
 
 
 def _writable_folder(out: str) -> Path:
@@ -88,7 +115,25 @@ def main(argv=None) -> int:
 
             report = reproduce(args.out)
             return 1 if report["missed"] else 0
+        if args.command == "optimise" and args.search != "rom":
+            from .placement import full_order_scene
+
+            report = full_order_scene(
+                args.scene, args.out, search=args.search, objective=args.objective,
+                lowest=args.lowest, output_dofs=args.output_dofs, input_dofs=args.input_dofs,
+                candidates=args.candidates, progress=not args.no_progress)
+            result = report["result"]
+            positions = [float(p) for p in result["positions"]]
+            print(f"{result['status']}\noptimum: positions {positions}, "
+                  f"relative pairs {result['pairs']}, coefficients "
+                  f"{[round(float(c), 6) for c in result['coefficients']]}, {args.objective} "
+                  f"(full model) {result['value']:.10g}, {result['seconds']:.1f} s"
+                  f"\nwrote {Path(args.out) / 'placement.json'}")
+            return 0
         if args.command == "optimise":
+            if args.objective in ("output", "h2"):
+                raise ValueError(f"mikota_jax: --objective {args.objective} needs a full-order "
+                                 "search (--search viscosities or places).")
             from .placement import optimise_scene
 
             report = optimise_scene(

@@ -136,3 +136,15 @@ def placement_landscape(path, positions, coefficients, values, paths, optimum, t
            title=title)
     ax.legend(loc="upper right", fontsize=8)
     return _save(fig, Path(path))
+
+
+def search_history(path, values, label: str, title: str) -> Path:
+    """The criterion after each step of a full-order search (log scale): ``values`` in order,
+    ``label`` the step's name ("iteration", "accepted move")."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 4))
+    values = np.asarray(values, dtype=float)
+    ax.plot(np.arange(values.shape[0]), values, "o-", ms=4)
+    ax.set(xlabel=label, ylabel="criterion (model units)", yscale="log", title=title)
+    ax.grid(True, which="both", alpha=0.3)
+    return _save(fig, Path(path))

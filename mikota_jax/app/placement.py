@@ -96,3 +96,84 @@ def optimise_scene(source, out, *, objective: str = "energy", dof: int | None = 
         report["figure"] = figure.name
     write_json(report, out / "placement.json")
     return report
+
+
+# criteria of the full-order searches, and the CLI's objective names for them
+FULL_ORDER_CRITERIA = ("energy", "average_energy", "output", "h2")
+
+
+def _selection(dofs, n: int, name: str) -> np.ndarray | None:
+    """(len(dofs), n) rows e_dof (1-based DOFs), or None."""
+    if dofs is None:
+        return None
+    dofs = [int(d) for d in dofs]
+    if not dofs or any(d < 1 or d > n for d in dofs) or len(set(dofs)) != len(dofs):
+        raise ValueError(MARK + f"{name} must be distinct DOFs in 1..{n}, got {dofs!r:.80}.")
+    return np.eye(n)[np.asarray(dofs) - 1]
+
+
+def full_order_scene(source, out, *, search: str, objective: str = "average_energy",
+                     lowest: int | None = None, output_dofs=None, input_dofs=None,
+                     candidates=None, progress: bool = True) -> dict:
+    """Optimise a scene's dampers at full order; write ``placement.json`` and ``.png``.
+
+    ``search``: ``"viscosities"`` (``optimise_viscosities``: every damper's coefficient,
+    grounded and relative, at fixed places) or ``"places"`` (``place_dampers``: the grounded
+    dampers moved over ``candidates``, 1-based DOFs, default all, every coefficient
+    re-optimised). ``objective``: one of ``FULL_ORDER_CRITERIA``; "energy" and "output" take the
+    scene's initial state over its time grid ("output" over the ``lowest`` modes' unit states
+    when ``lowest`` is given), "average_energy" the ``lowest`` modes, "output" and "h2" the
+    displacements at ``output_dofs``, "h2" unit forces at ``input_dofs``.
+    """
+    from .. import optimise_viscosities, place_dampers
+    from .figures import search_history
+
+    if search not in ("viscosities", "places"):
+        raise ValueError(MARK + f"search must be 'viscosities' or 'places', got {search!r}.")
+    if objective not in FULL_ORDER_CRITERIA:
+        raise ValueError(MARK + f"objective must be one of {FULL_ORDER_CRITERIA} for a "
+                         f"full-order search, got {objective!r}.")
+    scene = load_scene(source)
+    system, n = scene.system, scene.system.size
+    cx = _selection(output_dofs, n, "output_dofs")
+    inputs = _selection(input_dofs, n, "input_dofs")
+    if objective in ("output", "h2") and cx is None:
+        raise ValueError(MARK + f"objective {objective!r} needs output_dofs (--output-dofs).")
+    if objective == "h2" and inputs is None:
+        raise ValueError(MARK + "objective 'h2' needs input_dofs (--input-dofs).")
+    kwargs = dict(lowest=lowest)
+    free_vibration = objective == "energy" or (objective == "output" and lowest is None)
+    if free_vibration:
+        if scene.load is not None:
+            raise ValueError(MARK + f"objective {objective!r} is the energy of a free vibration; "
+                             f"scene {scene.name!r} has a load.")
+        kwargs.update(x0=scene.x0, v0=scene.v0, horizon=float(scene.ts[-1]))
+    if objective in ("output", "h2"):
+        kwargs.update(cx=cx)
+    if objective == "h2":
+        kwargs.update(inputs=inputs.T)
+    if search == "viscosities":
+        result = optimise_viscosities(system, objective, progress=progress, **kwargs)
+        positions = np.asarray(system.damping.positions)
+        history = [value for value, _ in result.history]
+        extra = dict(relative_gradient=result.relative_gradient, converged=result.converged,
+                     iterations=result.iterations, evaluations=result.evaluations)
+    else:
+        result = place_dampers(system, objective, candidates=candidates, progress=progress,
+                               **kwargs)
+        positions = result.positions
+        history = [value for *_, value in result.history] or [result.value]
+        extra = dict(sweeps=result.sweeps, evaluations=result.evaluations,
+                     polishes=result.polishes, moves=result.history)
+    report = dict(scene=scene.name, search=search, objective=objective,
+                  result=dict(status=result.status, positions=positions,
+                              pairs=[[i + 1, j + 1] for i, j in system.damping.pairs],
+                              coefficients=result.coefficients, value=result.value,
+                              seconds=result.seconds, **extra))
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    label = "iteration" if search == "viscosities" else "accepted move"
+    report["figure"] = search_history(out / "placement.png", history, label,
+                                      f"{scene.name}: {objective}, {search} at full order").name
+    write_json(report, out / "placement.json")
+    return report
