@@ -62,8 +62,7 @@ class DamperPlacement:
 
 
 @eqx.filter_jit
-def _screen(system, index, candidates, scales, criterion, lowest, horizon, x0, v0, outputs,
-            inputs):
+def _screen(system, index, candidates, scales, criterion):
     """The criterion with grounded damper ``index`` at each candidate DOF, its coefficient
     times each of ``scales`` (others held): (c, len(scales)), +inf where the spectral path does
     not hold (a mode no damper reaches, say)."""
@@ -74,7 +73,7 @@ def _screen(system, index, candidates, scales, criterion, lowest, horizon, x0, v
         moved = with_parameters(system, dict(
             positions=system.damping.positions.at[index].set(position),
             coefficients=system.damping.coefficients.at[index].set(coefficient * scale)))
-        return criterion_value(moved, criterion, lowest, horizon, x0, v0, outputs, inputs)
+        return criterion_value(moved, criterion)
 
     grid = (jnp.repeat(candidates, scales.shape[0]), jnp.tile(scales, candidates.shape[0]))
     return jax.lax.map(one, grid).reshape(candidates.shape[0], scales.shape[0])
@@ -94,7 +93,8 @@ def _candidates(candidates, n: int) -> np.ndarray:
 
 def place_dampers(system, criterion: str = "average_energy", *, candidates=None,
                   lowest: int | None = None, horizon: float | None = None, x0=None, v0=None,
-                  cx=None, cv=None, inputs=None, keep: int = 2, max_sweeps: int = 10,
+                  cx=None, cv=None, inputs=None, dof: int | None = None, ts=None,
+                  order: int = 16, keep: int = 2, max_sweeps: int = 10,
                   lower=0.0, upper=None, tolerance: float = 1e-6,
                   progress: bool = False) -> DamperPlacement:
     """Place the grounded dampers of ``system`` on ``candidates`` (1-based DOFs, default all)
@@ -103,12 +103,13 @@ def place_dampers(system, criterion: str = "average_energy", *, candidates=None,
     ``system``: a ``SecondOrderSystem`` with at least one ``GroundedDamper`` (its positions and
     coefficients are the start; relative dampers stay where they are, their coefficients are
     optimised too). ``criterion`` and its arguments (``lowest``, ``horizon``, ``x0``, ``v0``,
-    ``cx``, ``cv``, ``inputs``), ``lower``, ``upper``, ``tolerance``: as in
-    ``optimise_viscosities``. ``keep``: DOFs polished per damper and sweep (>= 1);
-    ``max_sweeps`` (>= 1). Returns a ``DamperPlacement``.
+    ``cx``, ``cv``, ``inputs``, ``dof``, ``ts``, ``order``), ``lower``, ``upper``,
+    ``tolerance``: as in ``optimise_viscosities``. ``keep``: DOFs polished per damper and
+    sweep (>= 1); ``max_sweeps`` (>= 1). Returns a ``DamperPlacement``.
     """
     start = time.perf_counter()
-    args = checked_criterion(system, criterion, lowest, horizon, x0, v0, cx, cv, inputs)
+    args = checked_criterion(system, criterion, lowest, horizon, x0, v0, cx, cv, inputs, dof,
+                             ts, order)
     g = int(system.damping.positions.shape[0])
     if g == 0:
         raise ValueError(MARK + "system has no GroundedDamper to place.")
@@ -117,7 +118,7 @@ def place_dampers(system, criterion: str = "average_energy", *, candidates=None,
             raise ValueError(MARK + f"{name} must be an integer >= 1, got {value!r}.")
     cand = _candidates(candidates, system.size)
     options = dict(lowest=lowest, horizon=horizon, x0=x0, v0=v0, cx=cx, cv=cv, inputs=inputs,
-                   lower=lower, upper=upper, tolerance=tolerance)
+                   dof=dof, ts=ts, order=order, lower=lower, upper=upper, tolerance=tolerance)
 
     def at(positions, coefficients):  # the system at a design: (g,) positions, (g + p,) d
         return with_parameters(system, dict(positions=jnp.asarray(positions, jnp.float64),
@@ -136,7 +137,7 @@ def place_dampers(system, criterion: str = "average_energy", *, candidates=None,
         moved_any = False
         for i in range(g):
             screened = _screen(at(positions, best.coefficients), jnp.asarray(i),
-                               jnp.asarray(cand), jnp.asarray(_SCALES), *args)
+                               jnp.asarray(cand), jnp.asarray(_SCALES), args)
             values = np.min(np.asarray(screened), axis=1)
             evaluations += cand.shape[0] * len(_SCALES)
             occupied = np.isin(cand, np.delete(positions, i))

@@ -19,7 +19,10 @@ Criteria (``CRITERIA``):
 * ``"output"``: the energy of an output C_x x + C_v x' (``output_energy``: initial states x0, v0
   or the ``lowest`` modes' unit states, T = ``horizon`` or infinite), Veselic's trace with a
   general weight;
-* ``"h2"``: the H2 norm of the map from the columns of ``inputs`` to that output (``h2_norm``).
+* ``"h2"``: the H2 norm of the map from the columns of ``inputs`` to that output (``h2_norm``);
+* ``"peak"``: the smooth peak (``smooth_peak``, an L^p mean of order ``order``) of the
+  displacement of one DOF ``dof`` over the time grid ``ts`` in the free vibration from x0, v0,
+  exact from the damped modes (the spectral solve) at every time of the grid.
 
 Search: a projected quasi-Newton method on the box lower <= d <= upper (Bertsekas, SIAM J.
 Control Optim. 20:221, 1982: the variables at a bound whose gradient pushes outwards are held, a
@@ -40,9 +43,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._custom_types import Array
 from ._dampers import Dampers
 from ._errors import MARK, check_lowest, check_x64
 from ._integrate import initial_vector
+from ._objectives import smooth_peak
 from ._output_criteria import output_arguments, output_horizon, output_states, state_matrix
 from ._parameters import with_parameters
 from ._spectral import spectral_applies
@@ -51,9 +56,10 @@ from ._spectral_objectives import (
     spectral_output_energy_with_result,
     spectral_trace_with_result,
 )
+from ._spectral_solve import spectral_solve_with_result
 from ._system import SecondOrderSystem
 
-CRITERIA = ("average_energy", "energy", "output", "h2")
+CRITERIA = ("average_energy", "energy", "output", "h2", "peak")
 _ARMIJO = 1e-4
 _BACKTRACKS = 30
 
@@ -82,44 +88,71 @@ class ViscosityResult:
     status: str
 
 
-def criterion_value(system, criterion, lowest, horizon, x0, v0, outputs, inputs):
+class Criterion(eqx.Module):
+    """A criterion with its arguments, checked (``checked_criterion``): what ``criterion_value``
+    evaluates. ``name``: one of ``CRITERIA``; ``lowest``, ``horizon``: as in
+    ``optimise_viscosities``; ``x0``, ``v0``: (n,) or (n, q) states or None; ``outputs``: (C_x,
+    C_v) of "output" and "h2"; ``inputs``: (n, m) of "h2"; ``dof``, ``ts``, ``order``: of
+    "peak". Names, counts and the horizon are static (one compile each), arrays traced."""
+
+    name: str = eqx.field(static=True)
+    lowest: int | None = eqx.field(static=True, default=None)
+    horizon: float | None = eqx.field(static=True, default=None)
+    x0: Array | None = None
+    v0: Array | None = None
+    outputs: tuple | None = None
+    inputs: Array | None = None
+    dof: int | None = eqx.field(static=True, default=None)
+    ts: Array | None = None
+    order: int = eqx.field(static=True, default=16)
+
+
+def criterion_value(system, criterion: Criterion):
     """The criterion on the spectral path, +inf where it does not hold (a root not converged, a
     mode at critical damping, a mode no damper reaches): no check inside, so a compiled search
-    meets a failed design as a value to reject, never as an error. Arguments as returned by
-    ``checked_criterion``."""
-    if criterion == "average_energy":
-        value, ok = spectral_trace_with_result(system, lowest=lowest)
-    elif criterion == "energy":
-        value, ok = spectral_energy_with_result(system, horizon, x0, v0)
-    elif criterion == "h2":
-        value, ok = spectral_output_energy_with_result(system, None, None, inputs, *outputs,
+    meets a failed design as a value to reject, never as an error."""
+    c = criterion
+    if c.name == "average_energy":
+        value, ok = spectral_trace_with_result(system, lowest=c.lowest)
+    elif c.name == "energy":
+        value, ok = spectral_energy_with_result(system, c.horizon, c.x0, c.v0)
+    elif c.name == "h2":
+        value, ok = spectral_output_energy_with_result(system, None, None, c.inputs, *c.outputs,
                                                        None, None)
         value = jnp.sqrt(value)
+    elif c.name == "peak":
+        trajectory, ok = spectral_solve_with_result(system, c.ts, c.x0, c.v0, None,
+                                                    dofs=(c.dof,), displacement=True,
+                                                    velocity=False)
+        value = smooth_peak(trajectory.displacement, c.order)
     else:  # "output"
-        value, ok = spectral_output_energy_with_result(system, x0, v0, None, *outputs, horizon,
-                                                       lowest)
+        value, ok = spectral_output_energy_with_result(system, c.x0, c.v0, None, *c.outputs,
+                                                       c.horizon, c.lowest)
     return jnp.where(ok, value, jnp.inf)
 
 
 @eqx.filter_jit
-def _value_and_gradient(d, system, criterion, lowest, horizon, x0, v0, outputs=None,
-                        inputs=None):
+def _value_and_gradient(d, system, criterion: Criterion):
     """(f, df/dd) for the (g + p,) coefficient vector d: one compile per system structure and
-    criterion (the system's values are traced). ``outputs``: (C_x, C_v) of "output"/"h2"."""
+    criterion (the system's values are traced)."""
     grounded = system.damping.coefficients.shape[0]
 
     def value(d):
         designed = with_parameters(system, dict(coefficients=d[:grounded],
                                                 relative_coefficients=d[grounded:]))
-        return criterion_value(designed, criterion, lowest, horizon, x0, v0, outputs, inputs)
+        return criterion_value(designed, criterion)
 
     return jax.value_and_grad(value)(d)
 
 
-def criterion_function(system, criterion, lowest, horizon, x0, v0, outputs=None, inputs=None):
-    """d -> (f, df/dd), compiled once per system structure (``_value_and_gradient``)."""
-    return lambda d: _value_and_gradient(jnp.asarray(d, dtype=jnp.float64), system, criterion,
-                                         lowest, horizon, x0, v0, outputs, inputs)
+def criterion_function(system, criterion, lowest=None, horizon=None, x0=None, v0=None,
+                       outputs=None, inputs=None):
+    """d -> (f, df/dd), compiled once per system structure (``_value_and_gradient``).
+
+    ``criterion``: a ``Criterion``, or its name followed by its arguments (unchecked)."""
+    if not isinstance(criterion, Criterion):
+        criterion = Criterion(criterion, lowest, horizon, x0, v0, outputs, inputs)
+    return lambda d: _value_and_gradient(jnp.asarray(d, dtype=jnp.float64), system, criterion)
 
 
 def _check_bounds(bound, size, name, default):
@@ -130,9 +163,9 @@ def _check_bounds(bound, size, name, default):
     return array
 
 
-def checked_criterion(system, criterion, lowest, horizon, x0, v0, cx, cv, inputs):
-    """The criterion's arguments checked before compiling: (criterion, lowest, horizon, x0, v0,
-    outputs or None, inputs or None), the trailing arguments of ``criterion_function``."""
+def checked_criterion(system, criterion, lowest, horizon, x0, v0, cx, cv, inputs, dof=None,
+                      ts=None, order=16) -> Criterion:
+    """The criterion's arguments checked before compiling, as a ``Criterion``."""
     check_x64()
     if not isinstance(system, SecondOrderSystem) or not isinstance(system.damping, Dampers):
         raise ValueError(MARK + "system must be a SecondOrderSystem with GroundedDamper/"
@@ -150,24 +183,44 @@ def checked_criterion(system, criterion, lowest, horizon, x0, v0, cx, cv, inputs
         x0, v0 = initial_vector(x0, n, "x0"), initial_vector(v0, n, "v0")
         if not (bool(jnp.any(x0 != 0)) or bool(jnp.any(v0 != 0))):
             raise ValueError(MARK + "criterion 'energy' needs an excitation: x0 or v0.")
-    elif criterion == "average_energy":
+        return Criterion(criterion, None, float(horizon), x0, v0)
+    if criterion == "average_energy":
         check_lowest(lowest, n)
-    else:  # "output", "h2": checked as the public functions check them, before compiling
-        outputs = output_arguments(system, cx, cv)
-        if criterion == "h2":
-            inputs = state_matrix(inputs, n, "inputs", required=True)
-        else:
-            x0, v0 = output_states(n, x0, v0, lowest)
-            horizon = output_horizon(horizon)
-        return criterion, lowest, horizon, x0, v0, outputs, inputs
-    return criterion, lowest, horizon, x0, v0, None, None
+        return Criterion(criterion, lowest)
+    if criterion == "peak":
+        return _checked_peak(n, x0, v0, dof, ts, order)
+    # "output", "h2": checked as the public functions check them, before compiling
+    outputs = output_arguments(system, cx, cv)
+    if criterion == "h2":
+        return Criterion(criterion, outputs=outputs,
+                         inputs=state_matrix(inputs, n, "inputs", required=True))
+    x0, v0 = output_states(n, x0, v0, lowest)
+    return Criterion(criterion, lowest, output_horizon(horizon), x0, v0, outputs)
+
+
+def _checked_peak(n, x0, v0, dof, ts, order) -> Criterion:
+    if isinstance(dof, bool) or not isinstance(dof, int | np.integer) or not 1 <= dof <= n:
+        raise ValueError(MARK + f"dof must be an integer DOF in 1..{n} for criterion 'peak', "
+                         f"got {dof!r}.")
+    if isinstance(order, bool) or not isinstance(order, int) or order < 2 or order % 2:
+        raise ValueError(MARK + f"order must be an even integer >= 2, got {order!r}.")
+    times = None if ts is None else np.asarray(ts, dtype=float)
+    if (times is None or times.ndim != 1 or times.shape[0] < 2 or not np.all(np.isfinite(times))
+            or times[0] < 0 or np.any(np.diff(times) <= 0)):
+        raise ValueError(MARK + "ts must be an increasing grid of >= 2 finite times >= 0 for "
+                         f"criterion 'peak', got {ts!r:.80}.")
+    x0, v0 = initial_vector(x0, n, "x0"), initial_vector(v0, n, "v0")
+    if not (bool(jnp.any(x0 != 0)) or bool(jnp.any(v0 != 0))):
+        raise ValueError(MARK + "criterion 'peak' needs an excitation: x0 or v0.")
+    return Criterion("peak", x0=x0, v0=v0, dof=int(dof), ts=jnp.asarray(times), order=order)
 
 
 def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_energy", *,
                          lowest: int | None = None, horizon: float | None = None, x0=None,
-                         v0=None, cx=None, cv=None, inputs=None, free=None, lower=0.0,
-                         upper=None, tolerance: float = 1e-6,
-                         max_iterations: int = 200, progress: bool = False) -> ViscosityResult:
+                         v0=None, cx=None, cv=None, inputs=None, dof: int | None = None,
+                         ts=None, order: int = 16, free=None, lower=0.0, upper=None,
+                         tolerance: float = 1e-6, max_iterations: int = 200,
+                         progress: bool = False) -> ViscosityResult:
     """Optimal damper coefficients of ``system`` at full order (positions fixed).
 
     ``system``: a ``SecondOrderSystem`` with grounded and/or relative dampers (``mikota_chain``,
@@ -176,15 +229,18 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
     ``lowest`` modes, all when None), ``"energy"`` (of the free vibration from ``x0``, ``v0``
     over [0, ``horizon``]), ``"output"`` (the energy of the output ``cx`` x + ``cv`` x' from
     ``x0``, ``v0`` or the ``lowest`` modes' unit states, over [0, ``horizon``] or [0, inf) when
-    None: ``output_energy``) or ``"h2"`` (the H2 norm from ``inputs`` to that output:
-    ``h2_norm``). ``free``: indices into the coefficient vector (grounded dampers
-    first, then relative ones, each in the order given) that move, default all; the others stay.
+    None: ``output_energy``), ``"h2"`` (the H2 norm from ``inputs`` to that output:
+    ``h2_norm``) or ``"peak"`` (``smooth_peak`` of order ``order`` of the displacement of the
+    1-based ``dof`` over the times ``ts``, free vibration from ``x0``, ``v0``). ``free``:
+    indices into the coefficient vector (grounded dampers first, then relative ones, each in the
+    order given) that move, default all; the others stay.
     ``lower``, ``upper``: bounds, scalars or (g + p,) (default 0 and none). See the module
     docstring for the method and the stopping rule. Returns a ``ViscosityResult``.
     """
     check_x64()
     start = time.perf_counter()
-    args = checked_criterion(system, criterion, lowest, horizon, x0, v0, cx, cv, inputs)
+    args = checked_criterion(system, criterion, lowest, horizon, x0, v0, cx, cv, inputs, dof,
+                             ts, order)
     d = np.concatenate([np.asarray(system.damping.coefficients),
                         np.asarray(system.damping.pair_coefficients)])
     size = d.shape[0]
@@ -206,7 +262,7 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
     fixed_lo, fixed_hi = np.where(mask, lo, d), np.where(mask, hi, d)
     d = np.clip(d, fixed_lo, fixed_hi)
 
-    evaluate_jit = criterion_function(system, *args)
+    evaluate_jit = criterion_function(system, args)
     evaluations = 0
 
     def evaluate(point):

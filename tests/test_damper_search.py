@@ -63,7 +63,7 @@ def test_three_dampers_on_candidates_reach_the_enumerations_optimum():
     (dict(candidates=[3, 3]), "candidates must be"),
     (dict(keep=0), "keep must be"),
     (dict(max_sweeps=1.5), "max_sweeps must be"),
-    (dict(criterion="peak"), "criterion must be"),
+    (dict(criterion="maximum"), "criterion must be"),
 ])
 def test_bad_arguments_are_named(kwargs, match):
     with pytest.raises(ValueError, match=match):

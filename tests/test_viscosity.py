@@ -5,6 +5,7 @@ optimum, the first-order conditions at a bound, and the refusals."""
 import jax
 import numpy as np
 import pytest
+import scipy.linalg as sl
 import scipy.optimize
 from _helpers import lyapunov_trace
 
@@ -86,7 +87,7 @@ def test_the_energy_of_a_free_vibration_is_optimised_in_one_coefficient(close):
 
 
 @pytest.mark.parametrize("kwargs,match", [
-    (dict(criterion="peak"), "criterion must be one of"),
+    (dict(criterion="maximum"), "criterion must be one of"),
     (dict(criterion="h2", cx=[1.0] * 12), "inputs must be"),
     (dict(criterion="output"), "give an output"),
     (dict(lowest=0), "lowest must be None or an integer"),
@@ -132,3 +133,36 @@ def test_truhar_veselic_triple_chain_optimum_is_the_dense_lyapunov_optimum(close
     close(result.coefficients, np.exp(reference.x), rtol=2e-3)
     close(result.value, lyapunov_trace(triple_chain(n1, result.coefficients), lowest), rtol=1e-9)
     assert result.value < dense(np.log(start))
+
+
+def test_the_smooth_peak_optimum_is_the_dense_exponentials_optimum(close):
+    n, dof, ts = 8, 8, np.linspace(0.0, 10.0, 201)
+    x0 = np.zeros(n)
+    x0[dof - 1] = 1.0  # the damper two DOFs away: neither a weak nor a rigid one is best
+
+    def system(d):
+        return mj.mikota_chain(n, dampers=[mj.GroundedDamper(6, d)])
+
+    def dense_peak(d):  # scipy's expm on the first-order form at every time of the grid
+        m, damping, k = (np.asarray(a) for a in system(d).dense())
+        minv = np.diag(1 / np.diag(m))
+        a = np.block([[np.zeros((n, n)), np.eye(n)], [-minv @ k, -minv @ damping]])
+        z0 = np.concatenate([x0, np.zeros(n)])
+        x = np.array([(sl.expm(a * t) @ z0)[dof - 1] for t in ts])
+        scale = np.max(np.abs(x))
+        return scale * np.mean((x / scale) ** 16) ** (1 / 16)
+
+    result = mj.optimise_viscosities(system(1.0), "peak", dof=dof, ts=ts, x0=x0)
+    assert result.converged, result.status
+    close(result.value, dense_peak(result.coefficients[0]), rtol=1e-10)
+    reference = scipy.optimize.minimize_scalar(lambda u: dense_peak(np.exp(u)),
+                                               bounds=(np.log(1e-2), np.log(1e3)),
+                                               method="bounded", options=dict(xatol=1e-9))
+    close(result.value, reference.fun, rtol=1e-9)
+    assert result.value <= reference.fun * (1 + 1e-10)
+    # the minimum is flat (f changes by < 1e-9 over 0.2 % in d): the place to a looser tolerance
+    close(result.coefficients[0], np.exp(reference.x), rtol=1e-2)
+    with pytest.raises(ValueError, match="dof must be an integer DOF in 1..8"):
+        mj.optimise_viscosities(system(1.0), "peak", dof=9, ts=ts, x0=x0)
+    with pytest.raises(ValueError, match="ts must be an increasing grid"):
+        mj.optimise_viscosities(system(1.0), "peak", dof=dof, ts=ts[::-1], x0=x0)

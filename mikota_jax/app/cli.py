@@ -39,9 +39,9 @@ def _parser() -> argparse.ArgumentParser:
     opt.add_argument("--objective", default="energy",
                      choices=["energy", "average_energy", "peak", "output", "h2"],
                      help="energy of the scene's free vibration (default), average_energy "
-                     "(trace over --lowest modes), peak (rom only), output (energy of the "
-                     "displacements at --output-dofs) and h2 (from unit forces at --input-dofs "
-                     "to them): output and h2 at full order only")
+                     "(trace over --lowest modes), peak (smooth peak of --dof), output "
+                     "(energy of the displacements at --output-dofs) and h2 (from unit forces "
+                     "at --input-dofs to them): output and h2 at full order only")
     opt.add_argument("--output-dofs", type=_dofs, metavar="I,J,...",
                      help="DOFs whose displacements are the output (output, h2)")
     opt.add_argument("--input-dofs", type=_dofs, metavar="I,J,...",
@@ -120,7 +120,8 @@ def main(argv=None) -> int:
 
             report = full_order_scene(
                 args.scene, args.out, search=args.search, objective=args.objective,
-                lowest=args.lowest, output_dofs=args.output_dofs, input_dofs=args.input_dofs,
+                lowest=args.lowest, dof=args.dof, output_dofs=args.output_dofs,
+                input_dofs=args.input_dofs,
                 candidates=args.candidates, progress=not args.no_progress)
             result = report["result"]
             positions = [float(p) for p in result["positions"]]

@@ -99,7 +99,7 @@ def optimise_scene(source, out, *, objective: str = "energy", dof: int | None = 
 
 
 # criteria of the full-order searches, and the CLI's objective names for them
-FULL_ORDER_CRITERIA = ("energy", "average_energy", "output", "h2")
+FULL_ORDER_CRITERIA = ("energy", "average_energy", "output", "h2", "peak")
 
 
 def _selection(dofs, n: int, name: str) -> np.ndarray | None:
@@ -113,8 +113,8 @@ def _selection(dofs, n: int, name: str) -> np.ndarray | None:
 
 
 def full_order_scene(source, out, *, search: str, objective: str = "average_energy",
-                     lowest: int | None = None, output_dofs=None, input_dofs=None,
-                     candidates=None, progress: bool = True) -> dict:
+                     lowest: int | None = None, dof: int | None = None, output_dofs=None,
+                     input_dofs=None, candidates=None, progress: bool = True) -> dict:
     """Optimise a scene's dampers at full order; write ``placement.json`` and ``.png``.
 
     ``search``: ``"viscosities"`` (``optimise_viscosities``: every damper's coefficient,
@@ -123,7 +123,8 @@ def full_order_scene(source, out, *, search: str, objective: str = "average_ener
     re-optimised). ``objective``: one of ``FULL_ORDER_CRITERIA``; "energy" and "output" take the
     scene's initial state over its time grid ("output" over the ``lowest`` modes' unit states
     when ``lowest`` is given), "average_energy" the ``lowest`` modes, "output" and "h2" the
-    displacements at ``output_dofs``, "h2" unit forces at ``input_dofs``.
+    displacements at ``output_dofs``, "h2" unit forces at ``input_dofs``, "peak" the smooth
+    peak of the displacement of ``dof`` over the scene's time grid.
     """
     from .. import optimise_viscosities, place_dampers
     from .figures import search_history
@@ -142,7 +143,8 @@ def full_order_scene(source, out, *, search: str, objective: str = "average_ener
     if objective == "h2" and inputs is None:
         raise ValueError(MARK + "objective 'h2' needs input_dofs (--input-dofs).")
     kwargs = dict(lowest=lowest)
-    free_vibration = objective == "energy" or (objective == "output" and lowest is None)
+    free_vibration = objective in ("energy", "peak") or (objective == "output"
+                                                          and lowest is None)
     if free_vibration:
         if scene.load is not None:
             raise ValueError(MARK + f"objective {objective!r} is the energy of a free vibration; "
@@ -152,6 +154,10 @@ def full_order_scene(source, out, *, search: str, objective: str = "average_ener
         kwargs.update(cx=cx)
     if objective == "h2":
         kwargs.update(inputs=inputs.T)
+    if objective == "peak":
+        if dof is None:
+            raise ValueError(MARK + "objective 'peak' needs dof (--dof).")
+        kwargs.update(dof=dof, ts=scene.ts, horizon=None)
     if search == "viscosities":
         result = optimise_viscosities(system, objective, progress=progress, **kwargs)
         positions = np.asarray(system.damping.positions)
