@@ -174,6 +174,7 @@ step = 0.1
 """
 
 
+@pytest.mark.slow  # default-run time (issue: CI under 15 min)
 def test_optimise_at_full_order_frees_the_relative_damper_and_takes_the_h2_criterion(
         tmp_path, capsys, close):
     scene = tmp_path / "two.toml"

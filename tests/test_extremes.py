@@ -261,7 +261,8 @@ SEVERAL = (mj.GroundedDamper(1, 3.0), mj.GroundedDamper(5.5, 0.7), mj.GroundedDa
            mj.RelativeDamper((2, 7), 1.5), mj.RelativeDamper((N - 1, N), 0.4))
 
 
-@pytest.mark.parametrize("solver, tol", [("exact", 1e-12), ("dopri8", 1e-8), ("kvaerno5", 1e-7)])
+@pytest.mark.parametrize("solver, tol", [pytest.param("exact", 1e-12, marks=pytest.mark.slow),
+                                         ("dopri8", 1e-8), ("kvaerno5", 1e-7)])
 def test_several_dampers_at_the_first_and_last_dof_match_the_matrix_exponential(solver, tol,
                                                                                  close):
     system = mj.mikota_chain(N, M_, K_, dampers=SEVERAL)

@@ -41,7 +41,8 @@ def full_basis(n=N):
     return jnp.eye(n)
 
 
-@pytest.mark.parametrize("position", [4.0, 4.3, 1.0, float(N)])
+@pytest.mark.parametrize("position", [pytest.param(4.0, marks=pytest.mark.slow), 4.3, 1.0,
+                                      float(N)])  # 4.0: default-run time
 def test_reduced_gradient_matches_central_differences_of_the_full_model(position):
     p = problem(position=position)
     objective = mj.placement_objective(p, full_basis())  # full basis: the ROM is exact
@@ -120,6 +121,7 @@ def small_sweep():
     return p, mj.sweep_dampers(p, coefficients)
 
 
+@pytest.mark.slow  # default-run time (issue: CI under 15 min)
 def test_sweep_equals_unbatched_evaluations(small_sweep):
     p, sweep = small_sweep
     assert sweep.objective.shape == (10, 60) and sweep.failed == 0
@@ -148,6 +150,7 @@ def test_certified_optimum_matches_the_sweep(small_sweep):
     assert float(result.positions[0]) == sweep.best_position
 
 
+@pytest.mark.slow  # default-run time (issue: CI under 15 min)
 def test_sweep_refinement_and_its_two_evaluators(small_sweep):
     p, sweep = small_sweep
     coarse = mj.sweep_dampers(p, sweep.coefficients[::6], refine=2)

@@ -13,6 +13,7 @@ exact and Dopri8 integrals agree where Dopri8 is not stiff.
 
 import jax.numpy as jnp
 import numpy as np
+import pytest
 import scipy.linalg
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
@@ -93,6 +94,7 @@ def test_mass_and_stiffness_are_definite_and_damping_semidefinite(case, y, close
         assert np.min(np.linalg.eigvalsh(D)) >= -1e-13 * max(1.0, np.max(np.abs(D)))
 
 
+@pytest.mark.slow  # default-run time (issue: CI under 15 min)
 @SETTINGS
 @given(case=chains(sizes=SOLVED_SIZES))
 def test_energy_never_grows_in_damped_free_vibration(case):
@@ -159,6 +161,7 @@ def wide_chains(draw):
     return system, draw(vectors(4)), draw(vectors(4)), horizon, d, ratio
 
 
+@pytest.mark.slow  # default-run time (issue: CI under 15 min)
 @WIDE
 @given(case=wide_chains())
 def test_over_wide_ranges_the_energy_integral_is_bounded_and_the_energy_never_grows(case):

@@ -153,6 +153,7 @@ def test_a_reduced_scene_reports_rank_singular_values_and_phase_error():
     assert list(data["reduced"]["velocity"]) == ["12"]
 
 
+@pytest.mark.slow  # default-run time (issue: CI under 15 min)
 def test_a_diffrax_scene_matches_the_exact_scene():
     exact = mj.run_scene(mj.load_scene(scene_text(output="dofs = [1, 12]")))
     dopri = mj.run_scene(mj.load_scene(scene_text(

@@ -162,6 +162,7 @@ def test_a_general_chain_offers_masses_and_springs_not_m_and_k():
         mj.scene_parameters(scene, wrt=["m"])
 
 
+@pytest.mark.slow  # default-run time (issue: CI under 15 min)
 def test_evaluating_at_other_parameters_changes_the_value(scene, close):
     nominal = mj.sensitivities(scene, "energy", wrt=["coefficients"])
     moved = mj.sensitivities(scene, "energy", wrt=["coefficients"],

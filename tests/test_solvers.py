@@ -335,7 +335,8 @@ def damped_tip_energy(coefficient, adjoint):
 
 
 @pytest.mark.parametrize("adjoint", [
-    diffrax.ForwardMode(), diffrax.RecursiveCheckpointAdjoint(),
+    pytest.param(diffrax.ForwardMode(), marks=pytest.mark.slow),
+    diffrax.RecursiveCheckpointAdjoint(),
     pytest.param(diffrax.DirectAdjoint(), marks=pytest.mark.slow)],  # 13 s in CI
     ids=lambda a: type(a).__name__)
 def test_each_adjoint_gives_the_central_difference_derivative(adjoint, close):

@@ -185,8 +185,8 @@ def critical():
     return mj.mikota_chain(1, dampers=[mj.GroundedDamper(1.0, 2.0)])
 
 
-@pytest.mark.parametrize("ts", [np.linspace(0.0, 5.0, 51), np.array([0.0, 0.3, 1.0, 2.5, 4.0])],
-                         ids=["uniform", "non-uniform"])
+@pytest.mark.parametrize("ts", [np.linspace(0.0, 5.0, 51), pytest.param(
+    np.array([0.0, 0.3, 1.0, 2.5, 4.0]), marks=pytest.mark.slow)], ids=["uniform", "non-uniform"])
 def test_a_critically_damped_dof_falls_back_to_the_dense_path_and_is_right(ts, close):
     system = critical()
     x0 = np.array([1.0])
@@ -242,7 +242,8 @@ def test_gradients_match_central_differences_and_the_dense_path(position, close)
     close(grad[2][4], by_x, rtol=1e-7)
 
 
-@pytest.mark.parametrize("internal", [mj.Rayleigh(0.05, 0.002), mj.ModalDamping(0.01)])
+@pytest.mark.parametrize("internal", [mj.Rayleigh(0.05, 0.002),
+                                      pytest.param(mj.ModalDamping(0.01), marks=pytest.mark.slow)])
 def test_internal_damping_diagonal_in_modes_takes_the_spectral_path_and_matches_dense(internal,
                                                                                        close):
     n = 30
@@ -293,6 +294,7 @@ def test_simulate_auto_takes_the_exact_spectral_solution_where_it_applies(close)
     assert ode.num_steps is not None and int(ode.num_steps) > 0
 
 
+@pytest.mark.slow  # default-run time (issue: CI under 15 min)
 def test_the_full_energy_the_optimiser_certifies_with_is_the_exact_one(close):
     system = chain(mj.GroundedDamper(4.0, 0.8))
     problem = mj.DamperProblem(system, jnp.linspace(0.0, 20.0, 11), X0, V0)

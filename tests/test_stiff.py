@@ -28,6 +28,7 @@ def scale(a):
     return float(np.max(np.abs(np.asarray(a))))
 
 
+@pytest.mark.slow  # default-run time (issue: CI under 15 min)
 def test_kvaerno5_agrees_with_the_exact_solution_with_relative_dampers_and_a_pulse(close):
     system = mj.mikota_chain(N, 1.3, 0.9, dampers=DAMPERS)
     x0, v0 = state(N)
@@ -49,6 +50,7 @@ def test_kvaerno5_solves_a_reduced_model_in_its_modal_structure(close):
     close(out.displacement, exact.displacement, atol=1e-7 * scale(exact.displacement))
 
 
+@pytest.mark.slow  # default-run time (issue: CI under 15 min)
 def test_a_very_strong_damper_is_cheap_and_accurate_for_kvaerno5_and_stiff_for_dopri8(close):
     # c / M_jj = 1e6 * 4: an eigenvalue near -4e6, far beyond the chain's highest frequency 12
     system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(4.0, 1e6)])
@@ -140,6 +142,7 @@ def test_auto_needs_concrete_values_and_says_so():
         run(1.0)
 
 
+@pytest.mark.slow  # default-run time (issue: CI under 15 min)
 def test_diffrax_solver_instances_are_still_accepted(close):
     system = mj.mikota_chain(4, dampers=[mj.GroundedDamper(2.0, 0.5)])
     x0, v0 = state(4, 6)

@@ -142,7 +142,8 @@ def mikota_as(form):
 
 
 @pytest.mark.parametrize("form,structure", [
-    ("dense", (Dense, Dense)), ("arrays", (Diagonal, SymmetricTridiagonal)),
+    pytest.param("dense", (Dense, Dense), marks=pytest.mark.slow),  # default-run time
+    ("arrays", (Diagonal, SymmetricTridiagonal)),
     ("bands", (Diagonal, SymmetricTridiagonal)), ("scipy", (Diagonal, SymmetricTridiagonal)),
     ("mixed", (Diagonal, Dense))])
 def test_mikota_chain_as_user_matrices_gives_the_same_solution(form, structure):

@@ -68,6 +68,7 @@ def test_an_upper_bound_holds_its_damper_with_the_gradient_pushing_out(optimum, 
     assert fixed.coefficients[1] == 0.7 and fixed.converged
 
 
+@pytest.mark.slow  # default-run time (issue: CI under 15 min)
 def test_the_energy_of_a_free_vibration_is_optimised_in_one_coefficient(close):
     system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(5.0, 1.0)])
     x0 = np.eye(N)[2]
@@ -120,6 +121,7 @@ def triple_chain(n1, d, internal=0.02):
         internal_damping=mj.ModalDamping(internal))
 
 
+@pytest.mark.slow  # default-run time (issue: CI under 15 min)
 def test_truhar_veselic_triple_chain_optimum_is_the_dense_lyapunov_optimum(close):
     n1, lowest, start = 8, 8, np.array([100.0, 100.0, 100.0])
     result = mj.optimise_viscosities(triple_chain(n1, start), "average_energy", lowest=lowest)
