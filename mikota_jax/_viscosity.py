@@ -61,6 +61,7 @@ from ._system import SecondOrderSystem
 
 CRITERIA = ("average_energy", "energy", "output", "h2", "peak")
 _ARMIJO = 1e-4
+_FIRST_STEP = 0.1  # the first step's length relative to |d|
 _BACKTRACKS = 30
 
 
@@ -284,8 +285,9 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
         raise ValueError(MARK + f"the criterion is not finite at the start design ({f}); a mode "
                          "no damper reaches has no total average energy: move a damper or "
                          "restrict lowest.")
-    # the first step moves d by a tenth of its size (then BFGS takes over)
-    h = np.eye(size) * (0.1 * max(np.linalg.norm(d), 1e-3) / max(np.linalg.norm(g), 1e-300))
+    # the first step moves d by _FIRST_STEP of its size (then BFGS takes over)
+    h = np.eye(size) * (_FIRST_STEP * max(np.linalg.norm(d), 1e-3)
+                        / max(np.linalg.norm(g), 1e-300))
     history = [(f, stationarity(d, f, g))]
     status, iterations = "max_iterations reached", 0
     for iterations in range(1, max_iterations + 1):
