@@ -34,7 +34,7 @@ def central(f, x, h):
     return (f(x + h) - f(x - h)) / (2 * h)
 
 
-@pytest.mark.parametrize("coefficient", [0.0, 1e-8, 1e-4])
+@pytest.mark.parametrize("coefficient", [pytest.param(0.0, marks=pytest.mark.slow), 1e-8, 1e-4])
 def test_the_coefficient_gradient_is_finite_and_right_as_the_damper_vanishes(coefficient, close):
     grad_p, grad_c = jax.grad(energy, argnums=(0, 1))(4.5, coefficient)
     assert np.isfinite(grad_p) and np.isfinite(grad_c)

@@ -179,6 +179,7 @@ def check_scene(tmp_path, capsys, case):
     assert expected is None or code == expected, (code, message, text)
 
 
+@pytest.mark.slow  # default-run time (issue: CI under 15 min)
 @FAST
 @given(case=scenes())
 def test_random_scenes_end_in_results_or_one_line(tmp_path, capsys, case):

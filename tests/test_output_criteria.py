@@ -137,6 +137,7 @@ def test_bad_arguments_are_named(call, match):
         call(two_dampers())
 
 
+@pytest.mark.slow  # default-run time (issue: CI under 15 min)
 def test_optimal_viscosity_for_the_h2_norm_is_the_lyapunov_optimum():
     # one free grounded damper, a relative one held: the optimum of the dense Lyapunov H2 norm
     # (scipy, bounded scalar search) is what optimise_viscosities finds through the modes

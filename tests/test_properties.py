@@ -111,6 +111,7 @@ def test_energy_is_constant_in_undamped_free_vibration(case, close):
     close(e, np.full_like(e, e[0]), rtol=1e-10)
 
 
+@pytest.mark.slow  # default-run time (issue: CI under 15 min)
 @SETTINGS
 @given(case=chains(sizes=SOLVED_SIZES), seed=st.integers(0, 2**32 - 1))
 def test_galerkin_with_a_full_orthonormal_basis_is_the_full_model(case, seed, close):

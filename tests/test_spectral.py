@@ -135,7 +135,8 @@ def test_the_exceptional_point_of_one_dof_is_flagged_and_the_energy_falls_back(c
     close(value, 0.75 - np.exp(-2 * T) * (T**2 + 2 * T + 1.5) / 2, rtol=1e-12)
 
 
-@pytest.mark.parametrize("coefficient", [1e-8, pytest.param(1e-2, marks=pytest.mark.slow), 1.0,
+@pytest.mark.parametrize("coefficient", [pytest.param(1e-8, marks=pytest.mark.slow),
+                                         pytest.param(1e-2, marks=pytest.mark.slow), 1.0,
                                          pytest.param(1e2, marks=pytest.mark.slow)])
 def test_the_spectral_energy_equals_the_van_loan_energy(coefficient, close):
     n = 30

@@ -86,6 +86,7 @@ def test_kvaerno5_at_a_hundred_thousand_dofs_keeps_the_analytic_first_mode(close
     close(out.displacement, np.cos(ts)[:, None] * np.array([1.0 / n, 1.0]), atol=1e-6)
 
 
+@pytest.mark.slow  # default-run time (issue: CI under 15 min)
 def test_gradients_pass_through_the_structured_solves(close):
     x0, v0 = state(N, 4)
     ts = np.linspace(0.0, 3.0, 4)
