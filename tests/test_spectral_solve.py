@@ -133,8 +133,9 @@ def test_a_strong_damper_is_right_to_1e_12_against_a_60_digit_matrix_exponential
 @pytest.mark.parametrize("dampers", [
     (mj.RelativeDamper((3, 6), 1e-8),), (mj.RelativeDamper((3, 6), 1.0),),
     (mj.RelativeDamper((1, N), 1e2),),
-    (mj.GroundedDamper(1, 3.0), mj.GroundedDamper(5.5, 0.7), mj.GroundedDamper(N, 2.0),
-     mj.RelativeDamper((2, 7), 1.5), mj.RelativeDamper((N - 1, N), 0.4))],
+    pytest.param((mj.GroundedDamper(1, 3.0), mj.GroundedDamper(5.5, 0.7),
+                  mj.GroundedDamper(N, 2.0), mj.RelativeDamper((2, 7), 1.5),
+                  mj.RelativeDamper((N - 1, N), 0.4)), marks=pytest.mark.slow)],
     ids=["relative 1e-8", "relative 1", "relative 1e2 ends", "several"])
 def test_relative_and_several_dampers_agree_with_the_dense_path(dampers):
     system = chain(*dampers)

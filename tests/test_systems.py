@@ -143,7 +143,7 @@ def mikota_as(form):
 
 @pytest.mark.parametrize("form,structure", [
     pytest.param("dense", (Dense, Dense), marks=pytest.mark.slow),  # default-run time
-    ("arrays", (Diagonal, SymmetricTridiagonal)),
+    pytest.param("arrays", (Diagonal, SymmetricTridiagonal), marks=pytest.mark.slow),
     ("bands", (Diagonal, SymmetricTridiagonal)), ("scipy", (Diagonal, SymmetricTridiagonal)),
     ("mixed", (Diagonal, Dense))])
 def test_mikota_chain_as_user_matrices_gives_the_same_solution(form, structure):
