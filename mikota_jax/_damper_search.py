@@ -1,12 +1,13 @@
 """Where several dampers go: a coordinate-wise search over candidate DOFs at full order.
 
-``place_dampers`` moves the grounded dampers of a system among candidate DOFs, the coefficients
-of all dampers (grounded and relative) re-optimised at each accepted placement by
+``place_dampers`` moves the grounded dampers of a system among candidate DOFs (and its relative
+dampers among candidate pairs of DOFs, when given), the coefficients of all dampers (grounded
+and relative) re-optimised at each accepted placement by
 ``optimise_viscosities``. It is a coordinate-wise (block Gauss-Seidel) descent on the positions,
 not an enumeration of the C(c, g) placements of g dampers on c candidates:
 
 1. the start: the system's own positions, coefficients optimised there;
-2. a sweep: for each grounded damper in turn, the criterion at every free candidate DOF, its
+2. a sweep: for each movable damper in turn, the criterion at every free candidate place, its
    coefficient at 0.1, 1 and 10 times its current value, the other dampers held (*screening*:
    one compiled ``lax.map``, exact, spectral); the ``keep`` best DOFs get all coefficients
    optimised (*polish*) and the best design so far is kept;
@@ -43,14 +44,18 @@ _SCALES = (0.1, 1.0, 10.0)
 class DamperPlacement:
     """The result of ``place_dampers``.
 
-    ``positions``: (g,) 1-based DOFs of the grounded dampers; ``coefficients``: (g + p,) all
-    damper coefficients (grounded, then relative) optimised there; ``value``: the criterion;
-    ``sweeps``; ``evaluations``: screening values; ``polishes``: coefficient optimisations
-    (``optimise_viscosities`` calls); ``seconds`` (wall, compile included); ``history``: one
-    (sweep, damper index, position, value) per accepted move; ``status``: one line.
+    ``positions``: (g,) 1-based DOFs of the grounded dampers; ``pairs``: (p, 2) 1-based DOFs
+    of the relative dampers; ``coefficients``: (g + p,) all damper coefficients (grounded, then
+    relative) optimised there; ``value``: the criterion; ``sweeps``; ``evaluations``: screening
+    values; ``polishes``: coefficient optimisations (``optimise_viscosities`` calls);
+    ``seconds`` (wall, compile included); ``history``: one (sweep, damper index in
+    ``coefficients``, position or pair, value) per accepted move of the best start; ``status``:
+    one line; ``start_values``: the value each start descended to (the first is the system's
+    own placement).
     """
 
     positions: np.ndarray
+    pairs: np.ndarray
     coefficients: np.ndarray
     value: float
     sweeps: int
@@ -59,24 +64,38 @@ class DamperPlacement:
     seconds: float
     history: list
     status: str
+    start_values: list
+
+
+def _moved(system, kind: str, index, design, coefficient):
+    """``system`` with damper ``index`` of ``kind`` ("grounded": ``design`` a position;
+    "relative": a 0-based pair) there, with ``coefficient``; all traced (one compile)."""
+    damping = system.damping
+    if kind == "grounded":
+        return with_parameters(system, dict(
+            positions=damping.positions.at[index].set(design),
+            coefficients=damping.coefficients.at[index].set(coefficient)))
+    return eqx.tree_at(lambda s: (s.damping.pairs, s.damping.pair_coefficients), system,
+                       (damping.pairs.at[index].set(design),
+                        damping.pair_coefficients.at[index].set(coefficient)))
 
 
 @eqx.filter_jit
-def _screen(system, index, candidates, scales, criterion):
-    """The criterion with grounded damper ``index`` at each candidate DOF, its coefficient
-    times each of ``scales`` (others held): (c, len(scales)), +inf where the spectral path does
-    not hold (a mode no damper reaches, say)."""
-    coefficient = system.damping.coefficients[index]
+def _screen(system, kind: str, index, candidates, scales, criterion):
+    """The criterion with damper ``index`` of ``kind`` at each candidate (a DOF, or a pair of
+    0-based DOFs), its coefficient times each of ``scales`` (others held): (c, len(scales)),
+    +inf where the spectral path does not hold (a mode no damper reaches, say)."""
+    held = system.damping.coefficients if kind == "grounded" else system.damping.pair_coefficients
+    coefficient = held[index]
 
     def one(design):
-        position, scale = design
-        moved = with_parameters(system, dict(
-            positions=system.damping.positions.at[index].set(position),
-            coefficients=system.damping.coefficients.at[index].set(coefficient * scale)))
-        return criterion_value(moved, criterion)
+        place, scale = design
+        return criterion_value(_moved(system, kind, index, place, coefficient * scale),
+                               criterion)
 
-    grid = (jnp.repeat(candidates, scales.shape[0]), jnp.tile(scales, candidates.shape[0]))
-    return jax.lax.map(one, grid).reshape(candidates.shape[0], scales.shape[0])
+    count = candidates.shape[0]
+    grid = (jnp.repeat(candidates, scales.shape[0], axis=0), jnp.tile(scales, count))
+    return jax.lax.map(one, grid).reshape(count, scales.shape[0])
 
 
 def _candidates(candidates, n: int) -> np.ndarray:
@@ -91,71 +110,131 @@ def _candidates(candidates, n: int) -> np.ndarray:
     return array.astype(float)
 
 
-def place_dampers(system, criterion: str = "average_energy", *, candidates=None,
-                  lowest: int | None = None, horizon: float | None = None, x0=None, v0=None,
-                  cx=None, cv=None, inputs=None, dof: int | None = None, ts=None,
-                  order: int = 16, keep: int = 2, max_sweeps: int = 10,
-                  lower=0.0, upper=None, tolerance: float = 1e-6,
-                  progress: bool = False) -> DamperPlacement:
-    """Place the grounded dampers of ``system`` on ``candidates`` (1-based DOFs, default all)
-    and optimise every damper's coefficient, at full order (see the module docstring).
+def _pair_candidates(pairs, n: int) -> np.ndarray:
+    """(c, 2) 0-based pairs from 1-based ``pair_candidates``, checked."""
+    message = (MARK + f"pair_candidates must be distinct pairs (i, j) of different integer DOFs "
+               f"in 1..{n}, got {pairs!r:.80}.")
+    try:
+        array = np.asarray(pairs)
+    except ValueError:
+        raise ValueError(message) from None
+    if (array.ndim != 2 or array.shape[0] == 0 or array.shape[1] != 2
+            or not np.issubdtype(array.dtype, np.number) or np.any(array != np.round(array))
+            or np.any((array < 1) | (array > n)) or np.any(array[:, 0] == array[:, 1])
+            or np.unique(np.sort(array, axis=1), axis=0).shape[0] != array.shape[0]):
+        raise ValueError(message)
+    return array.astype(int) - 1
 
-    ``system``: a ``SecondOrderSystem`` with at least one ``GroundedDamper`` (its positions and
-    coefficients are the start; relative dampers stay where they are, their coefficients are
-    optimised too). ``criterion`` and its arguments (``lowest``, ``horizon``, ``x0``, ``v0``,
-    ``cx``, ``cv``, ``inputs``, ``dof``, ``ts``, ``order``), ``lower``, ``upper``,
-    ``tolerance``: as in ``optimise_viscosities``. ``keep``: DOFs polished per damper and
-    sweep (>= 1); ``max_sweeps`` (>= 1). Returns a ``DamperPlacement``.
+
+def place_dampers(system, criterion: str = "average_energy", *, candidates=None,
+                  pair_candidates=None, lowest: int | None = None, horizon: float | None = None,
+                  x0=None, v0=None, cx=None, cv=None, inputs=None, dof: int | None = None,
+                  ts=None, order: int = 16, keep: int = 2, max_sweeps: int = 10,
+                  starts: int = 1, seed: int = 0, lower=0.0, upper=None,
+                  tolerance: float = 1e-6, progress: bool = False) -> DamperPlacement:
+    """Place the dampers of ``system`` on candidate DOFs and optimise every damper's
+    coefficient, at full order (see the module docstring).
+
+    ``system``: a ``SecondOrderSystem`` with dampers; their places and coefficients are the
+    start. Grounded dampers move among ``candidates`` (1-based DOFs, default all). Relative
+    dampers move among ``pair_candidates`` ((c, 2) 1-based pairs of DOFs) when it is given and
+    stay where they are otherwise; their coefficients are optimised either way. ``criterion``
+    and its arguments (``lowest``, ``horizon``, ``x0``, ``v0``, ``cx``, ``cv``, ``inputs``,
+    ``dof``, ``ts``, ``order``), ``lower``, ``upper``, ``tolerance``: as in
+    ``optimise_viscosities``. ``keep``: places polished per damper and sweep (>= 1);
+    ``max_sweeps`` (>= 1). ``starts`` (>= 1): the system's own placement, then ``starts - 1``
+    random placements on the candidates (``seed``), each descended to a coordinate-wise minimum;
+    the best is returned. Returns a ``DamperPlacement``.
     """
     start = time.perf_counter()
     args = checked_criterion(system, criterion, lowest, horizon, x0, v0, cx, cv, inputs, dof,
                              ts, order)
     g = int(system.damping.positions.shape[0])
-    if g == 0:
-        raise ValueError(MARK + "system has no GroundedDamper to place.")
-    for name, value in (("keep", keep), ("max_sweeps", max_sweeps)):
+    p = system.damping.pair_count
+    if g == 0 and (p == 0 or pair_candidates is None):
+        raise ValueError(MARK + "system has no damper to place: add a GroundedDamper, or a "
+                         "RelativeDamper and pair_candidates.")
+    for name, value in (("keep", keep), ("max_sweeps", max_sweeps), ("starts", starts)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise ValueError(MARK + f"{name} must be an integer >= 1, got {value!r}.")
-    cand = _candidates(candidates, system.size)
+    places = {"grounded": _candidates(candidates, system.size)}
+    if pair_candidates is not None:
+        if p == 0:
+            raise ValueError(MARK + "pair_candidates: the system has no RelativeDamper to move.")
+        places["relative"] = _pair_candidates(pair_candidates, system.size)
     options = dict(lowest=lowest, horizon=horizon, x0=x0, v0=v0, cx=cx, cv=cv, inputs=inputs,
                    dof=dof, ts=ts, order=order, lower=lower, upper=upper, tolerance=tolerance)
 
-    def at(positions, coefficients):  # the system at a design: (g,) positions, (g + p,) d
-        return with_parameters(system, dict(positions=jnp.asarray(positions, jnp.float64),
-                                            coefficients=jnp.asarray(coefficients[:g]),
-                                            relative_coefficients=jnp.asarray(coefficients[g:])))
+    def at(design, coefficients):  # the system at a design: positions (g,), pairs (p, 2)
+        moved = with_parameters(system, dict(positions=jnp.asarray(design["grounded"],
+                                                                   jnp.float64),
+                                             coefficients=jnp.asarray(coefficients[:g]),
+                                             relative_coefficients=jnp.asarray(coefficients[g:])))
+        return eqx.tree_at(lambda s: s.damping.pairs, moved, jnp.asarray(design["relative"]))
 
-    def polish(positions, coefficients):
-        return optimise_viscosities(at(positions, coefficients), criterion, **options)
+    def polish(design, coefficients):
+        return optimise_viscosities(at(design, coefficients), criterion, **options)
 
-    positions = np.asarray(system.damping.positions, dtype=float).copy()
-    best = polish(positions, np.concatenate([np.asarray(system.damping.coefficients),
-                                             np.asarray(system.damping.pair_coefficients)]))
-    polishes, evaluations, history = 1, 0, []
-    status, sweeps = f"max_sweeps = {max_sweeps} reached", 0
-    for sweeps in range(1, max_sweeps + 1):
-        moved_any = False
-        for i in range(g):
-            screened = _screen(at(positions, best.coefficients), jnp.asarray(i),
-                               jnp.asarray(cand), jnp.asarray(_SCALES), args)
-            values = np.min(np.asarray(screened), axis=1)
-            evaluations += cand.shape[0] * len(_SCALES)
-            occupied = np.isin(cand, np.delete(positions, i))
-            order = [j for j in np.argsort(values) if not occupied[j] and np.isfinite(values[j])
-                     and cand[j] != positions[i]][:keep]
-            for j in order:
-                trial_positions = positions.copy()
-                trial_positions[i] = cand[j]
-                trial = polish(trial_positions, best.coefficients)
-                polishes += 1
-                if trial.value < best.value * (1 - 1e-12):
-                    best, positions, moved_any = trial, trial_positions, True
-                    history.append((sweeps, i, float(cand[j]), trial.value))
-            if progress:
-                print(f"  sweep {sweeps}, damper {i + 1}: positions {positions.tolist()}, "
-                      f"value {best.value:.12g}", flush=True)
-        if not moved_any:
-            status = "converged (no single move improves)"
-            break
-    return DamperPlacement(positions, best.coefficients, best.value, sweeps, evaluations,
-                           polishes, time.perf_counter() - start, history, status)
+    def same(kind, a, b):  # one place: a DOF, or a pair in either order
+        return a == b if kind == "grounded" else set(a.tolist()) == set(b.tolist())
+
+    coefficients = np.concatenate([np.asarray(system.damping.coefficients),
+                                   np.asarray(system.damping.pair_coefficients)])
+    movable = [(kind, i) for kind in places for i in range(g if kind == "grounded" else p)]
+    counts = dict(evaluations=0, polishes=0)
+
+    def descend(design, label):
+        """Sweeps from ``design`` to a placement no single move improves (or max_sweeps)."""
+        best = polish(design, coefficients)
+        counts["polishes"] += 1
+        history, status = [], f"max_sweeps = {max_sweeps} reached"
+        for sweep in range(1, max_sweeps + 1):
+            moved_any = False
+            for kind, i in movable:
+                cand = places[kind]
+                screened = _screen(at(design, best.coefficients), kind, jnp.asarray(i),
+                                   jnp.asarray(cand), jnp.asarray(_SCALES), args)
+                values = np.min(np.asarray(screened), axis=1)
+                counts["evaluations"] += cand.shape[0] * len(_SCALES)
+                others = np.delete(design[kind], i, axis=0)
+                free = [not any(same(kind, c, o) for o in others)
+                        and not same(kind, c, design[kind][i]) for c in cand]
+                ranked = [j for j in np.argsort(values) if free[j] and np.isfinite(values[j])]
+                for j in ranked[:keep]:
+                    trial_design = {k: v.copy() for k, v in design.items()}
+                    trial_design[kind][i] = cand[j]
+                    trial = polish(trial_design, best.coefficients)
+                    counts["polishes"] += 1
+                    if trial.value < best.value * (1 - 1e-12):
+                        best, design, moved_any = trial, trial_design, True
+                        place = (float(cand[j]) if kind == "grounded"
+                                 else tuple(int(x) + 1 for x in cand[j]))
+                        history.append((sweep, i if kind == "grounded" else g + i, place,
+                                        trial.value))
+                if progress:
+                    print(f"  {label}, sweep {sweep}, {kind} damper {i + 1}: positions "
+                          f"{design['grounded'].tolist()}, pairs "
+                          f"{(design['relative'] + 1).tolist()}, value {best.value:.12g}",
+                          flush=True)
+            if not moved_any:
+                status = "converged (no single move improves)"
+                break
+        return best, design, sweep, history, status
+
+    rng = np.random.default_rng(seed)
+    designs = [{"grounded": np.asarray(system.damping.positions, dtype=float).copy(),
+                "relative": np.asarray(system.damping.pairs).copy()}]
+    for _ in range(starts - 1):  # distinct random places among the candidates
+        designs.append({
+            "grounded": (rng.choice(places["grounded"], g, replace=False)
+                         if g <= places["grounded"].shape[0] else designs[0]["grounded"]),
+            "relative": (places["relative"][rng.choice(places["relative"].shape[0], p,
+                                                       replace=False)]
+                         if "relative" in places and p <= places["relative"].shape[0]
+                         else designs[0]["relative"])})
+    runs = [descend(design, f"start {k + 1} of {starts}") for k, design in enumerate(designs)]
+    best, design, sweeps, history, status = min(runs, key=lambda run: run[0].value)
+    return DamperPlacement(design["grounded"], design["relative"] + 1, best.coefficients,
+                           best.value, sweeps, counts["evaluations"], counts["polishes"],
+                           time.perf_counter() - start, history, status,
+                           [run[0].value for run in runs])

@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._custom_types import Array, Basis, Float, Matrix, ScalarLike, Vector
+from ._custom_types import Array, Basis, Float, Int, Matrix, ScalarLike, Vector
 from ._errors import MARK, as_float, check, integer_indices
 from ._operators import AbstractOperator, LowRank, diagonal
 
@@ -72,7 +72,7 @@ class Dampers(AbstractOperator):
     size: int = eqx.field(static=True)
     positions: Float[Array, " g"]
     coefficients: Float[Array, " g"]
-    pairs: tuple[tuple[int, int], ...] = eqx.field(static=True)  # 0-based
+    pairs: Int[Array, "p 2"]  # 0-based DOFs of the relative dampers, traced (a search moves them)
     pair_coefficients: Float[Array, " p"]
 
     def __init__(self, n: int, dampers):
@@ -92,12 +92,18 @@ class Dampers(AbstractOperator):
         for d in relative:
             if not all(1 <= i <= n for i in d.dofs):
                 raise ValueError(MARK + f"relative damper dofs {d.dofs} must lie in 1..{n}.")
-        self.pairs = tuple((d.dofs[0] - 1, d.dofs[1] - 1) for d in relative)
+        self.pairs = jnp.asarray([(d.dofs[0] - 1, d.dofs[1] - 1) for d in relative],
+                                 dtype=int).reshape(len(relative), 2)
         pair_coefficients = (jnp.stack([d.coefficient for d in relative]) if relative
                              else jnp.zeros(0))
         self.pair_coefficients = check(
             pair_coefficients, ~(jnp.isfinite(pair_coefficients) & (pair_coefficients >= 0)),
             "damper coefficient must be finite and >= 0.")
+
+    @property
+    def pair_count(self) -> int:
+        """How many relative dampers there are (static: it sets shapes)."""
+        return self.pairs.shape[0]
 
     def _grounded_weights(self):
         left, w = _split(self.positions, self.size)
@@ -112,8 +118,8 @@ class Dampers(AbstractOperator):
     def mv_relative(self, v: Vector) -> Vector:
         """The relative dampers' part of D v (zero when there are none)."""
         out = jnp.zeros_like(v)
-        if self.pairs:
-            i, j = (jnp.asarray(a) for a in zip(*self.pairs))
+        if self.pair_count:
+            i, j = self.pairs[:, 0], self.pairs[:, 1]
             f = self.pair_coefficients * (v[i] - v[j])
             out = out.at[i].add(f).at[j].add(-f)
         return out
@@ -128,24 +134,20 @@ class Dampers(AbstractOperator):
         """``basis^T D basis`` as B diag(w) B^T, B = the basis rows the dampers touch."""
         left, right, c_left, c_right = self._grounded_weights()
         columns, weights = [basis[left], basis[right]], [c_left, c_right]
-        if self.pairs:
-            i, j = (np.asarray(a) for a in zip(*self.pairs))
-            columns.append(basis[i] - basis[j])
+        if self.pair_count:
+            columns.append(basis[self.pairs[:, 0]] - basis[self.pairs[:, 1]])
             weights.append(self.pair_coefficients)
         return LowRank(jnp.concatenate(columns).T, jnp.concatenate(weights))
 
     def abs_row_sums(self) -> Vector:
         """sum_j |D_ij| per row: the grounded diagonal, plus 2 c at both DOFs of each pair."""
         rows = self.grounded_diagonal()  # coefficients are >= 0
-        for (i, j), c in zip(self.pairs, self.pair_coefficients):
-            rows = rows.at[i].add(2 * c).at[j].add(2 * c)
-        return rows
+        c = 2 * self.pair_coefficients
+        return rows.at[self.pairs[:, 0]].add(c).at[self.pairs[:, 1]].add(c)
 
 
 @diagonal.register(Dampers)
 def _(operator: Dampers) -> Vector:
-    rows = operator.grounded_diagonal()
-    if operator.pairs:
-        i, j = (np.asarray(a) for a in zip(*operator.pairs))
-        rows = rows.at[i].add(operator.pair_coefficients).at[j].add(operator.pair_coefficients)
-    return rows
+    c = operator.pair_coefficients
+    return operator.grounded_diagonal().at[operator.pairs[:, 0]].add(c).at[
+        operator.pairs[:, 1]].add(c)

@@ -158,8 +158,8 @@ def _design_system(system, dampers) -> SecondOrderSystem:
     if not dampers or not all(isinstance(d, GroundedDamper) for d in dampers):
         raise ValueError(MARK + "dampers must be a non-empty list of GroundedDamper.")
     fixed = [] if damping is None else [
-        RelativeDamper((i + 1, j + 1), c) for (i, j), c in zip(damping.pairs,
-                                                               damping.pair_coefficients)]
+        RelativeDamper((int(i) + 1, int(j) + 1), c)
+        for (i, j), c in zip(damping.pairs, damping.pair_coefficients)]
     return SecondOrderSystem(system.mass, system.stiffness, Dampers(system.size,
                                                                     [*dampers, *fixed]),
                              system.internal)

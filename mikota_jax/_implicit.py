@@ -107,9 +107,10 @@ def dense_shifted_solver(system, s):
 
 def _pair_factor(n: int, pairs):
     """(n, p) columns e_i - e_j for 0-based pairs (i, j)."""
-    i, j = (jnp.asarray(a) for a in zip(*pairs))
-    columns = jnp.arange(len(pairs))
-    return jnp.zeros((n, len(pairs))).at[i, columns].set(1.0).at[j, columns].add(-1.0)
+    pairs = jnp.asarray(pairs).reshape(-1, 2)
+    columns = jnp.arange(pairs.shape[0])
+    return jnp.zeros((n, pairs.shape[0])).at[pairs[:, 0], columns].set(1.0).at[
+        pairs[:, 1], columns].add(-1.0)
 
 
 def shifted_solver(system, s):
@@ -150,7 +151,7 @@ def shifted_solver(system, s):
         solve = lambda rhs: symmetric_tridiagonal_solve(diagonal, off, rhs)  # noqa: E731
     else:
         solve = lambda rhs: rhs / (diagonal if rhs.ndim == 1 else diagonal[:, None])  # noqa: E731
-    if isinstance(damping, Dampers) and damping.pairs:
+    if isinstance(damping, Dampers) and damping.pair_count:
         factors.append(_pair_factor(system.size, damping.pairs))
         weights.append(s * damping.pair_coefficients)
     elif isinstance(damping, LowRank):

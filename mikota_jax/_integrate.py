@@ -145,7 +145,7 @@ def acceleration(system: SecondOrderSystem, load):
     damping = system.damping
     if isinstance(damping, Dampers):
         grounded = damping.grounded_diagonal()
-        relative = damping.mv_relative if damping.pairs else None
+        relative = damping.mv_relative if damping.pair_count else None
         damp = lambda v: grounded * v if relative is None else grounded * v + relative(v)  # noqa: E731
     elif damping is not None:
         damp = damping.mv

@@ -99,7 +99,7 @@ def scene_parameters(scene: Scene, wrt=None) -> dict[str, jax.Array]:
     if isinstance(damping, Dampers):
         if damping.positions.shape[0]:
             available.update(positions=damping.positions, coefficients=damping.coefficients)
-        if damping.pairs:
+        if damping.pair_count:
             available["relative_coefficients"] = damping.pair_coefficients
     if wrt is None:
         wrt = [name for name in PARAMETERS if name in available

@@ -173,7 +173,7 @@ def full_order_scene(source, out, *, search: str, objective: str = "average_ener
                      polishes=result.polishes, moves=result.history)
     report = dict(scene=scene.name, search=search, objective=objective,
                   result=dict(status=result.status, positions=positions,
-                              pairs=[[i + 1, j + 1] for i, j in system.damping.pairs],
+                              pairs=(np.asarray(system.damping.pairs) + 1).tolist(),
                               coefficients=result.coefficients, value=result.value,
                               seconds=result.seconds, **extra))
     out = Path(out)
