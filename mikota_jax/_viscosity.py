@@ -60,6 +60,8 @@ from ._spectral_solve import spectral_solve_with_result
 from ._system import SecondOrderSystem
 
 CRITERIA = ("average_energy", "energy", "output", "h2", "peak")
+METHODS = ("bfgs", "spg")
+_SPG_MEMORY = 10  # the non-monotone line search compares with the largest of the last 10 values
 _ARMIJO = 1e-4
 _FIRST_STEP = 0.1  # the first step's length relative to |d|
 _BACKTRACKS = 30
@@ -221,7 +223,7 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
                          v0=None, cx=None, cv=None, inputs=None, dof: int | None = None,
                          ts=None, order: int = 16, free=None, lower=0.0, upper=None,
                          tolerance: float = 1e-6, max_iterations: int = 200,
-                         progress: bool = False) -> ViscosityResult:
+                         method: str = "bfgs", progress: bool = False) -> ViscosityResult:
     """Optimal damper coefficients of ``system`` at full order (positions fixed).
 
     ``system``: a ``SecondOrderSystem`` with grounded and/or relative dampers (``mikota_chain``,
@@ -235,8 +237,10 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
     1-based ``dof`` over the times ``ts``, free vibration from ``x0``, ``v0``). ``free``:
     indices into the coefficient vector (grounded dampers first, then relative ones, each in the
     order given) that move, default all; the others stay.
-    ``lower``, ``upper``: bounds, scalars or (g + p,) (default 0 and none). See the module
-    docstring for the method and the stopping rule. Returns a ``ViscosityResult``.
+    ``lower``, ``upper``: bounds, scalars or (g + p,) (default 0 and none). ``method``:
+    ``"bfgs"`` (projected quasi-Newton) or ``"spg"`` (spectral projected gradient, Li &
+    Tisseur's globally convergent method). See the module docstring for the methods and the
+    stopping rule. Returns a ``ViscosityResult``.
     """
     check_x64()
     start = time.perf_counter()
@@ -258,6 +262,8 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
     if np.any(lo < 0) or np.any(hi < lo):
         raise ValueError(MARK + f"bounds must satisfy 0 <= lower <= upper, got lower {lower!r}, "
                          f"upper {upper!r}.")
+    if method not in METHODS:
+        raise ValueError(MARK + f"method must be one of {METHODS}, got {method!r}.")
     if not (isinstance(tolerance, float | int) and 0 < tolerance < 1):
         raise ValueError(MARK + f"tolerance must lie in (0, 1), got {tolerance!r}.")
     fixed_lo, fixed_hi = np.where(mask, lo, d), np.where(mask, hi, d)
@@ -285,9 +291,31 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
         raise ValueError(MARK + f"the criterion is not finite at the start design ({f}); a mode "
                          "no damper reaches has no total average energy: move a damper or "
                          "restrict lowest.")
-    # the first step moves d by _FIRST_STEP of its size (then BFGS takes over)
-    h = np.eye(size) * (_FIRST_STEP * max(np.linalg.norm(d), 1e-3)
-                        / max(np.linalg.norm(g), 1e-300))
+    # the first step moves d by _FIRST_STEP of its size (then the method's own scale takes over)
+    first = _FIRST_STEP * max(np.linalg.norm(d), 1e-3) / max(np.linalg.norm(g), 1e-300)
+    search = _bfgs if method == "bfgs" else _spg
+    d, f, g, history, iterations, status = search(
+        evaluate, stationarity, held, d, f, g, first, fixed_lo, fixed_hi, tolerance,
+        max_iterations, progress)
+    converged = history[-1][1] < tolerance
+    if converged:
+        status = "converged"
+    return ViscosityResult(d, f, g, history[-1][1], converged, iterations, evaluations,
+                           time.perf_counter() - start, history, status)
+
+
+def _report(progress, iterations, f, relative, d):
+    if progress:
+        print(f"  iteration {iterations}: f = {f:.12g}, relative gradient {relative:.2e}, "
+              f"d = {np.array2string(d, precision=6)}", flush=True)
+
+
+def _bfgs(evaluate, stationarity, held, d, f, g, first, fixed_lo, fixed_hi, tolerance,
+          max_iterations, progress):
+    """Projected BFGS (Bertsekas 1982; see the module docstring): (d, f, g, history,
+    iterations, status)."""
+    size = d.shape[0]
+    h = np.eye(size) * first
     history = [(f, stationarity(d, f, g))]
     status, iterations = "max_iterations reached", 0
     for iterations in range(1, max_iterations + 1):
@@ -323,14 +351,52 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
         change = abs(f_trial - f) / max(abs(f), 1e-300)
         d, f, g = trial, f_trial, g_trial
         history.append((f, stationarity(d, f, g)))
-        if progress:
-            print(f"  iteration {iterations}: f = {f:.12g}, relative gradient "
-                  f"{history[-1][1]:.2e}, d = {np.array2string(d, precision=6)}", flush=True)
+        _report(progress, iterations, f, history[-1][1], d)
         if change < 1e-14 and history[-1][1] >= tolerance:
             status = "stalled (f unchanged to 1e-14)"
             break
-    converged = history[-1][1] < tolerance
-    if converged:
-        status = "converged"
-    return ViscosityResult(d, f, g, history[-1][1], converged, iterations, evaluations,
-                           time.perf_counter() - start, history, status)
+    return d, f, g, history, iterations, status
+
+
+def _spg(evaluate, stationarity, held, d, f, g, first, fixed_lo, fixed_hi, tolerance,
+         max_iterations, progress):
+    """Spectral projected gradient (Birgin, Martinez & Raydan, SIAM J. Optim. 10:1196, 2000,
+    algorithm SPG2; the method Li & Tisseur, arXiv 2601.05404, propose for optimal damping):
+    the projected Barzilai-Borwein step d -> P(d - alpha g), alpha = s^T s / s^T y, accepted by
+    a non-monotone Armijo test against the largest of the last ``_SPG_MEMORY`` values, with
+    safeguarded quadratic backtracking. (d, f, g, history, iterations, status)."""
+    alpha = first
+    history = [(f, stationarity(d, f, g))]
+    status, iterations = "max_iterations reached", 0
+    for iterations in range(1, max_iterations + 1):
+        if history[-1][1] < tolerance:
+            iterations -= 1
+            break
+        direction = np.clip(d - alpha * g, fixed_lo, fixed_hi) - d
+        slope = g @ direction
+        reference = max(value for value, _ in history[-_SPG_MEMORY:])
+        step, accepted = 1.0, False
+        for _ in range(_BACKTRACKS):
+            trial = d + step * direction
+            f_trial, g_trial = evaluate(trial)
+            if np.isfinite(f_trial) and f_trial <= reference + _ARMIJO * step * slope:
+                accepted = True
+                break
+            curvature = f_trial - f - step * slope if np.isfinite(f_trial) else np.inf
+            guess = -0.5 * step**2 * slope / curvature if curvature > 0 else 0.0
+            step = guess if 0.1 * step <= guess <= 0.9 * step else step / 2
+        if not accepted:
+            status = "line search failed (no decrease along the projected direction)"
+            break
+        s, y = trial - d, g_trial - g
+        curvature = s @ y
+        alpha = (float(np.clip((s @ s) / curvature, 1e-30, 1e30)) if curvature > 0
+                 else 1e3 * alpha)
+        change = abs(f_trial - f) / max(abs(f), 1e-300)
+        d, f, g = trial, f_trial, g_trial
+        history.append((f, stationarity(d, f, g)))
+        _report(progress, iterations, f, history[-1][1], d)
+        if change < 1e-14 and history[-1][1] >= tolerance:
+            status = "stalled (f unchanged to 1e-14)"
+            break
+    return d, f, g, history, iterations, status

@@ -68,6 +68,18 @@ def test_an_upper_bound_holds_its_damper_with_the_gradient_pushing_out(optimum, 
     assert fixed.coefficients[1] == 0.7 and fixed.converged
 
 
+def test_the_spectral_projected_gradient_reaches_the_same_optimum_and_bound(optimum):
+    # Li & Tisseur's method (SPG): the optimum of the projected BFGS, and the KKT point at a cap
+    spg = mj.optimise_viscosities(two_dampers(), "average_energy", lowest=LOWEST, method="spg")
+    assert spg.converged and spg.relative_gradient < 1e-6, spg.status
+    assert spg.value == pytest.approx(optimum.value, rel=1e-10)
+    np.testing.assert_allclose(spg.coefficients, optimum.coefficients, rtol=1e-4)
+    cap = 0.5 * optimum.coefficients[0]
+    bounded = mj.optimise_viscosities(two_dampers(), "average_energy", lowest=LOWEST,
+                                      upper=[cap, np.inf], method="spg")
+    assert bounded.converged and bounded.coefficients[0] == cap and bounded.gradient[0] < 0
+
+
 @pytest.mark.slow  # default-run time (issue: CI under 15 min)
 def test_the_energy_of_a_free_vibration_is_optimised_in_one_coefficient(close):
     system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(5.0, 1.0)])
@@ -96,6 +108,7 @@ def test_the_energy_of_a_free_vibration_is_optimised_in_one_coefficient(close):
     (dict(lower=-1.0), "0 <= lower <= upper"),
     (dict(upper=[1.0, -1.0]), "0 <= lower <= upper"),
     (dict(tolerance=0.0), "tolerance must lie in"),
+    (dict(method="newton"), "method must be one of"),
     (dict(criterion="energy"), "horizon must be a finite time > 0"),
     (dict(criterion="energy", horizon=1.0), "needs an excitation")])
 def test_bad_arguments_are_refused_by_name(kwargs, match):
