@@ -131,7 +131,8 @@ def place_dampers(system, criterion: str = "average_energy", *, candidates=None,
                   x0=None, v0=None, cx=None, cv=None, inputs=None, dof: int | None = None,
                   ts=None, order: int = 16, keep: int = 2, max_sweeps: int = 10,
                   starts: int = 1, seed: int = 0, lower=0.0, upper=None,
-                  tolerance: float = 1e-6, progress: bool = False) -> DamperPlacement:
+                  tolerance: float = 1e-6, method: str = "bfgs",
+                  progress: bool = False) -> DamperPlacement:
     """Place the dampers of ``system`` on candidate DOFs and optimise every damper's
     coefficient, at full order (see the module docstring).
 
@@ -140,7 +141,7 @@ def place_dampers(system, criterion: str = "average_energy", *, candidates=None,
     dampers move among ``pair_candidates`` ((c, 2) 1-based pairs of DOFs) when it is given and
     stay where they are otherwise; their coefficients are optimised either way. ``criterion``
     and its arguments (``lowest``, ``horizon``, ``x0``, ``v0``, ``cx``, ``cv``, ``inputs``,
-    ``dof``, ``ts``, ``order``), ``lower``, ``upper``, ``tolerance``: as in
+    ``dof``, ``ts``, ``order``), ``lower``, ``upper``, ``tolerance``, ``method``: as in
     ``optimise_viscosities``. ``keep``: places polished per damper and sweep (>= 1);
     ``max_sweeps`` (>= 1). ``starts`` (>= 1): the system's own placement, then ``starts - 1``
     random placements on the candidates (``seed``), each descended to a coordinate-wise minimum;
@@ -163,7 +164,8 @@ def place_dampers(system, criterion: str = "average_energy", *, candidates=None,
             raise ValueError(MARK + "pair_candidates: the system has no RelativeDamper to move.")
         places["relative"] = _pair_candidates(pair_candidates, system.size)
     options = dict(lowest=lowest, horizon=horizon, x0=x0, v0=v0, cx=cx, cv=cv, inputs=inputs,
-                   dof=dof, ts=ts, order=order, lower=lower, upper=upper, tolerance=tolerance)
+                   dof=dof, ts=ts, order=order, lower=lower, upper=upper, tolerance=tolerance,
+                   method=method)
 
     def at(design, coefficients):  # the system at a design: positions (g,), pairs (p, 2)
         moved = with_parameters(system, dict(positions=jnp.asarray(design["grounded"],

@@ -209,7 +209,27 @@ def test_optimise_at_full_order_frees_the_relative_damper_and_takes_the_h2_crite
                 result["value"] * (1 - 1e-12))
 
 
+@pytest.mark.slow  # ~60 s of compiles (two screens, the criterion); the refusal runs by default
+def test_optimise_places_moves_the_relative_damper_over_candidate_pairs(tmp_path, capsys,
+                                                                         close):
+    scene = tmp_path / "two.toml"
+    scene.write_text(FULL_ORDER_SCENE)
+    out = tmp_path / "out"
+    assert main(["optimise", str(scene), "--out", str(out), "--search", "places",
+                 "--objective", "average_energy", "--lowest", "5", "--candidates", "4",
+                 "--pair-candidates", "2-9,1-12,5-6", "--method", "spg", "--no-progress"]) == 0
+    result = json.loads((out / "placement.json").read_text())["result"]
+    # every candidate pair with both coefficients optimised: the search returns the best
+    best = min((mj.optimise_viscosities(mj.mikota_chain(12, dampers=[
+        mj.GroundedDamper(4, 1.0), mj.RelativeDamper(pair, 1.0)]), lowest=5).value, pair)
+        for pair in [(2, 9), (1, 12), (5, 6)])
+    assert sorted(result["pairs"][0]) == sorted(best[1])
+    close(result["value"], best[0], rtol=1e-9)
+    assert "relative pairs" in capsys.readouterr().out
+
+
 @pytest.mark.parametrize(("argv", "match"), [
+    (["--search", "places", "--pair-candidates", "1-13"], "pair_candidates must be"),
     (["--objective", "h2"], "needs a full-order search"),
     (["--search", "viscosities", "--objective", "output"], "needs output_dofs"),
     (["--search", "places", "--objective", "h2", "--output-dofs", "3"], "needs input_dofs"),

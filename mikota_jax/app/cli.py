@@ -34,8 +34,8 @@ def _parser() -> argparse.ArgumentParser:
                      help="rom (default): positions and coefficients of the grounded dampers, "
                      "screened on the reduced model, certified on the full one; viscosities: "
                      "every damper's coefficient (grounded and relative) at its place, at full "
-                     "order; places: the grounded dampers moved over --candidates and every "
-                     "coefficient re-optimised, at full order")
+                     "order; places: the grounded dampers moved over --candidates (relative ones "
+                     "over --pair-candidates) and every coefficient re-optimised, at full order")
     opt.add_argument("--objective", default="energy",
                      choices=["energy", "average_energy", "peak", "output", "h2"],
                      help="energy of the scene's free vibration (default), average_energy "
@@ -48,6 +48,11 @@ def _parser() -> argparse.ArgumentParser:
                      help="DOFs of the unit forces (h2)")
     opt.add_argument("--candidates", type=_dofs, metavar="I,J,...",
                      help="DOFs the dampers may take (places; default all)")
+    opt.add_argument("--pair-candidates", type=_pairs, metavar="I-J,K-L,...",
+                     help="DOF pairs the relative dampers may take (places; default: they stay)")
+    opt.add_argument("--method", default="bfgs", choices=["bfgs", "spg"],
+                     help="viscosity search at full order: projected BFGS (default) or spectral "
+                     "projected gradient")
     opt.add_argument("--dof", type=int, help="DOF of the 'peak' objective (1-based)")
     opt.add_argument("--lowest", type=int, help="'average_energy': only the s lowest modes")
     opt.add_argument("--energy", type=float,
@@ -77,6 +82,17 @@ def _dofs(text: str) -> list[int]:
         return [int(part) for part in text.split(",")]
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected DOFs as I,J,..., got {text!r}") from None
+
+
+def _pairs(text: str) -> list[tuple[int, int]]:
+    """'5-9,2-12' -> [(5, 9), (2, 12)] (1-based DOF pairs; checked with the scene)."""
+    try:
+        pairs = [tuple(int(x) for x in part.split("-")) for part in text.split(",")]
+    except ValueError:
+        pairs = None
+    if not pairs or any(len(pair) != 2 for pair in pairs):
+        raise argparse.ArgumentTypeError(f"expected DOF pairs as I-J,K-L,..., got {text!r}")
+    return pairs
 
 
 def _writable_folder(out: str) -> Path:
@@ -122,7 +138,8 @@ def main(argv=None) -> int:
                 args.scene, args.out, search=args.search, objective=args.objective,
                 lowest=args.lowest, dof=args.dof, output_dofs=args.output_dofs,
                 input_dofs=args.input_dofs,
-                candidates=args.candidates, progress=not args.no_progress)
+                candidates=args.candidates, pair_candidates=args.pair_candidates,
+                method=args.method, progress=not args.no_progress)
             result = report["result"]
             positions = [float(p) for p in result["positions"]]
             print(f"{result['status']}\noptimum: positions {positions}, "

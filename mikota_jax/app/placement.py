@@ -114,13 +114,14 @@ def _selection(dofs, n: int, name: str) -> np.ndarray | None:
 
 def full_order_scene(source, out, *, search: str, objective: str = "average_energy",
                      lowest: int | None = None, dof: int | None = None, output_dofs=None,
-                     input_dofs=None, candidates=None, progress: bool = True) -> dict:
+                     input_dofs=None, candidates=None, pair_candidates=None,
+                     method: str = "bfgs", progress: bool = True) -> dict:
     """Optimise a scene's dampers at full order; write ``placement.json`` and ``.png``.
 
     ``search``: ``"viscosities"`` (``optimise_viscosities``: every damper's coefficient,
     grounded and relative, at fixed places) or ``"places"`` (``place_dampers``: the grounded
-    dampers moved over ``candidates``, 1-based DOFs, default all, every coefficient
-    re-optimised). ``objective``: one of ``FULL_ORDER_CRITERIA``; "energy" and "output" take the
+    dampers moved over ``candidates``, 1-based DOFs, default all, the relative ones over
+    ``pair_candidates`` when given, every coefficient re-optimised, each polish by ``method``). ``objective``: one of ``FULL_ORDER_CRITERIA``; "energy" and "output" take the
     scene's initial state over its time grid ("output" over the ``lowest`` modes' unit states
     when ``lowest`` is given), "average_energy" the ``lowest`` modes, "output" and "h2" the
     displacements at ``output_dofs``, "h2" unit forces at ``input_dofs``, "peak" the smooth
@@ -159,21 +160,24 @@ def full_order_scene(source, out, *, search: str, objective: str = "average_ener
             raise ValueError(MARK + "objective 'peak' needs dof (--dof).")
         kwargs.update(dof=dof, ts=scene.ts, horizon=None)
     if search == "viscosities":
-        result = optimise_viscosities(system, objective, progress=progress, **kwargs)
+        result = optimise_viscosities(system, objective, method=method, progress=progress,
+                                      **kwargs)
         positions = np.asarray(system.damping.positions)
+        pairs = np.asarray(system.damping.pairs) + 1
         history = [value for value, _ in result.history]
         extra = dict(relative_gradient=result.relative_gradient, converged=result.converged,
                      iterations=result.iterations, evaluations=result.evaluations)
     else:
-        result = place_dampers(system, objective, candidates=candidates, progress=progress,
-                               **kwargs)
-        positions = result.positions
+        result = place_dampers(system, objective, candidates=candidates,
+                               pair_candidates=pair_candidates, method=method,
+                               progress=progress, **kwargs)
+        positions, pairs = result.positions, result.pairs
         history = [value for *_, value in result.history] or [result.value]
         extra = dict(sweeps=result.sweeps, evaluations=result.evaluations,
                      polishes=result.polishes, moves=result.history)
     report = dict(scene=scene.name, search=search, objective=objective,
                   result=dict(status=result.status, positions=positions,
-                              pairs=(np.asarray(system.damping.pairs) + 1).tolist(),
+                              pairs=np.asarray(pairs).tolist(),
                               coefficients=result.coefficients, value=result.value,
                               seconds=result.seconds, **extra))
     out = Path(out)
