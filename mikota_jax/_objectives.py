@@ -85,7 +85,7 @@ def doubled_gramian(a, q, h, doublings: int):
 def infinite_gramian(a, q, omega):
     """(int_0^inf exp(A^T t) Q exp(A t) dt, exp(A h 2^64)) by ``DOUBLINGS_INFINITE`` doublings
     from h = min(1 / omega_max, 8 / ||A||_1): the first step shrinks with a strong damper as in
-    ``_finite_gramian`` (with h = 1 / omega_max alone, a relative damper of 40 between DOFs 5
+    ``finite_gramian`` (with h = 1 / omega_max alone, a relative damper of 40 between DOFs 5
     and 9 of Mikota's n = 12 chain, ||A h|| = 60, gave trace X = 2798 where the Lyapunov
     solution is 1062.3)."""
     norm = jnp.max(jnp.sum(jnp.abs(a), axis=0))
@@ -93,7 +93,7 @@ def infinite_gramian(a, q, omega):
     return doubled_gramian(a, q, h, DOUBLINGS_INFINITE)
 
 
-def _finite_gramian(a, q, horizon):
+def finite_gramian(a, q, horizon):
     """(int_0^T exp(A^T t) Q exp(A t) dt, exp(A T)) by doubling from a first step T / 2^d.
 
     d >= 16 is chosen so that ||A||_1 T / 2^d <= 8: Van Loan's block holds exp(-A^T h), which
@@ -117,7 +117,7 @@ def _finite_gramian(a, q, horizon):
 
 
 def first_step_too_long(a, horizon):
-    """Whether ||A||_1 T / 2^16 > 8: Van Loan's first step of ``_finite_gramian`` must shrink."""
+    """Whether ||A||_1 T / 2^16 > 8: Van Loan's first step of ``finite_gramian`` must shrink."""
     step = horizon / 2.0**DOUBLINGS_FINITE
     return jnp.max(jnp.sum(jnp.abs(a), axis=0)) * step > _FIRST_STEP_NORM
 
@@ -135,7 +135,7 @@ def _modal_problem(model, x0, v0):
 def van_loan_energy_with_result(model, horizon, x0, v0):
     """The dense ``integrated_energy`` (Van Loan, doubling) on checked inputs: (J, ``RESULTS``)."""
     a, z0, _, not_definite = _modal_problem(model, x0, v0)
-    w, _ = _finite_gramian(a, jnp.eye(a.shape[0]), horizon)
+    w, _ = finite_gramian(a, jnp.eye(a.shape[0]), horizon)
     w = (w + w.T) / 2
     out_of_range = jnp.max(jnp.sum(jnp.abs(a), axis=0)) * horizon > DENSE_ENERGY_NORM_T
     value = z0 @ w @ z0 / 2

@@ -24,20 +24,29 @@ Cost: O((q + m) n^2 + k n^2) after the undamped modes, where q is the number of 
 initial states (``_spectral_objectives.output_energy_from_modes``); differentiable in every
 physical value (positions, coefficients, M, K) by the secular equation's implicit derivative.
 Applies where the spectral path does: a full system with discrete dampers and internal damping
-diagonal in modal coordinates.
+diagonal in modal coordinates. A ``ReducedModel`` (``galerkin``) takes both criteria densely in
+its r scaled modal coordinates (``_reduced_output_energy``: one Van Loan integral of the
+observability Gramian by doubling, O(r^3)), with the outputs and initial states in full
+coordinates as for the full model; ``jax.grad`` passes through it too.
 """
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
 from ._custom_types import Array, Float
 from ._errors import MARK, as_float, check, check_lowest, check_x64, raises_value_error
+from ._galerkin import ReducedModel
+from ._modal import modal_projection, scaled_modal, state_matrix as modal_state_matrix
+from ._objectives import finite_gramian, infinite_gramian
 from ._spectral import spectral_applies
 from ._spectral_objectives import spectral_output_energy_with_result
 from ._system import SecondOrderSystem
 
 _NOT_OK = ("the damped modes did not converge, or two roots nearly coincide (a mode at "
            "critical damping); move the damper coefficients off that point.")
+_NOT_OK_REDUCED = ("the reduced model is not definite, or one of its modes does not decay "
+                   "(no damper reaches it): give a finite horizon or move a damper.")
 
 
 def _matrix(value, n: int, name: str, rows: bool):
@@ -56,11 +65,12 @@ def _matrix(value, n: int, name: str, rows: bool):
 
 
 def output_arguments(system, cx, cv):
-    """(C_x, C_v), each (q, n) (a missing one zero), for a system the spectral path takes."""
-    if not isinstance(system, SecondOrderSystem):
-        raise ValueError(MARK + f"system must be a SecondOrderSystem, got "
+    """(C_x, C_v), each (q, n) (a missing one zero), for a system the spectral path takes or a
+    ``ReducedModel``."""
+    if not isinstance(system, SecondOrderSystem | ReducedModel):
+        raise ValueError(MARK + f"system must be a SecondOrderSystem or a ReducedModel, got "
                          f"{type(system).__name__}.")
-    why = spectral_applies(system)
+    why = None if isinstance(system, ReducedModel) else spectral_applies(system)
     if why is not None:
         raise ValueError(MARK + f"system: {why}.")
     n = system.size
@@ -124,6 +134,11 @@ def output_energy(system: SecondOrderSystem, cx=None, cv=None, *, x0=None, v0=No
     check_x64()
     cx, cv = output_arguments(system, cx, cv)
     x0, v0 = output_states(system.size, x0, v0, lowest)
+    if isinstance(system, ReducedModel):
+        check_lowest(lowest, system.rank)
+        value, ok = _reduced_output_energy(system, x0, v0, None, cx, cv,
+                                           output_horizon(horizon), lowest)
+        return check(value, ~ok, _NOT_OK_REDUCED)
     value, ok = spectral_output_energy_with_result(system, x0, v0, None, cx, cv,
                                                    output_horizon(horizon), lowest)
     return check(value, ~ok, _NOT_OK)
@@ -139,6 +154,50 @@ def h2_norm(system: SecondOrderSystem, inputs, cx=None, cv=None) -> Float[Array,
     check_x64()
     cx, cv = output_arguments(system, cx, cv)
     forces = state_matrix(inputs, system.size, "inputs", required=True)
+    if isinstance(system, ReducedModel):
+        value, ok = _reduced_output_energy(system, None, None, forces, cx, cv, None, None)
+        return jnp.sqrt(check(value, ~ok, _NOT_OK_REDUCED))
     value, ok = spectral_output_energy_with_result(system, None, None, forces, cx, cv, None,
                                                    None)
     return jnp.sqrt(check(value, ~ok, _NOT_OK))
+
+
+@eqx.filter_jit
+def _reduced_output_energy(model, x0, v0, forces, cx, cv, horizon, lowest):
+    """(value, ok) of ``output_energy`` for a ``ReducedModel``, dense: in the reduced model's
+    scaled modal coordinates z = (Omega eta, eta') (q = U eta, x = Phi U eta), the output is
+    C z with C = [C_x Phi U Omega^-1, C_v Phi U], and the value is sum_i z0_i^T W z0_i with the
+    observability Gramian W = int_0^T exp(A^T t) C^T C exp(A t) dt (Van Loan, doubling). The
+    initial states are projected as ``simulate`` projects them (q0 = Phi^T x0); an impulse f
+    gives eta'(0+) = (Phi U)^T f; ``lowest`` s: the 2s unit states of the reduced model's s
+    lowest modes. ok: the reduced model is definite, and for T = inf every mode the output
+    sees decays."""
+    system, basis = model.system, model.basis
+    omega, modes, damping_modal, not_definite = scaled_modal(system)
+    lift = basis @ modes
+    a = modal_state_matrix(omega, damping_modal)
+    c = jnp.concatenate([cx @ lift / omega[None, :], cv @ lift], axis=1)
+    r = omega.shape[0]
+    if lowest is None and x0 is None and v0 is None and forces is None:
+        lowest = r  # no state given: all 2r unit states
+    if lowest is not None:
+        select = (jnp.arange(r) < lowest).astype(omega.dtype)
+        z0 = jnp.diag(jnp.concatenate([select, select]))
+    else:
+        project = modal_projection(system, modes)
+        columns = next(v for v in (x0, v0, forces) if v is not None).shape[1]
+        zero = jnp.zeros((r, columns))
+        q0 = zero if x0 is None else omega[:, None] * project(basis.T @ x0)
+        p0 = zero if v0 is None else project(basis.T @ v0)
+        if forces is not None:
+            p0 = p0 + lift.T @ forces
+        z0 = jnp.concatenate([q0, p0])
+    weight = c.T @ c
+    if horizon is None:
+        w, p = infinite_gramian(a, weight, omega)
+        decays = jnp.max(jnp.abs(p)) < 1e-8
+    else:
+        w, _ = finite_gramian(a, weight, horizon)
+        decays = True
+    value = jnp.sum(z0 * (((w + w.T) / 2) @ z0))
+    return value, ~not_definite & decays & jnp.isfinite(value)
