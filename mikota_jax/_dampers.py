@@ -11,7 +11,6 @@ one (and the left-sided one at p = n).
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from ._custom_types import Array, Basis, Float, Int, Matrix, ScalarLike, Vector
 from ._errors import MARK, as_float, check, integer_indices

@@ -37,7 +37,8 @@ import numpy as np
 from ._custom_types import Array, Float
 from ._errors import MARK, as_float, check, check_lowest, check_x64, raises_value_error
 from ._galerkin import ReducedModel
-from ._modal import modal_projection, scaled_modal, state_matrix as modal_state_matrix
+from ._modal import modal_projection, scaled_modal
+from ._modal import state_matrix as modal_state_matrix
 from ._objectives import finite_gramian, infinite_gramian
 from ._spectral import spectral_applies
 from ._spectral_objectives import spectral_output_energy_with_result

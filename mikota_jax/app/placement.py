@@ -121,7 +121,8 @@ def full_order_scene(source, out, *, search: str, objective: str = "average_ener
     ``search``: ``"viscosities"`` (``optimise_viscosities``: every damper's coefficient,
     grounded and relative, at fixed places) or ``"places"`` (``place_dampers``: the grounded
     dampers moved over ``candidates``, 1-based DOFs, default all, the relative ones over
-    ``pair_candidates`` when given, every coefficient re-optimised, each polish by ``method``). ``objective``: one of ``FULL_ORDER_CRITERIA``; "energy" and "output" take the
+    ``pair_candidates`` when given, every coefficient re-optimised, each polish by
+    ``method``). ``objective``: one of ``FULL_ORDER_CRITERIA``; "energy" and "output" take the
     scene's initial state over its time grid ("output" over the ``lowest`` modes' unit states
     when ``lowest`` is given), "average_energy" the ``lowest`` modes, "output" and "h2" the
     displacements at ``output_dofs``, "h2" unit forces at ``input_dofs``, "peak" the smooth
