@@ -54,7 +54,11 @@ def test_run_writes_the_requested_results_and_figures(tmp_path, capsys):
     assert result["meta"]["x64"] is True and result["meta"]["solver"]["method"] == "exact"
     for name in result["figures"]:
         assert (tmp_path / "out" / name).read_bytes()[:4] == b"\x89PNG"
-    assert "results.json" in capsys.readouterr().out
+    # a summary a person can read: the system, the POD rank, the metric as in the JSON, the files
+    printed = capsys.readouterr().out
+    assert "n = 6 DOFs" in printed and "at 31 times" in printed and ": r = 3 (rank 3)" in printed
+    assert f"phase error: {result['phase_error']:.6g}" in printed
+    assert "results.json" in printed and all(name in printed for name in result["figures"])
 
 
 def test_bad_input_is_one_line_on_stderr_with_exit_code_2(tmp_path, capsys):

@@ -166,7 +166,7 @@ def main(argv=None) -> int:
             return 0
         from .. import run_scene
         from .figures import scene_figures
-        from .results import result_dict, write_json
+        from .results import result_dict, run_summary, write_json
         from .scene_file import load_scene
 
         scene = load_scene(args.scene)
@@ -177,7 +177,7 @@ def main(argv=None) -> int:
             out.mkdir(parents=True, exist_ok=True)
             data["figures"] = [str(p.name) for p in scene_figures(result, out)]
         write_json(data, out / "results.json")
-        print(f"wrote {out / 'results.json'}")
+        print(run_summary(result, out, data.get("figures", ())))
         return 0
     except ValueError as error:
         print(f"error: {str(error).splitlines()[0]}", file=sys.stderr)

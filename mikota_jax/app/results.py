@@ -64,6 +64,33 @@ def result_dict(result: SceneResult) -> dict:
     return data
 
 
+def run_summary(result: SceneResult, out: Path, figures=()) -> str:
+    """A few lines for a person: what ``run`` computed, its key numbers, where the files are."""
+    scene, times = result.scene, np.asarray(result.times)
+    solver = scene.solver if scene.solver == "exact" else f"{scene.solver}, rtol {scene.rtol:g}"
+    lines = [f"{scene.name}: n = {scene.size} DOFs, full model ({solver}) on "
+             f"[{times[0]:g}, {times[-1]:g}] at {times.shape[0]} times, "
+             f"{len(result.dofs)} output DOF(s); outputs: {', '.join(scene.output.quantities)}"]
+    timings = result.timings
+    stages = [f"full solve {timings['full_solve_s']:.2f} s"] if "full_solve_s" in timings else []
+    if result.basis is not None:
+        reduction = scene.reduction
+        rule = (f"rank {reduction.rank}" if reduction.rank is not None
+                else f"{100 * reduction.energy:g} % pseudo-energy")
+        lines.append(f"  POD of {result.basis.snapshots} snapshots on "
+                     f"[{reduction.window[0]:g}, {reduction.window[1]:g}]: r = "
+                     f"{result.basis.rank} ({rule})")
+        stages += [f"{name.removesuffix('_s').replace('_', ' ')} {timings[name]:.2f} s"
+                   for name in ("reduction_s", "reduced_solve_s") if name in timings]
+    for name, value in result.metrics.items():
+        lines.append(f"  {name.replace('_', ' ')}: {float(value):.6g}")
+    if stages:
+        lines.append("  " + ", ".join(stages))
+    lines.append(f"wrote {out / 'results.json'}"
+                 + (f" and {len(figures)} figure(s): {', '.join(figures)}" if figures else ""))
+    return "\n".join(lines)
+
+
 def meta(scene: Scene, timings: dict) -> dict:
     """The versions, backend, x64 flag, solver, reduction request and wall times of a run."""
     import diffrax
