@@ -189,6 +189,10 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
     c_ref = jnp.asarray(np.where(coefficients0 > 0, coefficients0, 1.0))
     full_seconds, full_solves, messages, history = 0.0, 0, [], []
 
+    def say(text):  # one line per phase, so a long run is never silent (progress=True)
+        if progress:
+            print(f"  [{time.perf_counter() - clock:7.1f} s] {text}", flush=True)
+
     def full_timed(fn, *args):
         nonlocal full_seconds, full_solves
         t = time.perf_counter()
@@ -197,7 +201,9 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
         full_solves += 1
         return out
 
+    say(f"full-model snapshots at the start design and their POD (n = {n}) ...")
     basis = full_timed(_snapshot_modes, problem, problem.positions, problem.coefficients)
+    say(f"POD basis: r = {basis.shape[1]}")
     value0, _, _, failed0 = value_and_gradient(problem, basis, problem.positions,
                                                 problem.coefficients)
     if bool(failed0):
@@ -230,8 +236,12 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
         if split:
             positions, coefficients = relaxed[0], relaxed[1]
         else:
+            say(f"round {round_ + 1}: screening DOFs on the reduced model (r = "
+                f"{basis.shape[1]}) ...")
             cand_p, cand_c, shortlist = realisable_candidates(
                 problem, basis, relaxed, shortlist, keep, round_, history)
+            say(f"round {round_ + 1}: {len(cand_p)} designs to polish, at DOFs "
+                f"{np.asarray(cand_p).astype(int).tolist()}")
             polish = run_search(problem, basis, c_ref, to_unconstrained(n, c_ref, cand_p, cand_c),
                              jnp.asarray(cand_p), optimizer="lbfgs",
                              iterations=polish_iterations, learning_rate=learning_rate,
@@ -246,6 +256,8 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
             k = best_index(polished[2])
             positions, coefficients = polished[0][k], polished[1][k]
         positions, coefficients = jnp.asarray(positions), jnp.asarray(coefficients)
+        say(f"round {round_ + 1}: certifying positions {np.asarray(positions).tolist()} on the "
+            "full model ...")
         full_value, full_gp, full_gc, full_failed = full_timed(
             value_and_gradient, problem, None, positions, coefficients)
         rom_value, rom_gp, rom_gc, _ = value_and_gradient(problem, basis, positions,
@@ -261,6 +273,8 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
                                             * (n - 1) / scale])
         gradient_error = float(np.max(sensitivities))
         certified = rom_error <= tolerance and gradient_error <= tolerance
+        say(f"round {round_ + 1}: full objective {float(full_value):.10g}, ROM error "
+            f"{rom_error:.1e}, log-sensitivity error {gradient_error:.1e}")
         if certified:
             status = (f"certified in round {round_ + 1}: reduced and full model agree to "
                       f"{max(rom_error, gradient_error):.2e} (tolerance {tolerance:.0e}).")
@@ -273,6 +287,7 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
                       f"log-sensitivity error {gradient_error:.2e} (tolerance "
                       f"{tolerance:.0e}); the objective reported is the full model's.")
             break
+        say(f"round {round_ + 1}: enriching the basis with full-model snapshots there ...")
         modes = full_timed(_snapshot_modes, problem, positions, coefficients)
         basis = _enrich(basis, modes)
     return PlacementResult(

@@ -182,11 +182,17 @@ def test_split_designs_only_on_request():
 
 
 @pytest.mark.slow  # 62 s in CI; certification itself stays in the default run (above)
-def test_certification_enriches_a_poor_basis_until_the_models_agree():
+def test_certification_enriches_a_poor_basis_until_the_models_agree(capsys):
     p = problem(n=20, energy=0.9, criterion="squared")
-    result = mj.optimise_dampers(p, starts=2, iterations=10, tolerance=1e-6, max_rounds=6)
+    result = mj.optimise_dampers(p, starts=2, iterations=10, tolerance=1e-6, max_rounds=6,
+                                 progress=True)
     assert result.rounds >= 2 and result.full_solves == 2 * result.rounds
     assert any("enriched" in m for m in result.messages)
+    # every phase says when it starts (no silent minutes): snapshots, screening, certification
+    printed = capsys.readouterr().out
+    for phase in ("snapshots at the start design", "POD basis: r =", "screening DOFs",
+                  "certifying positions", "enriching the basis", "ROM error"):
+        assert phase in printed, phase
     assert result.certified, result.status
     assert result.rom_error <= 1e-6 and result.gradient_error <= 1e-6
     first_rank = mj.pod(mj.simulate(p.system(p.positions, p.coefficients), p.ts,
