@@ -76,10 +76,15 @@ def _normalised(v):
 def _section2(out: Path | None) -> list[Row]:
     rows = []
     for n in (10, 300):
-        omega, modes = modal_decomposition(mikota_chain(n))
-        worst = float(jnp.max(jnp.abs(omega / jnp.arange(1, n + 1, dtype=jnp.float64) - 1)))
+        # computed here by a plain dense eigh, not by ``modal_decomposition``: for chains of 256
+        # DOFs or more the package recognises Mikota's chain and sets l^2 k / m exactly, which
+        # would make this check circular
+        mass, _, stiffness = (np.asarray(a) for a in mikota_chain(n).dense())
+        scale = 1 / np.sqrt(np.diag(mass))
+        omega = np.sqrt(np.linalg.eigvalsh(scale[:, None] * stiffness * scale[None, :]))
+        worst = float(np.max(np.abs(omega / np.arange(1, n + 1) - 1)))
         rows.append(holds("2", f"Omega_l = l*Omega, l = 1..{n} (max rel. deviation)", "exact",
-                          worst, worst < 1e-10, "eigh of M^-1/2 K M^-1/2, float64"))
+                          worst, worst < 1e-10, "numpy eigh of M^-1/2 K M^-1/2, float64"))
     n = 10
     omega, modes = modal_decomposition(mikota_chain(n))
     modes = np.asarray(modes)
