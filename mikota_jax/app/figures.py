@@ -3,7 +3,9 @@ windows), a scene's figures and the damper-placement landscape.
 
 Only matplotlib's non-interactive Agg backend is used, so figures render on a machine without a
 screen. Each function writes PNGs from plain numpy arrays (``scene_figures``: from a
-``SceneResult``).
+``SceneResult``). Every axis says its unit, or "dimensionless" (the paper's chain has m = k = 1:
+times in units of sqrt(m/k), frequencies of sqrt(k/m)); panels are marked (a), (b) above
+the panel; legends stand outside the data, to the right.
 """
 
 from pathlib import Path
@@ -20,6 +22,22 @@ def _plt():
     return plt
 
 
+TIME = "time t (dimensionless, m = k = 1)"
+
+
+def _mark(axes) -> None:
+    """(a), (b), ... just above the top left corner of each panel (outside the data)."""
+    for k, axis in enumerate(axes):
+        axis.text(0.0, 1.01, f"({chr(ord('a') + k)})", transform=axis.transAxes, va="bottom",
+                  ha="left", fontweight="bold", fontsize=10)
+
+
+def _legend(axis, **kwargs) -> None:
+    """A legend to the right of the panel, never over the data."""
+    axis.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False,
+                fontsize=kwargs.pop("fontsize", 8), **kwargs)
+
+
 def _save(fig, path: Path) -> Path:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -33,60 +51,84 @@ def eigensolutions(path, eigenvalues, shapes) -> Path:
     fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4))
     l = np.arange(1, len(eigenvalues) + 1)
     left.plot(l, eigenvalues, "o-")
-    left.set(xlabel="l", ylabel=r"$\lambda_l = \Omega_l^2$", title="eigenvalues (n = 10)")
+    left.set(xlabel="mode number l", ylabel=r"$\lambda_l = \Omega_l^2$  [k/m]",
+             title=f"eigenvalues (n = {len(eigenvalues)}): $l^2$ k/m")
     i = np.arange(0, shapes.shape[1] + 1)
     for k, shape in enumerate(shapes, start=1):
-        right.plot(i, np.concatenate([[0.0], shape]), "o-", label=f"$u_{k}$")
+        right.plot(i, np.concatenate([[0.0], shape]), "o-", ms=4, label=f"$u_{k}$")
     right.axhline(0, color="0.7", lw=0.8)
-    right.set(xlabel="DOF i", ylabel="mode shape (peak 1)", title="mode shapes")
-    right.legend()
+    right.set(xlabel="DOF i (0: the support)", ylabel="mode shape (dimensionless, peak 1)",
+              title="mode shapes $u_1 \\ldots u_5$")
+    _legend(right)
+    _mark((left, right))
     return _save(fig, Path(path))
 
 
-def singular_values_and_modes(path, singular_values, modes, labels, title) -> Path:
-    """Figs. 3, 5, 7: singular values (log scale) and selected POMs over the DOF index."""
+def singular_values_and_modes(path, singular_values, modes, labels, title, marks=()) -> Path:
+    """Figs. 3, 5, 7: singular values (log scale) and selected POMs over the DOF index;
+    ``marks``: (rank, label) pairs drawn as vertical lines on the singular values (n_red)."""
     plt = _plt()
-    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4))
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
     s = np.asarray(singular_values)
-    left.semilogy(np.arange(1, len(s) + 1), np.maximum(s, 1e-300), ".")
-    left.set(xlabel="k", ylabel=r"$\sigma_k$", title="singular values")
+    left.semilogy(np.arange(1, len(s) + 1), np.maximum(s, 1e-300), ".", ms=3)
+    for (rank, label), color in zip(marks, ("tab:red", "tab:green", "tab:purple")):
+        left.axvline(rank, color=color, ls="--", lw=1, label=label)
+    if marks:
+        left.legend(loc="lower left", fontsize=8)
+    left.set(xlabel="k", ylabel=r"$\sigma_k$ (dimensionless, m = k = 1)", title="singular values")
     i = np.arange(1, modes.shape[0] + 1)
     for label in labels:
-        right.plot(i, modes[:, label - 1], label=f"POM {label}")
-    right.set(xlabel="DOF i", ylabel=r"$\varphi_k$", title=title)
-    right.legend(fontsize=8)
+        right.plot(i, modes[:, label - 1], lw=1, label=f"POM {label}")
+    right.set(xlabel="DOF i", ylabel=r"POM $\varphi_k$ (dimensionless, unit norm)", title=title)
+    _legend(right)
+    _mark((left, right))
     return _save(fig, Path(path))
 
 
-def histories(path, ts, displacement, velocity=None, dofs=None, title="") -> Path:
-    """Figs. 4 and 6: displacement (and velocity) histories of the given DOFs."""
+def histories(path, ts, displacement, velocity=None, dofs=None, title="",
+              stacked: bool = False) -> Path:
+    """Figs. 4 and 6: displacement (and velocity) histories of the given DOFs; ``stacked``: one
+    panel per DOF (displacements only), so a small response is not hidden under a large one."""
     plt = _plt()
+    labels = list(dofs if dofs is not None else range(1, displacement.shape[1] + 1))
+    if stacked:
+        fig, axes = plt.subplots(len(labels), 1, figsize=(10, 1.5 * len(labels) + 1),
+                                 sharex=True, squeeze=False)
+        for column, dof in enumerate(labels):
+            axes[column, 0].plot(ts, displacement[:, column], lw=0.8, color=f"C{column}")
+            axes[column, 0].set_ylabel(f"$x_{{{dof}}}$")
+        axes[0, 0].set_title(title + "\ndisplacements (dimensionless, m = k = 1)")
+        axes[-1, 0].set_xlabel(TIME)
+        _mark(axes[:, 0])
+        return _save(fig, Path(path))
     panels = 1 if velocity is None else 2
-    fig, axes = plt.subplots(panels, 1, figsize=(10, 3.2 * panels), squeeze=False)
-    labels = dofs if dofs is not None else range(1, displacement.shape[1] + 1)
+    fig, axes = plt.subplots(panels, 1, figsize=(11, 3.2 * panels), squeeze=False, sharex=True)
     for column, dof in enumerate(labels):
         axes[0, 0].plot(ts, displacement[:, column], lw=0.8, label=f"DOF {dof}")
         if velocity is not None:
             axes[1, 0].plot(ts, velocity[:, column], lw=0.8, label=f"DOF {dof}")
-    axes[0, 0].set(xlabel="t", ylabel="displacement x_i", title=title)
-    axes[0, 0].legend(fontsize=7, ncol=5)
+    axes[0, 0].set(ylabel="displacement $x_i$ (dimensionless)", title=title)
+    _legend(axes[0, 0], fontsize=7, ncol=1 if len(labels) <= 12 else 2)
     if velocity is not None:
-        axes[1, 0].set(xlabel="t", ylabel="velocity v_i")
+        axes[1, 0].set(ylabel="velocity $v_i$ (dimensionless)")
+    axes[-1, 0].set_xlabel(TIME)
+    _mark(axes[:, 0])
     return _save(fig, Path(path))
 
 
 def full_versus_reduced(path, ts, full_x, full_v, red_x, red_v, dof: int, rank: int) -> Path:
     """Figs. 8-9: displacement and velocity of one DOF, full ("full") against reduced ("MOR")."""
     plt = _plt()
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
     for axis, full, red, name in ((top, full_x, red_x, "displacement"),
                                   (bottom, full_v, red_v, "velocity")):
         axis.plot(ts / np.pi, full, "k-", lw=2, label="full (n = 300)")
         axis.plot(ts / np.pi, red, "r--", lw=1.5, label=f"MOR (n_red = {rank})")
-        axis.set(ylabel=f"{name} of DOF {dof}")
-        axis.legend(fontsize=8)
-    bottom.set(xlabel=r"$t / \pi$")
-    top.set_title(f"DOF {dof}, full and reduced (n_red = {rank})")
+        axis.set(ylabel=f"{name} of DOF {dof}\n(dimensionless)")
+        _legend(axis)
+    bottom.set(xlabel=r"$t / \pi$  (t dimensionless, m = k = 1)")
+    top.set_title(f"DOF {dof}, full and reduced (n_red = {rank}), exact solutions")
+    _mark((top, bottom))
     return _save(fig, Path(path))
 
 
