@@ -295,20 +295,20 @@ def _best_anchors(poles, gamma, factor, weights, active, anchor, offset):
         pick = jnp.argmin(distance, axis=1)
         nearest.append(pick)
         distance = jnp.where(columns == pick[:, None], jnp.inf, distance)
-    nearest = jnp.stack(nearest, axis=1)
-    residuals, offsets = [], []
-    for i in range(nearest.shape[1]):
-        trial = nearest[:, i]
-        trial_offset = offset + (poles[anchor] - poles[trial])
+    nearest = jnp.stack(nearest)  # (candidates, 2n)
+
+    def residual(trial):  # one candidate anchor per root; a ``lax.map``: one copy of _secular
+        trial_offset = offset + (poles[anchor] - poles[trial])  # in the compiled program
         phi, _, _, _, scale = _secular(poles, gamma, factor, weights, active, trial,
                                        trial_offset)
-        residuals.append(jnp.where(scale > 0, jnp.abs(phi) / scale, jnp.inf))
-        offsets.append(trial_offset)
-    pick = jnp.argmin(jnp.stack(residuals, axis=1), axis=1)
+        return jnp.where(scale > 0, jnp.abs(phi) / scale, jnp.inf), trial_offset
+
+    residuals, offsets = jax.lax.map(residual, nearest)
+    pick = jnp.argmin(residuals, axis=0)
     rows = jnp.arange(2 * n)
     root_active = jnp.concatenate([active, active])
-    new_anchor = jnp.where(root_active, nearest[rows, pick], anchor)
-    new_offset = jnp.where(root_active, jnp.stack(offsets, axis=1)[rows, pick], offset)
+    new_anchor = jnp.where(root_active, nearest[pick, rows], anchor)
+    new_offset = jnp.where(root_active, offsets[pick, rows], offset)
     return new_anchor, new_offset
 
 
@@ -440,10 +440,12 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
     anchor, offset, iterations, _ = jax.lax.while_loop(not_done, sweep, init)
     anchor = jnp.where(root_active, anchor, jnp.arange(2 * n))
     anchor, offset = _best_anchors(poles, gamma, factor, weights, active, anchor, offset)
-    for _ in range(_POLISH_STEPS):
+    def polish(_, offset):  # a loop, not unrolled: one copy of _secular to compile
         phi, phi_prime, *_ = _secular(poles, gamma, factor, weights, active, anchor, offset)
-        offset = jnp.where(root_active & (phi_prime != 0),
-                           offset - phi / jnp.where(phi_prime != 0, phi_prime, 1.0), offset)
+        return jnp.where(root_active & (phi_prime != 0),
+                         offset - phi / jnp.where(phi_prime != 0, phi_prime, 1.0), offset)
+
+    offset = jax.lax.fori_loop(0, _POLISH_STEPS, polish, offset)
     phi, _, _, c, scale = _secular(poles, gamma, factor, weights, active, anchor, offset)
     lam = poles[anchor] + offset
     residual_ok = jnp.all(jnp.where(root_active, jnp.abs(phi) <= _RESIDUAL_TOL * scale, True))
