@@ -167,7 +167,10 @@ def test_the_smooth_peak_optimum_is_the_dense_exponentials_optimum(close):
         scale = np.max(np.abs(x))
         return scale * np.mean((x / scale) ** 16) ** (1 / 16)
 
-    result = mj.optimise_viscosities(system(1.0), "peak", dof=dof, ts=ts, x0=x0)
+    # the minimum is flat (f'' / f ~ 5e-4 in log d): the default stopping rule (relative
+    # gradient 1e-6) leaves f up to ~1e-9 above it, so compare at a tighter one
+    result = mj.optimise_viscosities(system(1.0), "peak", dof=dof, ts=ts, x0=x0,
+                                     tolerance=1e-8)
     assert result.converged, result.status
     close(result.value, dense_peak(result.coefficients[0]), rtol=1e-10)
     reference = scipy.optimize.minimize_scalar(lambda u: dense_peak(np.exp(u)),
