@@ -335,6 +335,14 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
                            time.perf_counter() - start, history, status)
 
 
+def _record(history, stationarity, report, iterations, f, trial, f_trial, g_trial, tolerance):
+    """Record an accepted step in ``history`` and report it; whether the search stalled (f
+    unchanged to 1e-14 while not yet stationary)."""
+    history.append((f_trial, stationarity(trial, f_trial, g_trial)))
+    report(iterations, f_trial, history[-1][1], trial)
+    return abs(f_trial - f) / max(abs(f), 1e-300) < 1e-14 and history[-1][1] >= tolerance
+
+
 def _bfgs(evaluate, stationarity, held, d, f, g, first, fixed_lo, fixed_hi, tolerance,
           max_iterations, report):
     """Projected BFGS (Bertsekas 1982; see the module docstring): (d, f, g, history,
@@ -373,11 +381,10 @@ def _bfgs(evaluate, stationarity, held, d, f, g, first, fixed_lo, fixed_hi, tole
             rho = 1.0 / curvature
             left = np.eye(size) - rho * np.outer(s, y)
             h = left @ h @ left.T + rho * np.outer(s, s)
-        change = abs(f_trial - f) / max(abs(f), 1e-300)
+        stalled = _record(history, stationarity, report, iterations, f, trial, f_trial, g_trial,
+                          tolerance)
         d, f, g = trial, f_trial, g_trial
-        history.append((f, stationarity(d, f, g)))
-        report(iterations, f, history[-1][1], d)
-        if change < 1e-14 and history[-1][1] >= tolerance:
+        if stalled:
             status = "stalled (f unchanged to 1e-14)"
             break
     return d, f, g, history, iterations, status
@@ -417,11 +424,10 @@ def _spg(evaluate, stationarity, held, d, f, g, first, fixed_lo, fixed_hi, toler
         curvature = s @ y
         alpha = (float(np.clip((s @ s) / curvature, 1e-30, 1e30)) if curvature > 0
                  else 1e3 * alpha)
-        change = abs(f_trial - f) / max(abs(f), 1e-300)
+        stalled = _record(history, stationarity, report, iterations, f, trial, f_trial, g_trial,
+                          tolerance)
         d, f, g = trial, f_trial, g_trial
-        history.append((f, stationarity(d, f, g)))
-        report(iterations, f, history[-1][1], d)
-        if change < 1e-14 and history[-1][1] >= tolerance:
+        if stalled:
             status = "stalled (f unchanged to 1e-14)"
             break
     return d, f, g, history, iterations, status
