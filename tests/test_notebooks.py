@@ -1,5 +1,6 @@
 """Every notebook in notebooks/ executes end to end at its small size
-(``MIKOTA_NOTEBOOK_SIZE=small``) and is stored with its outputs stripped."""
+(``MIKOTA_NOTEBOOK_SIZE=small``, the default run) and at its full size (``-m slow``), and is
+stored with its outputs stripped."""
 
 import json
 import os
@@ -30,19 +31,17 @@ def test_notebook_cells_have_ids(path):
     assert all("id" in cell for cell in notebook["cells"])
 
 
-@pytest.mark.slow
+@pytest.mark.parametrize("size", ["small", pytest.param("full", marks=pytest.mark.slow)])
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
-def test_notebook_executes(path, tmp_path, monkeypatch):
+def test_notebook_executes(path, size, tmp_path, monkeypatch):
+    # the default run executes every notebook at its small size, -m slow at the size it ships
+    # with; the kernel inherits conftest's XLA_FLAGS (no LLVM optimisation passes: at these
+    # sizes compiling is most of the wall time)
     monkeypatch.setenv("MIKOTA_NOTEBOOK_OUT", str(tmp_path / "out"))
-    monkeypatch.setenv("MIKOTA_NOTEBOOK_SIZE", "small")
+    monkeypatch.setenv("MIKOTA_NOTEBOOK_SIZE", size)
     monkeypatch.setenv("OPENBLAS_NUM_THREADS", "1")
-    # At the small size, XLA's LLVM backend compiling is most of the wall time; without its
-    # optimisation passes the compiled code runs slower but the notebooks finish sooner (about
-    # 40 s instead of 60 s for sensitivity_study), with the same results to rounding.
-    monkeypatch.setenv("XLA_FLAGS", " ".join(filter(None, (
-        os.environ.get("XLA_FLAGS"), "--xla_backend_optimization_level=0"))))
     notebook = nbformat.read(path, as_version=4)
-    NotebookClient(notebook, timeout=600, kernel_name="python3",
+    NotebookClient(notebook, timeout=600 if size == "small" else 1800, kernel_name="python3",
                    resources={"metadata": {"path": str(tmp_path)}}).execute()
     errors = [o for c in notebook.cells for o in c.get("outputs", []) if o.output_type == "error"]
     assert not errors

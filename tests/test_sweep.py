@@ -110,6 +110,13 @@ def test_points_must_agree_and_be_float64():
         mj.sweep(function(), {"coefficients": np.ones((3, 1), np.float32)})
 
 
+def _own_xla_flags() -> str:
+    """This process's XLA_FLAGS without a host device count: a child compiling with the same
+    flags gives bitwise the same numbers."""
+    return " ".join(flag for flag in os.environ.get("XLA_FLAGS", "").split()
+                    if not flag.startswith("--xla_force_host_platform_device_count"))
+
+
 def _python(code_or_args, env_extra, timeout=300):
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONPATH": str(HERE), **env_extra}
     return subprocess.run([sys.executable, *code_or_args], env=env, capture_output=True,
@@ -123,7 +130,9 @@ def test_sharded_over_two_host_devices_equals_unbatched(unbatched, tmp_path):
             "assert len(jax.devices()) == 2\n"
             f"np.save({str(out)!r}, mj.sweep(function(), points(), chunk_size=4, "
             "progress=False))\n")
-    done = _python(["-c", code], {"XLA_FLAGS": "--xla_force_host_platform_device_count=2"})
+    # the child compiles as this process does (conftest's XLA_FLAGS), on two host devices
+    done = _python(["-c", code], {"XLA_FLAGS": f"{_own_xla_flags()} "
+                                                "--xla_force_host_platform_device_count=2"})
     assert done.returncode == 0, done.stderr[-2000:]
     np.testing.assert_array_equal(np.load(out), unbatched)
 
@@ -134,8 +143,8 @@ def test_jax_distributed_with_two_local_processes_equals_unbatched(unbatched, tm
         probe.bind(("localhost", 0))
         port = str(probe.getsockname()[1])
     outs = [tmp_path / f"process_{k}.npy" for k in range(2)]
-    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONPATH": str(HERE)}
-    env.pop("XLA_FLAGS", None)
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONPATH": str(HERE),
+           "XLA_FLAGS": _own_xla_flags()}  # compiled as this process compiles, one device each
     workers = [subprocess.Popen([sys.executable, str(HERE / "_sweep_worker.py"), str(k), port,
                                  str(outs[k])], env=env, cwd=HERE, stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True) for k in range(2)]
