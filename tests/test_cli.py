@@ -59,6 +59,9 @@ def test_run_writes_the_requested_results_and_figures(tmp_path, capsys):
     assert "n = 6 DOFs" in printed and "at 31 times" in printed and ": r = 3 (rank 3)" in printed
     assert f"phase error: {result['phase_error']:.6g}" in printed
     assert "results.json" in printed and all(name in printed for name in result["figures"])
+    # --quiet: the same files, nothing on stdout
+    assert main(["run", str(scene), "--out", str(tmp_path / "quiet"), "--quiet"]) == 0
+    assert capsys.readouterr().out == "" and (tmp_path / "quiet" / "results.json").exists()
 
 
 def test_bad_input_is_one_line_on_stderr_with_exit_code_2(tmp_path, capsys):

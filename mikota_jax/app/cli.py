@@ -22,9 +22,13 @@ def _parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True)
     reproduce = commands.add_parser("reproduce", help="reproduce Weber & Zastrau (2018)")
     reproduce.add_argument("--out", default="paper_results", help="folder for figures and JSON")
+    reproduce.add_argument("--quiet", action="store_true",
+                           help="no progress bar and no table (the exit code says whether a "
+                           "reproducible number was missed)")
     run = commands.add_parser("run", help="run a scene file and write results.json")
     run.add_argument("scene", help="a TOML scene file, or a packaged paper scene name")
     run.add_argument("--out", required=True, help="folder for results.json and figures")
+    run.add_argument("--quiet", action="store_true", help="no summary (errors only)")
     opt = commands.add_parser("optimise", help="optimise the positions and coefficients of a "
                               "scene's grounded dampers (gradients through the ROM, certified on "
                               "the full model)")
@@ -73,6 +77,8 @@ def _parser() -> argparse.ArgumentParser:
                      help="also sweep the full model over every DOF x C coefficients (the 3 "
                      "best DOFs refined)")
     opt.add_argument("--no-progress", action="store_true", help="no progress bars")
+    opt.add_argument("--quiet", action="store_true",
+                     help="no progress and no summary (errors only)")
     return parser
 
 
@@ -122,6 +128,7 @@ def _enable_cache() -> None:
 
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
+    say = (lambda *_: None) if args.quiet else print  # --quiet: errors only
     if os.environ.get("MIKOTA_JAX_CACHE", "1") != "0":
         _enable_cache()
     try:
@@ -129,7 +136,7 @@ def main(argv=None) -> int:
         if args.command == "reproduce":
             from .reproduction import reproduce
 
-            report = reproduce(args.out)
+            report = reproduce(args.out, verbose=not args.quiet)
             return 1 if report["missed"] else 0
         if args.command == "optimise" and args.search != "rom":
             from .placement import full_order_scene
@@ -139,14 +146,14 @@ def main(argv=None) -> int:
                 lowest=args.lowest, dof=args.dof, output_dofs=args.output_dofs,
                 input_dofs=args.input_dofs,
                 candidates=args.candidates, pair_candidates=args.pair_candidates,
-                method=args.method, progress=not args.no_progress)
+                method=args.method, progress=not (args.no_progress or args.quiet))
             result = report["result"]
             positions = [float(p) for p in result["positions"]]
-            print(f"{result['status']}\noptimum: positions {positions}, "
-                  f"relative pairs {result['pairs']}, coefficients "
-                  f"{[round(float(c), 6) for c in result['coefficients']]}, {args.objective} "
-                  f"(full model) {result['value']:.10g}, {result['seconds']:.1f} s"
-                  f"\nwrote {Path(args.out) / 'placement.json'}")
+            say(f"{result['status']}\noptimum: positions {positions}, "
+                f"relative pairs {result['pairs']}, coefficients "
+                f"{[round(float(c), 6) for c in result['coefficients']]}, {args.objective} "
+                f"(full model) {result['value']:.10g}, {result['seconds']:.1f} s"
+                f"\nwrote {Path(args.out) / 'placement.json'}")
             return 0
         if args.command == "optimise":
             if args.objective in ("output", "h2"):
@@ -158,11 +165,11 @@ def main(argv=None) -> int:
                 args.scene, args.out, objective=args.objective, dof=args.dof, lowest=args.lowest,
                 energy=args.energy, starts=args.starts, optimizer=args.optimizer,
                 iterations=args.iterations, split=args.split, tolerance=args.tolerance,
-                sweep=args.sweep, progress=not args.no_progress)
+                sweep=args.sweep, progress=not (args.no_progress or args.quiet))
             result = report["result"]
-            print(f"{result['status']}\noptimum: positions {result['positions']}, coefficients "
-                  f"{result['coefficients']}, objective (full model) {result['objective']:.10g}"
-                  f"\nwrote {Path(args.out) / 'placement.json'}")
+            say(f"{result['status']}\noptimum: positions {result['positions']}, coefficients "
+                f"{result['coefficients']}, objective (full model) {result['objective']:.10g}"
+                f"\nwrote {Path(args.out) / 'placement.json'}")
             return 0
         from .. import run_scene
         from .figures import scene_figures
@@ -177,7 +184,7 @@ def main(argv=None) -> int:
             out.mkdir(parents=True, exist_ok=True)
             data["figures"] = [str(p.name) for p in scene_figures(result, out)]
         write_json(data, out / "results.json")
-        print(run_summary(result, out, data.get("figures", ())))
+        say(run_summary(result, out, data.get("figures", ())))
         return 0
     except ValueError as error:
         print(f"error: {str(error).splitlines()[0]}", file=sys.stderr)
