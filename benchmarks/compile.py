@@ -23,6 +23,11 @@ DOF 7, x_3(0) = 1, 2001 outputs on [0, 20]; POD of the exact snapshots on [0, 10
   76, the ROM's phase error, eager vs jitted results, cold vs warm results equal) before anything
   is written; a failed check stops the script.
 * **Scene.** ``run_scene(load_scene("section5_damped"))`` in a fresh process, cold and warm.
+* **Cold start of a scene.** ``python -m mikota_jax run section5_damped --quiet`` from process
+  start to exit, each cold run with a new empty cache directory, each warm run after it with the
+  filled one (median of the repeats): as the CLI runs it (XLA optimisation level 0 for scenes of
+  <= 1000 DOFs) and at XLA's default level 3 (``XLA_FLAGS``), same machine, same process. Target:
+  < 10 s cold (issue 21). Runs in ``--quick`` too (one repeat).
 * **Time to first result.** ``python -m mikota_jax reproduce`` from process start to exit, cold and
   warm cache, each split into startup + import, compile (trace + lower + backend, summed from
   ``jax.monitoring``) and run (the rest); one more plain ``python -m`` warm run (no listener) is a
@@ -528,6 +533,32 @@ def cache_size(path: Path) -> dict:
     return dict(files=len(files), bytes=sum(p.stat().st_size for p in files))
 
 
+CLI_TARGET_S = 10.0
+CLI_VARIANTS = {"CLI (level 0)": {}, "XLA default (level 3)":
+                {"XLA_FLAGS": "--xla_backend_optimization_level=3"}}
+
+
+def cli_runs(tmp: Path, repeats: int) -> dict:
+    """``python -m mikota_jax run SCENE --quiet``: process start to exit, cold and warm."""
+    runs = {}
+    for label, extra in CLI_VARIANTS.items():
+        cold, warm = [], []
+        for k in range(repeats):
+            cache = tmp / f"cli_cache_{len(runs)}_{k}"
+            command = [sys.executable, "-m", "mikota_jax", "run", SCENE, "--quiet", "--out",
+                       str(tmp / "cli_out")]
+            env = {**child_env(cache), **extra}
+            cold.append(spawn(command, env, cwd=tmp)[0])
+            warm.append(spawn(command, env, cwd=tmp)[0])
+        runs[label] = dict(cold_s=statistics.median(cold), warm_s=statistics.median(warm),
+                           cold_runs=cold, warm_runs=warm, xla_flags=extra.get("XLA_FLAGS", ""))
+        print(f"  {label}: cold {runs[label]['cold_s']:.1f} s, warm {runs[label]['warm_s']:.1f} s "
+              f"(median of {repeats})", flush=True)
+    first = runs[next(iter(CLI_VARIANTS))]
+    return dict(runs=runs, repeats=repeats, target_cold_s=CLI_TARGET_S,
+                target_met=first["cold_s"] < CLI_TARGET_S)
+
+
 def reproduce_runs(tmp: Path) -> dict:
     cache = tmp / "reproduce_cache"
     runs = {}
@@ -577,8 +608,8 @@ def merge(cold_rows, warm_rows) -> list[dict]:
     return rows
 
 
-def plot(rows, repro, quick: bool, meta) -> Path:
-    panels = 1 if repro is None else 2
+def plot(rows, repro, quick: bool, meta, cli=None) -> Path:
+    panels = 1 + (repro is not None) + (cli is not None)
     fig, axes = figure(ncols=panels, figsize=(7.5 * panels, 0.32 * len(rows) + 2.2),
                        squeeze=False)
     ax = axes[0][0]
@@ -621,6 +652,23 @@ def plot(rows, repro, quick: bool, meta) -> Path:
                      f"warm compile / run = {repro['warm']['compile_over_run']:.2f} "
                      f"(target <= {RATIO_TARGET:g})", fontsize=8)
         ax.legend(fontsize=7, loc="lower right")
+        ax.grid(True, axis="x", alpha=0.3)
+    if cli is not None:
+        ax = axes[0][panels - 1]
+        labels = list(cli["runs"])
+        y = np.arange(len(labels))
+        ax.barh(y - 0.2, [cli["runs"][k]["cold_s"] for k in labels], height=0.4, color="C3",
+                label="cold (empty cache)")
+        ax.barh(y + 0.2, [cli["runs"][k]["warm_s"] for k in labels], height=0.4, color="C0",
+                label="warm (persistent cache)")
+        ax.axvline(cli["target_cold_s"], color="k", ls="--", lw=1,
+                   label=f"target, cold: {cli['target_cold_s']:g} s")
+        ax.set_yticks(y, labels)
+        ax.invert_yaxis()
+        ax.set_xlabel("seconds, process start to exit")
+        ax.set_title(f"python -m mikota_jax run {SCENE}\n(median of {cli['repeats']}; the "
+                     "CLI compiles at level 0 up to 1000 DOFs)", fontsize=8)
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
         ax.grid(True, axis="x", alpha=0.3)
     return save_figure(fig, NAME, quick)
 
@@ -686,6 +734,8 @@ def main(argv=None) -> dict:
         entries_cache = cache_size(cache)
         retraced = warm["retrace"]
         scene = repro = diagnostic = None
+        print(f"\npython -m mikota_jax run {SCENE}: cold (new cache) and warm ...", flush=True)
+        cli = cli_runs(tmp, 1 if args.quick else 3)
         if not args.quick:
             scene_cache = tmp / "scene_cache"
             print("\nrun_scene(load_scene(...)) in fresh processes, cold then warm ...",
@@ -732,6 +782,7 @@ def main(argv=None) -> dict:
         checks=dict(cold=cold["checks"], warm=warm["checks"]),
         cold_child_wall_s=cold["wall_s"], entries_cache=entries_cache,
         scene=None if scene is None else {k: v["wall_s"] for k, v in scene.items()},
+        cli_run=cli,
         reproduce=repro, diagnostic_eqx_on_error_nan=None if diagnostic is None else dict(
             note="diffrax's SaveAt checks (eqx.error_if) put host callbacks into every simulate "
                  "executable, so the persistent cache cannot store it; EQX_ON_ERROR=nan turns "
@@ -740,7 +791,7 @@ def main(argv=None) -> dict:
             rows=diag_rows),
         total_wall_s=elapsed(wall_start))
     path = write_json(NAME, args.quick, data)
-    png = plot(rows, repro, args.quick, None)
+    png = plot(rows, repro, args.quick, None, cli)
     print(f"wrote {path} and {png} ({data['total_wall_s']:.0f} s)")
     if not retrace_ok:
         raise SystemExit("retrace check failed: a value-only change traced or compiled again.")

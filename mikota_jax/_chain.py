@@ -12,10 +12,11 @@ damping coefficients in force * time per length, times, frequencies in rad per u
 from collections.abc import Sequence
 
 import jax.numpy as jnp
+import numpy as np
 
 from ._custom_types import ScalarLike, Vector
 from ._dampers import GroundedDamper, RelativeDamper
-from ._errors import MARK, as_float, check, check_chain_size, positive_scalar
+from ._errors import MARK, array_module, as_float, check, check_chain_size, positive_scalar
 from ._internal_damping import ModalDamping, Rayleigh, as_internal
 from ._operators import Diagonal, SymmetricTridiagonal
 from ._system import SecondOrderSystem, dampers_operator
@@ -24,8 +25,10 @@ from ._system import SecondOrderSystem, dampers_operator
 def chain_stiffness(springs: Vector) -> SymmetricTridiagonal:
     """K = tridiag(-k_i, k_i + k_{i+1}, -k_{i+1}) with k_{n+1} = 0 (eq. 2.2), from springs (n,),
     unchecked: ``chain`` checks first, the parameter map (``_parameters``) checks at its entry."""
-    next_springs = jnp.concatenate([springs[1:], jnp.zeros(1)])
-    return SymmetricTridiagonal(springs + next_springs, -springs[1:], springs)
+    xp = array_module(springs)  # concrete springs: numpy (exact elementwise; nothing compiled)
+    next_springs = xp.concatenate([springs[1:], xp.zeros(1)])
+    return SymmetricTridiagonal(jnp.asarray(springs + next_springs), jnp.asarray(-springs[1:]),
+                                jnp.asarray(springs))
 
 
 def chain(masses: Sequence[float] | Vector, springs: Sequence[float] | Vector,
@@ -45,9 +48,13 @@ def chain(masses: Sequence[float] | Vector, springs: Sequence[float] | Vector,
     if springs.shape != masses.shape:
         raise ValueError(MARK + f"springs must have the shape of masses {masses.shape}, "
                          f"got {springs.shape}.")
-    masses = check(masses, ~(jnp.isfinite(masses) & (masses > 0)), "masses must be finite and > 0.")
-    springs = check(springs, ~(jnp.isfinite(springs) & (springs > 0)),
+    xp = array_module(masses, springs)
+    if xp is np:  # concrete: checks and stiffness bands in numpy (see chain_stiffness)
+        masses, springs = np.asarray(masses), np.asarray(springs)
+    masses = check(masses, ~(xp.isfinite(masses) & (masses > 0)), "masses must be finite and > 0.")
+    springs = check(springs, ~(xp.isfinite(springs) & (springs > 0)),
                     "springs must be finite and > 0.")
+    masses = jnp.asarray(masses)
     n = masses.shape[0]
     return SecondOrderSystem(Diagonal(masses), chain_stiffness(springs),
                              dampers_operator(n, dampers),
@@ -69,7 +76,10 @@ def mikota_chain(n: int, m: ScalarLike = 1.0, k: ScalarLike = 1.0,
     n = int(n)
     check_chain_size(n)
     m, k = positive_scalar(m, "m"), positive_scalar(k, "k")
-    i = jnp.arange(1, n + 1, dtype=jnp.float64)
+    xp = array_module(m, k)  # concrete m, k: numpy (the same IEEE quotients; nothing compiled)
+    if xp is np:
+        m, k = np.asarray(m), np.asarray(k)
+    i = xp.arange(1, n + 1, dtype=np.float64)
     return chain(m / i, (n - i + 1) * k, dampers, internal_damping=internal_damping)
 
 

@@ -11,9 +11,10 @@ one (and the left-sided one at p = n).
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._custom_types import Array, Basis, Float, Int, Matrix, ScalarLike, Vector
-from ._errors import MARK, as_float, check, integer_indices
+from ._errors import MARK, array_module, as_float, check, integer_indices
 from ._operators import AbstractOperator, LowRank, diagonal
 
 
@@ -80,24 +81,26 @@ class Dampers(AbstractOperator):
         if len(grounded) + len(relative) != len(dampers):
             raise ValueError(MARK + "dampers must be GroundedDamper or RelativeDamper instances.")
         self.size = n
-        positions = jnp.stack([d.position for d in grounded]) if grounded else jnp.zeros(0)
-        coefficients = jnp.stack([d.coefficient for d in grounded]) if grounded else jnp.zeros(0)
-        self.positions = check(
+        # concrete values: stacked and checked in numpy (nothing compiled), stored as jax arrays
+        xp = array_module(*dampers)
+        positions = xp.stack([d.position for d in grounded]) if grounded else xp.zeros(0)
+        coefficients = xp.stack([d.coefficient for d in grounded]) if grounded else xp.zeros(0)
+        self.positions = jnp.asarray(check(
             positions, ~((positions >= 1) & (positions <= n)),
-            f"damper position must lie in [1, {n}] (1-based DOFs of a chain with n = {n}).")
-        self.coefficients = check(
-            coefficients, ~(jnp.isfinite(coefficients) & (coefficients >= 0)),
-            "damper coefficient must be finite and >= 0.")
+            f"damper position must lie in [1, {n}] (1-based DOFs of a chain with n = {n})."))
+        self.coefficients = jnp.asarray(check(
+            coefficients, ~(xp.isfinite(coefficients) & (coefficients >= 0)),
+            "damper coefficient must be finite and >= 0."))
         for d in relative:
             if not all(1 <= i <= n for i in d.dofs):
                 raise ValueError(MARK + f"relative damper dofs {d.dofs} must lie in 1..{n}.")
-        self.pairs = jnp.asarray([(d.dofs[0] - 1, d.dofs[1] - 1) for d in relative],
-                                 dtype=int).reshape(len(relative), 2)
-        pair_coefficients = (jnp.stack([d.coefficient for d in relative]) if relative
-                             else jnp.zeros(0))
-        self.pair_coefficients = check(
-            pair_coefficients, ~(jnp.isfinite(pair_coefficients) & (pair_coefficients >= 0)),
-            "damper coefficient must be finite and >= 0.")
+        self.pairs = jnp.asarray(np.asarray([(d.dofs[0] - 1, d.dofs[1] - 1) for d in relative],
+                                            dtype=int).reshape(len(relative), 2))
+        pair_coefficients = (xp.stack([d.coefficient for d in relative]) if relative
+                             else xp.zeros(0))
+        self.pair_coefficients = jnp.asarray(check(
+            pair_coefficients, ~(xp.isfinite(pair_coefficients) & (pair_coefficients >= 0)),
+            "damper coefficient must be finite and >= 0."))
 
     @property
     def pair_count(self) -> int:

@@ -21,11 +21,13 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
+import numpy as np
 
 from ._custom_types import Times, Vector
 from ._errors import (
     MARK,
     RESULTS,
+    array_module,
     check,
     check_dense_memory,
     check_output_memory,
@@ -51,12 +53,12 @@ _PULSE_ERROR = 1e-6
 _UNIFORM = 1e-9  # relative spread of the steps within which one propagator serves them all
 
 
-def _step_tolerance(ts, first):
+def _step_tolerance(ts, first, xp=jnp):
     """How far a step may differ from the first and still count as uniform: 1e-9 of it, or the
     rounding of t itself (8 ulps of the largest |t|): start + step k in float64 spreads the steps
     by ulp(t), 1.5e-8 of a 1e-3 step at t = 1e5 (such grids were refused as non-uniform)."""
-    scale = jnp.maximum(jnp.abs(ts[0]), jnp.abs(ts[-1]))
-    return jnp.maximum(_UNIFORM * jnp.abs(first), 8 * jnp.finfo(ts.dtype).eps * scale)
+    scale = xp.maximum(xp.abs(ts[0]), xp.abs(ts[-1]))
+    return xp.maximum(_UNIFORM * xp.abs(first), 8 * xp.finfo(ts.dtype).eps * scale)
 METHODS = ("auto", "spectral", "dense")
 
 
@@ -160,8 +162,9 @@ def _is_uniform(ts) -> bool | None:
         return None
     if ts.shape[0] <= 2:
         return True
-    gaps = jnp.diff(ts)
-    return bool(jnp.max(jnp.abs(gaps - gaps[0])) <= _step_tolerance(ts, gaps[0]))
+    ts = np.asarray(ts)  # concrete: numpy, nothing to compile
+    gaps = np.diff(ts)
+    return bool(np.max(np.abs(gaps - gaps[0])) <= _step_tolerance(ts, gaps[0], np))
 
 
 @eqx.filter_jit
@@ -219,8 +222,9 @@ def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = 
     ts = check_times(ts)
     system = model.system if isinstance(model, ReducedModel) else model
     if ts.shape[0] > 2 and system.damped and not spectral:
-        gaps = jnp.diff(ts)
-        ts = check(ts, jnp.max(jnp.abs(gaps - gaps[0])) > _step_tolerance(ts, gaps[0]),
+        xp = array_module(ts)
+        gaps = xp.diff(ts)
+        ts = check(ts, xp.max(xp.abs(gaps - gaps[0])) > _step_tolerance(ts, gaps[0], xp),
                    "ts must be a uniform grid for exact_solve of a damped system; use simulate "
                    "for other grids.")
     x0, v0, load = check_problem(model, x0, v0, load)

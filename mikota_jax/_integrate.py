@@ -15,12 +15,14 @@ import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._custom_types import Array, Float, Times, Vector
 from ._dampers import Dampers
 from ._errors import (
     MARK,
     RESULTS,
+    array_module,
     as_float,
     check,
     check_output_memory,
@@ -68,7 +70,8 @@ def check_times(ts) -> Times:
     ts = as_float(ts, "ts")
     if ts.ndim != 1 or ts.shape[0] < 1:
         raise ValueError(MARK + f"ts must be a non-empty 1-d time grid, got shape {ts.shape}.")
-    bad = ~jnp.all(jnp.isfinite(ts)) | jnp.any(jnp.diff(ts) <= 0)
+    xp = array_module(ts)
+    bad = ~xp.all(xp.isfinite(ts)) | xp.any(xp.diff(ts) <= 0)
     return check(ts, bad, "ts must be finite and strictly increasing.")
 
 
@@ -83,11 +86,12 @@ def check_dofs(dofs, n: int) -> tuple[int, ...]:
 
 def initial_vector(x, n: int, name: str) -> Vector:
     if x is None:
-        return jnp.zeros(n)
+        return jnp.asarray(np.zeros(n))
     x = as_float(x, name)
     if x.shape != (n,):
         raise ValueError(MARK + f"{name} must have shape ({n},), got {x.shape}.")
-    return check(x, ~jnp.all(jnp.isfinite(x)), f"{name} must be finite.")
+    xp = array_module(x)
+    return check(x, ~xp.all(xp.isfinite(x)), f"{name} must be finite.")
 
 
 def check_problem(model, x0, v0, load):

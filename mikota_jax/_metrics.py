@@ -3,6 +3,9 @@
 Arrays are (N, n): rows are time instants, columns DOFs, as in ``Trajectory``.
 """
 
+import functools
+
+import jax
 import jax.numpy as jnp
 
 from ._custom_types import Array, Float
@@ -39,6 +42,12 @@ def phase_error(displacement, velocity, reduced_displacement, reduced_velocity,
     x, xr = _check_pair(displacement, reduced_displacement, "displacement", "reduced_displacement")
     v, vr = _check_pair(velocity, reduced_velocity, "velocity", "reduced_velocity")
     x, v = _check_pair(x, v, "displacement", "velocity")
+    return _phase_error(x, v, xr, vr, aggregate)
+
+
+@functools.partial(jax.jit, static_argnames="aggregate")
+def _phase_error(x, v, xr, vr, aggregate):
+    """One compiled function (eagerly, its seven small reductions would each compile)."""
     error = jnp.sum((x - xr) ** 2 + (v - vr) ** 2, axis=-1)
     norm = jnp.sum(x**2 + v**2, axis=-1)
     if aggregate == "sum":

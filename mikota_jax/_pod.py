@@ -37,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._custom_types import Array, Basis, Float, Snapshots
-from ._errors import MARK, as_float, check, check_x64
+from ._errors import MARK, array_module, as_float, check, check_x64
 
 CRITERIA = ("squared", "paper")
 METHODS = ("svd", "snapshots")  # the full PODs (all a scene file may name)
@@ -247,7 +247,7 @@ def pod(snapshots: Snapshots, *, method: str = "svd", rank: int | None = None,
     q = as_float(snapshots, "snapshots")
     if q.ndim != 2 or min(q.shape) < 1:
         raise ValueError(MARK + f"snapshots must be a non-empty (n, m) matrix, got {q.shape}.")
-    if not isinstance(q, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(q))):
+    if not isinstance(q, jax.core.Tracer) and not np.all(np.isfinite(q)):
         raise ValueError(MARK + "snapshots must be finite (the simulation produced NaN or inf).")
     level = 4 * max(q.shape) * float(np.finfo(np.float64).eps)  # see the module docstring
     if method != "randomized":
@@ -274,10 +274,12 @@ def energy_fraction(singular_values, criterion: str = "squared"):
     """
     if criterion not in CRITERIA:
         raise ValueError(MARK + f"criterion must be one of {CRITERIA}, got {criterion!r}.")
-    s = jnp.asarray(singular_values)
-    if criterion == "squared":
-        return jnp.cumsum(s**2) / jnp.sum(s**2)
-    return (jnp.cumsum(s) / jnp.sum(s)) ** 2
+    xp = array_module(singular_values)  # concrete: numpy, as the rank rules read it
+    s = xp.asarray(singular_values)
+    with np.errstate(invalid="ignore", divide="ignore"):  # all zero: NaN, refused by the rules
+        fraction = (xp.cumsum(s**2) / xp.sum(s**2) if criterion == "squared"
+                    else (xp.cumsum(s) / xp.sum(s)) ** 2)
+    return jnp.asarray(fraction)
 
 
 def _check_energy(energy) -> None:

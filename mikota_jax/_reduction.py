@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._custom_types import Array, Basis, Float, Times
-from ._errors import MARK
+from ._errors import MARK, array_module
 from ._pod import POD, pod
 
 
@@ -65,8 +65,10 @@ def reduce(states: Float[Array, "N n"], ts: Times, reduction: Reduction, *,
     ``reduction.energy`` (eq. 3.7).
     """
     mask = snapshot_window(ts, reduction.window)
-    rows = jnp.asarray(np.flatnonzero(mask))
-    snapshots = jnp.asarray(states)[rows].T  # (n, m), eq. (3.5), on the device
+    rows = np.flatnonzero(mask)
+    # (n, m), eq. (3.5): a concrete selection in numpy (an eager gather would compile)
+    snapshots = (jnp.asarray(np.asarray(states)[rows].T) if array_module(states) is np
+                 else jnp.asarray(states)[rows].T)
     decomposition = pod(snapshots, method=reduction.method)
     if reduction.rank is not None:
         rank = reduction.rank

@@ -6,7 +6,9 @@
 Bad input ends with one line on stderr and exit code 2 (no traceback); a run that fails writes no
 partial ``results.json``. Compiled executables are kept in JAX's persistent compilation cache
 (``~/.cache/mikota_jax/xla``, or ``$MIKOTA_JAX_CACHE_DIR``), so a second run skips most of the
-compilation; ``MIKOTA_JAX_CACHE=0`` turns that off.
+compilation; ``MIKOTA_JAX_CACHE=0`` turns that off. ``run`` compiles without XLA's LLVM
+optimisation passes when the scene has at most 1000 DOFs (a one-shot run compiles more than it
+computes there); an ``XLA_FLAGS`` that sets ``--xla_backend_optimization_level`` is left alone.
 """
 
 import argparse
@@ -126,8 +128,57 @@ def _enable_cache() -> None:
               "folder, or MIKOTA_JAX_CACHE=0 to silence this.", file=sys.stderr)
 
 
+# ``run`` on a scene of at most this many DOFs compiles at XLA's optimisation level 0: the LLVM
+# passes are most of a cold start. Measured (2-core CPU, benchmarks/compile.py): section5_damped
+# (n = 300) cold 19.8 -> 12.1 s, warm 5.1 -> 5.3 s; the price is run time, a spectral solve
+# 0.085 -> 0.23 s at n = 300 and 0.69 -> 1.75 s at n = 1000 (more than the compile it saves
+# beyond that).
+FAST_COMPILE_MAX_DOFS = 1000
+_LEVEL = "--xla_backend_optimization_level"
+
+
+def _scene_size(source: str) -> int | None:
+    """The DOF count a scene's ``[chain]`` states (mikota n, custom masses, branched lengths),
+    read with ``tomllib`` only (before JAX starts); None where only its matrices would say."""
+    import tomllib
+    from importlib import resources
+
+    from .scene_file import PAPER_SCENES
+
+    try:
+        if source in PAPER_SCENES:
+            text = resources.files("mikota_jax").joinpath("scenes", f"{source}.toml").read_text()
+        elif "\n" not in source and Path(source).is_file():
+            text = Path(source).read_text(encoding="utf-8")
+        else:
+            text = source
+        chain = tomllib.loads(text)["chain"]
+        kind = chain.get("type")
+        if kind == "mikota":
+            return int(chain["n"])
+        if kind == "custom" and "masses" in chain:
+            return len(chain["masses"])
+        if kind == "branched" and "lengths" in chain:
+            return sum(int(length) for length in chain["lengths"]) + 1
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        pass  # load_scene reports a bad scene properly
+    return None
+
+
+def _compile_level(args) -> None:
+    """XLA's optimisation level 0 for ``run`` on a small scene (see ``FAST_COMPILE_MAX_DOFS``),
+    set before JAX's backend starts; a level the user set in ``XLA_FLAGS`` wins."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    if args.command != "run" or _LEVEL in flags:
+        return
+    size = _scene_size(args.scene)
+    if size is not None and size <= FAST_COMPILE_MAX_DOFS:
+        os.environ["XLA_FLAGS"] = f"{flags} {_LEVEL}=0".strip()
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
+    _compile_level(args)
     say = (lambda *_: None) if args.quiet else print  # --quiet: errors only
     if os.environ.get("MIKOTA_JAX_CACHE", "1") != "0":
         _enable_cache()

@@ -105,7 +105,7 @@ def _times_from(data) -> Times:
               f"{MAX_OUTPUTS:.0e}: take a longer step or a shorter span.")
     if abs(count - round(count)) > 1e-9 * max(1.0, count):
         _fail("[time] step", f"must divide end - start = {end - start} into whole steps.")
-    return start + step * jnp.arange(round(count) + 1, dtype=jnp.float64)
+    return jnp.asarray(start + step * np.arange(round(count) + 1, dtype=np.float64))
 
 
 def _reduction_from(data, ts, n: int) -> Reduction | None:
