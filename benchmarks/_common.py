@@ -8,7 +8,10 @@ that LAPACK calls do not busy-wait on a loaded machine). The conventions, probdi
 * run time: the median of repeated calls, each ended by ``jax.block_until_ready``;
 * every comparison in one process, one JSON per script under ``benchmarks/results/`` with the
   environment metadata, plus a PNG; ``--quick`` runs write ``NAME_quick.json`` / ``.png`` beside
-  (never over) the full results.
+  (never over) the full results;
+* ``--replot`` redraws ``results/NAME[_quick].png`` from the committed JSON alone (no timing):
+  every script draws its figure from the dict it wrote (``read_json``), so a full run and a
+  replot draw the same figure from the same data.
 """
 
 import os
@@ -17,6 +20,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse
 import datetime
+import json
 import platform
 import statistics
 import sys
@@ -65,10 +69,14 @@ def timed(fn, *args, repeats: int):
     return result, statistics.median(times), times
 
 
-def parse_args(doc: str, argv=None, **extra) -> argparse.Namespace:
-    """``--quick`` (a minute or less) plus ``extra`` flags (name -> add_argument kwargs)."""
+def parse_args(doc: str, argv=None, replot: bool = False, **extra) -> argparse.Namespace:
+    """``--quick`` (a minute or less), ``--replot`` where the script supports it (``replot``),
+    plus ``extra`` flags (name -> add_argument kwargs)."""
     parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="a smoke run of a minute or less")
+    if replot:
+        parser.add_argument("--replot", action="store_true",
+                            help="only redraw results/NAME.png from results/NAME.json (no timing)")
     for flag, kwargs in extra.items():
         parser.add_argument("--" + flag.replace("_", "-"), **kwargs)
     return parser.parse_args(argv)
@@ -120,6 +128,11 @@ def write_json(name: str, quick: bool, data: dict) -> Path:
     return write_json_file(payload, path, newline=True)
 
 
+def read_json(name: str, quick: bool) -> dict:
+    """``results/NAME[_quick].json`` as written (what every figure is drawn from)."""
+    return json.loads(result_stem(name, quick).with_suffix(".json").read_text())
+
+
 def print_table(rows: list[dict], columns: list[tuple[str, str, str]]) -> None:
     """Print ``rows`` as a table; ``columns`` are (key, header, format spec) with None as '-'."""
     widths = [max(len(header), 10) for _, header, _ in columns]
@@ -135,22 +148,68 @@ def print_table(rows: list[dict], columns: list[tuple[str, str, str]]) -> None:
                         for i, (c, w) in enumerate(zip(line, widths))))
 
 
-def figure(**kwargs):
-    """A matplotlib (fig, axes) on the Agg backend (no display needed)."""
+DPI = 150
+DISPLAY_PX = 900  # the width a README shows a figure at
+MIN_POINTS = 7.0  # the smallest text there, in points at DPI
+
+
+def figure(*, readable: bool = False, **kwargs):
+    """A matplotlib (fig, axes) on the Agg backend (no display needed).
+
+    ``readable``: every font scaled to the figure's width, so that the smallest text (ticks,
+    legends; titles are 1.2x) is ``MIN_POINTS`` when the PNG is shown ``DISPLAY_PX`` wide.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    if readable:
+        width = kwargs.get("figsize", plt.rcParams["figure.figsize"])[0]
+        size = MIN_POINTS * max(1.0, width * DPI / DISPLAY_PX)
+        plt.rcParams.update({key: size for key in (
+            "font.size", "axes.labelsize", "xtick.labelsize", "ytick.labelsize",
+            "legend.fontsize", "legend.title_fontsize")})
+        plt.rcParams.update({"axes.titlesize": 1.2 * size, "figure.titlesize": 1.2 * size})
     return plt.subplots(**kwargs)
 
 
-def save_figure(fig, name: str, quick: bool) -> Path:
-    import matplotlib.pyplot as plt
+def legend(ax, where: str = "right", handles=None, **kwargs):
+    """A legend outside the axes, covering no data: beside them ("right", top-aligned) or
+    centred under their x label ("below", placed by ``save_figure`` once the label is drawn)."""
+    if handles is not None:
+        kwargs["handles"] = handles
+    if where == "right":
+        return ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0,
+                         **kwargs)
+    box = ax.legend(loc="upper center", bbox_to_anchor=(0.5, 0.0), borderaxespad=0.0, **kwargs)
+    box.below = True
+    return box
 
+
+def save_figure(fig, name: str, quick: bool) -> Path:
+    """Lay out (legends below their axes' x labels), save at ``DPI`` cropped to the drawn
+    content, and warn when text would read smaller than ``MIN_POINTS`` at ``DISPLAY_PX`` wide."""
+    import matplotlib.pyplot as plt
+    from matplotlib.text import Text
+    from matplotlib.transforms import ScaledTranslation
+
+    renderer = fig.canvas.get_renderer()
+    for ax in fig.axes:
+        box = ax.get_legend()
+        if box is not None and getattr(box, "below", False):
+            drop = ax.get_window_extent(renderer).y0 - ax.xaxis.get_tightbbox(renderer).y0
+            box.set_bbox_to_anchor((0.5, 0.0), transform=ax.transAxes + ScaledTranslation(
+                0.0, -(drop / fig.dpi + 0.08), fig.dpi_scale_trans))
     path = result_stem(name, quick).with_suffix(".png")
     fig.tight_layout()
-    fig.savefig(path, dpi=150)
+    fig.savefig(path, dpi=DPI, bbox_inches="tight", pad_inches=0.05)
+    width = int.from_bytes(path.read_bytes()[16:20], "big")
+    smallest = min(t.get_fontsize() for t in fig.findobj(Text) if t.get_visible() and t.get_text())
+    shown = smallest * min(1.0, DISPLAY_PX / width)
+    if shown < MIN_POINTS:
+        print(f"warning: {path.name}: {width} px wide, its smallest text reads {shown:.1f} pt "
+              f"at {DISPLAY_PX} px (< {MIN_POINTS:g})")
     plt.close(fig)
     return path
 

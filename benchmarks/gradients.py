@@ -43,8 +43,8 @@ repeats).
 """
 
 # _common first: it sets OPENBLAS_NUM_THREADS before jax and numpy load.
-from _common import (Compiled, elapsed, figure, metadata, parse_args,  # noqa: I001
-                     print_table, save_figure, subtitle, timed, write_json)
+from _common import (Compiled, elapsed, figure, legend, parse_args,  # noqa: I001
+                     print_table, read_json, save_figure, subtitle, timed, write_json)
 
 import time
 
@@ -223,7 +223,9 @@ def scipy_objective(n, ts, x0, rtol):
 
 
 def main(argv=None) -> dict:
-    args = parse_args(__doc__, argv)
+    args = parse_args(__doc__, argv, replot=True)
+    if args.replot:
+        return plot(read_json(NAME, args.quick))
     quick = args.quick
     ranks = RANKS[:1] if quick else RANKS
     repeats_forward, repeats_gradient = (3, 1) if quick else (5, 3)
@@ -438,51 +440,55 @@ def main(argv=None) -> dict:
         "total_wall_s": elapsed(wall_start),
     }
     path = write_json(NAME, quick, data)
-    png = plot(rows, full_model, quick)
+    png = plot(read_json(NAME, quick))
     print(f"wrote {path} and {png} ({data['total_wall_s']:.0f} s)")
     return data
 
 
-def plot(rows, full_model, quick):
-    fig, (left, right) = figure(ncols=2, figsize=(12.5, 5.0))
+def plot(data: dict):
+    """(a) cost ratio and (b) agreement per gradient mode (rows) and rank (bars)."""
+    rows, full_model, problem = data["rows"], data["full_model"], data["problem"]
+    targets = data["targets"]
+    fig, (left, right) = figure(ncols=2, sharey=True, figsize=(11, 8.0), readable=True)
     gradients = [r for r in rows if "gradient" in r]
     labels = list(dict.fromkeys(r["mode"] for r in gradients))
     ranks = sorted({r["rank"] for r in gradients})
-    width = 0.8 / len(ranks)
+    height = 0.8 / len(ranks)
     for k, rank in enumerate(ranks):
         by_mode = {r["mode"]: r for r in gradients if r["rank"] == rank}
-        xs = [i + (k - (len(ranks) - 1) / 2) * width for i in range(len(labels))]
+        ys = [i + (k - (len(ranks) - 1) / 2) * height for i in range(len(labels))]
         ratio = [by_mode[m]["ratio"] if m in by_mode else np.nan for m in labels]
         agree = [by_mode[m]["agreement"] if m in by_mode else np.nan for m in labels]
-        left.bar(xs, ratio, width, color=f"C{k}", label=f"r = {rank}")
-        right.bar(xs, agree, width, color=f"C{k}", label=f"r = {rank}")
-        for x, value in zip(xs, ratio):
-            if np.isfinite(value):
-                left.annotate(f"{value:.1f}", (x, value), ha="center", va="bottom", fontsize=7)
-    left.axhline(TARGET_RATIO, color="k", linestyle="--", linewidth=1, label="target 4x")
-    left.set_yscale("log")
-    left.set_ylim(bottom=1.0)
-    left.set_ylabel("gradient run time / forward solve of J")
-    left.set_title(f"cost (rtol {RTOL:g}; exact_solve rows: ratio to exact_solve's own J)",
-                   fontsize=9)
-    right.axhline(TARGET_AGREEMENT, color="k", linestyle="--", linewidth=1, label="target 1e-6")
+        bars = left.barh(ys, ratio, height, color=f"C{k}", label=f"r = {rank}")
+        left.bar_label(bars, [f"{v:.1f}x" if np.isfinite(v) else "" for v in ratio], padding=2,
+                       bbox=dict(fc="white", ec="none", alpha=0.8, pad=0.5))
+        right.barh(ys, agree, height, color=f"C{k}", label=f"r = {rank}")
+    left.axvline(targets["ratio"], color="k", linestyle="--", linewidth=1,
+                 label=f"target {targets['ratio']:g}x")
+    left.set_xscale("log")
+    left.set_xlim(1.0, 2.5 * max(r["ratio"] for r in gradients))
+    left.set_xlabel("gradient run time / forward solve of J\n(dimensionless)")
+    left.set_title("(a) cost of the gradient")
+    right.axvline(targets["agreement"], color="k", linestyle="--", linewidth=1,
+                  label=f"target {targets['agreement']:g}")
     if full_model:
         for k, (rank, d) in enumerate(full_model["rom"].items()):
-            right.axhline(d["gradient_relative"], color=f"C{k}", linestyle=":", linewidth=1.2,
+            right.axvline(d["gradient_relative"], color=f"C{k}", linestyle=":", linewidth=1.5,
                           label=f"ROM r = {rank} vs full model (truncation)")
-        right.axhline(full_model["jax_vs_scipy_fd"], color="C3", linestyle="-.", linewidth=1,
+        right.axvline(full_model["jax_vs_scipy_fd"], color="C3", linestyle="-.", linewidth=1,
                       label="full model: JAX jvp vs scipy FD")
-    right.set_yscale("log")
-    right.set_ylabel("max rel. difference from central differences")
-    right.set_title(f"agreement (gradient at rtol {RTOL:g}, FD at {CHECK_RTOL:g})", fontsize=9)
+    right.set_xscale("log")
+    right.set_xlabel("max relative difference from central\ndifferences (dimensionless)")
+    right.set_title("(b) agreement")
+    left.set_yticks(range(len(labels)), labels)
+    left.invert_yaxis()
     for ax in (left, right):
-        ax.set_xticks(range(len(labels)))
-        ax.set_xticklabels(labels, rotation=30, ha="right", fontsize=7)
-        ax.grid(True, axis="y", which="both", alpha=0.3)
-        ax.legend(fontsize=7)
-    fig.suptitle(f"dJ/d(position, coefficient) through the Section 5 ROM: {subtitle(metadata())}",
-                 fontsize=9)
-    return save_figure(fig, NAME, quick)
+        ax.grid(True, axis="x", which="both", alpha=0.3)
+        legend(ax, "below")
+    fig.suptitle(f"dJ/d(position, coefficient) through the Section 5 ROM\ngradient at rtol "
+                 f"{problem['rtol']:g}, FD at {problem['check_rtol']:g}; exact_solve rows: "
+                 f"ratio to exact_solve's own J\n{subtitle(data['metadata'])}")
+    return save_figure(fig, NAME, data["quick"])
 
 
 if __name__ == "__main__":

@@ -18,7 +18,7 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _common import figure, parse_args, save_figure, subtitle, write_json
+from _common import figure, legend, parse_args, read_json, save_figure, subtitle, write_json
 
 import mikota_jax as mj
 
@@ -37,8 +37,43 @@ def snapshot_basis(problem) -> np.ndarray:
     return mj.reduce(full.displacement, ts, request, cap_rank=True).basis
 
 
+def plot(data: dict) -> None:
+    """The swept landscape, the optimiser's coefficient searches, both optima and their times."""
+    sweep, summary, result = data["sweep"], data["summary"], data["runs"][-1]["result"]
+    fig, ax = figure(figsize=(8, 6.2), readable=True)
+    mesh = ax.pcolormesh(sweep["positions"], sweep["coefficients"],
+                         np.log10(sweep["objective"]).T, shading="nearest")
+    fig.colorbar(mesh, ax=ax, label=r"$\log_{10} J$, full model (J dimensionless)")
+    searched = "optimiser's coefficient searches (polish)"
+    for record in result["history"]:
+        if record["phase"] == "polish":
+            positions, coefficients = np.asarray(record["positions"]), \
+                np.asarray(record["coefficients"])
+            for s in range(positions.shape[1]):
+                ax.plot(positions[:, s, 0], coefficients[:, s, 0], "w.-", lw=0.8, ms=2,
+                        alpha=0.8, label=searched)
+                searched = None
+    best, seconds = summary["sweep_best"], summary["optimiser_seconds"]
+    ax.plot(result["positions"], result["coefficients"], "r*", ms=14,
+            label=f"certified optimum: DOF {result['positions'][0]:g}, c = "
+                  f"{result['coefficients'][0]:.2f} (optimiser, {seconds['warm']:.0f} s warm)")
+    ax.plot([best["position"]], [best["coefficient"]], "c+", ms=14, mew=2,
+            label=f"sweep best: DOF {best['position']:g}, c = {best['coefficient']:.2f} "
+                  f"({best['points']} points, {best['seconds']:.0f} s)")
+    ax.set(yscale="log", xlabel="damper position (DOF index)",
+           ylabel="damper coefficient c (dimensionless)",
+           title=f"Section 5: integrated energy on [0, 20]; the optimiser is "
+                 f"{summary['speedup_warm']:.0f}x faster than the sweep\n"
+                 + subtitle(data["metadata"]))
+    box = legend(ax, "below")
+    box.get_frame().set_facecolor("0.85")
+    save_figure(fig, "placement", data["quick"])
+
+
 def main(argv=None) -> None:
-    args = parse_args(__doc__, argv, coefficients=dict(type=int, default=17))
+    args = parse_args(__doc__, argv, replot=True, coefficients=dict(type=int, default=17))
+    if args.replot:
+        return plot(read_json("placement", args.quick))
     scene = mj.load_scene("section5_damped")
     problem = mj.problem_from_scene(scene)
     n = problem.size
@@ -94,22 +129,7 @@ def main(argv=None) -> None:
     print(json.dumps(summary, indent=1))
     write_json("placement", args.quick, dict(summary=summary, runs=runs, sweep=sweep.to_json()))
 
-    fig, ax = figure(figsize=(8, 5))
-    values = np.log10(sweep.objective)
-    mesh = ax.pcolormesh(sweep.positions, sweep.coefficients, values.T, shading="nearest")
-    fig.colorbar(mesh, ax=ax, label=r"$\log_{10} J$ (full model)")
-    for record in result.history:
-        if record["phase"] == "polish":
-            for s in range(record["positions"].shape[1]):
-                ax.plot(record["positions"][:, s, 0], record["coefficients"][:, s, 0], "w.-",
-                        lw=0.8, ms=2, alpha=0.8)
-    ax.plot(result.positions, result.coefficients, "r*", ms=14, label="certified optimum")
-    ax.plot([sweep.best_position], [sweep.best_coefficient], "c+", ms=14, mew=2,
-            label="sweep best")
-    ax.set(yscale="log", xlabel="damper position (DOF)", ylabel="coefficient",
-           title="Section 5: integrated energy on [0, 20]\n" + subtitle())
-    ax.legend(fontsize=8)
-    save_figure(fig, "placement", args.quick)
+    plot(read_json("placement", args.quick))
 
 
 if __name__ == "__main__":

@@ -30,8 +30,8 @@ Writes ``benchmarks/results/pod.json`` and ``pod.png`` (``--quick``: ``pod_quick
 
 # _common first: it sets OPENBLAS_NUM_THREADS before numpy and jax load.
 from _common import (  # noqa: I001
-    Compiled, elapsed, figure, fit_exponent, parse_args, print_table, save_figure, subtitle, timed,
-    write_json)
+    Compiled, elapsed, figure, fit_exponent, legend, parse_args, print_table, read_json,
+    save_figure, subtitle, timed, write_json)
 
 import time
 
@@ -123,8 +123,10 @@ def agreement(s, u, s_ref, u_ref, leading: int) -> dict:
 
 
 def main(argv=None) -> dict:
-    args = parse_args(__doc__, argv, budget=dict(
+    args = parse_args(__doc__, argv, replot=True, budget=dict(
         type=float, default=60.0, help="skip a method whose predicted call exceeds this (s)"))
+    if args.replot:
+        return plot(read_json("pod", args.quick))
     quick, budget = args.quick, args.budget
     sizes = QUICK_SIZES if args.quick else SIZES
     wall = time.perf_counter()
@@ -229,13 +231,18 @@ def main(argv=None) -> dict:
         "total_wall_s": elapsed(wall),
     }
     path = write_json("pod", quick, data)
-    plot(rows, matrices, quick)
+    plot(read_json("pod", quick))
     print(f"wrote {path} and its .png ({data['total_wall_s']:.0f} s)")
     return data
 
 
-def plot(rows, matrices, quick: bool) -> None:
-    fig, axes = figure(ncols=3, figsize=(15, 4.6))
+def plot(data: dict) -> None:
+    """(a) run time vs n, (b) the values' agreement at the largest n, (c) the randomized
+    method's at every n."""
+    rows, problem = data["rows"], data["problem"]
+    matrices = {m["n"]: m for m in problem["matrices"]}
+    randomized = problem["randomized"]
+    fig, axes = figure(nrows=3, figsize=(7.5, 10.5), readable=True)
     styles = dict(zip(METHODS, (("C0", "o"), ("k", "s"), ("C1", "^"), ("C2", "D"), ("C3", "v"))))
     for name, (color, marker) in styles.items():
         done = [r for r in rows if r["method"] == name and r["run_s"] is not None]
@@ -243,11 +250,12 @@ def plot(rows, matrices, quick: bool) -> None:
                        marker=marker, label=name)
         skipped = [r["n"] for r in rows if r["method"] == name and r["skipped"]]
         for n in skipped:
-            axes[0].annotate("skipped", (n, min(r["run_s"] for r in done)), fontsize=7,
-                             color=color)
-    axes[0].set_xlabel("n (DOFs; m = 1001 snapshots at n = 300, 501 above)")
-    axes[0].set_ylabel("run time [s] (median, compile excluded)")
-    axes[0].set_title("POD run time", fontsize=10)
+            axes[0].annotate("skipped", (n, min(r["run_s"] for r in done)), color=color)
+    axes[0].set_xlabel("chain size n (DOFs)")
+    axes[0].set_ylabel("run time [s] (median, compile apart)")
+    sizes = sorted(matrices)
+    axes[0].set_title(f"(a) run time; m = {matrices[sizes[0]]['m']} snapshots at n = "
+                      f"{sizes[0]}, {matrices[sizes[-1]]['m']} above")
     largest = max(r["n"] for r in rows)
     for name, (color, _) in styles.items():
         row = next((r for r in rows if r["method"] == name and r["n"] == largest
@@ -259,27 +267,27 @@ def plot(rows, matrices, quick: bool) -> None:
     s_ref = np.asarray(matrices[largest]["singular_values_numpy"])
     axes[1].semilogy(np.arange(1, len(s_ref) + 1), np.finfo(np.float64).eps * s_ref[0] / s_ref,
                      color="0.5", linestyle="--", linewidth=1, label="eps sigma_1 / sigma_j")
-    axes[1].set_title(f"n = {largest}: |sigma_j / sigma_j^numpy - 1|\n(zeros drawn at 1e-17)",
-                      fontsize=10)
-    for index, n in enumerate(sorted(matrices)):
-        for name, style in zip(POWER_ITERATIONS, ("-", ":")):
+    axes[1].set_title(f"(b) n = {largest}: |sigma_j / sigma_j^numpy - 1| (zeros drawn at "
+                      "1e-17)")
+    for index, n in enumerate(sizes):
+        for name, q in randomized["power_iterations"].items():
             row = next((r for r in rows if r["method"] == name and r["n"] == n
                         and r["run_s"] is not None), None)
             if row is not None:
                 j = np.arange(1, len(row["rel_per_index"]) + 1)
                 axes[2].semilogy(j, np.maximum(row["rel_per_index"], 1e-17), color=f"C{index}",
-                                 linestyle=style, linewidth=1,
-                                 label=f"n = {n}, q = {POWER_ITERATIONS[name]}")
-    axes[2].set_title(f"randomized (k = {RANK}, p = {OVERSAMPLING}) vs numpy\n"
-                      "q = 2 solid, q = 6 dotted", fontsize=10)
+                                 linestyle="-" if q == 2 else ":", linewidth=1,
+                                 label=f"n = {n}, q = {q}")
+    axes[2].set_title(f"(c) randomized (k = {randomized['rank']}, p = "
+                      f"{randomized['oversampling']}, q power iterations) vs numpy")
     for ax in axes[1:]:
-        ax.set_xlabel("index j (leading values, up to min(100, numerical rank))")
-        ax.set_ylabel("relative difference")
+        ax.set_xlabel("index j of sigma_j (1 = largest)")
+        ax.set_ylabel("relative difference (dimensionless)")
     for ax in axes:
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7)
-    fig.suptitle("POD of Mikota-chain snapshots: " + subtitle(), fontsize=9)
-    save_figure(fig, "pod", quick)
+        legend(ax)
+    fig.suptitle("POD of Mikota-chain snapshots: " + subtitle(data["metadata"]))
+    save_figure(fig, "pod", data["quick"])
 
 
 if __name__ == "__main__":

@@ -32,7 +32,16 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _common import figure, parse_args, print_table, save_figure, subtitle, write_json
+from _common import (
+    figure,
+    legend,
+    parse_args,
+    print_table,
+    read_json,
+    save_figure,
+    subtitle,
+    write_json,
+)
 
 import mikota_jax as mj
 
@@ -84,24 +93,31 @@ def cases(pkg, basis: np.ndarray, quick: bool) -> dict:
     return out
 
 
-def plot(rows: list[dict], reference: str, quick: bool) -> None:
-    """Bars of current / reference run time per case, the 10 % budget marked."""
-    fig, ax = figure(figsize=(7, 3.4))
+def plot(data: dict) -> None:
+    """Bars of current / reference run time per case, the ratio and both times on each, the
+    10 % budget marked."""
+    rows = data["rows"]
+    fig, ax = figure(figsize=(7, 3.8), readable=True)
     y = np.arange(len(rows))
-    ax.barh(y, [r["ratio"] for r in rows], color="tab:blue", height=0.6)
+    bars = ax.barh(y, [r["ratio"] for r in rows], color="tab:blue", height=0.6)
+    ax.bar_label(bars, [f"{r['ratio']:.2f}x (current {r['current_s']:.3g} s, reference "
+                        f"{r['reference_s']:.3g} s)"
+                        for r in rows], label_type="center", color="white")
     ax.axvline(1.0, color="k", lw=0.8)
     ax.axvline(1.1, color="tab:red", ls="--", lw=0.8, label="10 % budget")
     ax.set_yticks(y, [r["case"] for r in rows])
     ax.set_xlim(0.0, 1.25)
     ax.set_xlabel("run time, current / reference (dimensionless)")
-    ax.set_title(f"restructuring parity vs {reference}\n{subtitle()}", fontsize=9)
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.28), fontsize=8, frameon=False)
-    save_figure(fig, "refactor_parity", quick)
+    ax.set_title(f"restructuring parity vs {data['reference']}\n{subtitle(data['metadata'])}")
+    legend(ax, "below", frameon=False)
+    save_figure(fig, "refactor_parity", data["quick"])
 
 
 def main(argv=None) -> None:
-    args = parse_args(__doc__, argv, reference=dict(default=REFERENCE),
+    args = parse_args(__doc__, argv, replot=True, reference=dict(default=REFERENCE),
                       repeats=dict(type=int, default=5))
+    if args.replot:
+        return plot(read_json("refactor_parity", args.quick))
     repeats = 2 if args.quick else args.repeats
     with tempfile.TemporaryDirectory() as tmp:
         reference = load_reference(args.reference, Path(tmp))
@@ -144,7 +160,7 @@ def main(argv=None) -> None:
                        ("current_compile_s", "cur first call s", ".2f"),
                        ("max_difference", "max |diff|", ".1e")])
     path = write_json("refactor_parity", args.quick, dict(reference=args.reference, rows=rows))
-    plot(rows, args.reference, args.quick)
+    plot(read_json("refactor_parity", args.quick))
     print(f"\nwrote {path}")
 
 

@@ -56,9 +56,11 @@ from _common import (  # noqa: I001  (first: it sets OPENBLAS_NUM_THREADS before
     elapsed,
     figure,
     fit_exponent,
+    legend,
     max_error,
     parse_args,
     print_table,
+    read_json,
     save_figure,
     subtitle,
     timed,
@@ -68,6 +70,7 @@ from _common import (  # noqa: I001  (first: it sets OPENBLAS_NUM_THREADS before
 import argparse
 import json
 import resource
+import textwrap
 import statistics
 import subprocess
 import sys
@@ -535,8 +538,12 @@ def extrapolate_implicit(rows) -> None:
 # --------------------------------------------------------------------------- plot
 
 
-def plot(rows, summary, quick: bool, meta: dict):
-    fig, axes = figure(nrows=2, ncols=2, figsize=(14, 10))
+def plot(data: dict):
+    """(a) cost vs n, (b) per-step cost, steps and rank, (c) pay-off, (d) memory."""
+    rows, summary, quick = data["rows"], data["summary"], data["quick"]
+    for row, res in zip(rows, data["per_n"]):
+        row["raw"] = res
+    fig, axes = figure(nrows=2, ncols=2, figsize=(12, 15), readable=True)
     (cost, step), (payoff, memory) = axes
     exps = summary["exponents"]
 
@@ -548,6 +555,9 @@ def plot(rows, summary, quick: bool, meta: dict):
         text = f"{label} (~n^{slope:.2f})" if slope is not None else label
         ax.loglog(*zip(*pts), style, label=text, **kw)
 
+    def title(ax, text):
+        ax.set_title(textwrap.fill(text, 48))
+
     curve(cost, "full_s", "full Dopri8, rtol 1e-8", "o-", color="C0")
     curve(cost, "full_equal_s", "full Dopri8, equal accuracy", "o--", color="C0", mfc="none")
     curve(cost, "exact_s", "full exact_solve (dense)", "s-", color="C7")
@@ -558,22 +568,20 @@ def plot(rows, summary, quick: bool, meta: dict):
     curve(cost, "offline_s", "ROM offline: snapshots + POD + Galerkin", "D-", color="C2")
     curve(cost, "rom_exact_s", "ROM online, exact_solve", "^-", color="C1")
     curve(cost, "rom_dopri_s", "ROM online, Dopri8 rtol 1e-8", "^--", color="C1", mfc="none")
-    cost.set_ylabel("run time [s] (median, compile excluded)")
-    cost.set_title(f"(a) cost vs n: T = {HORIZON:g}, 101 outputs at 3 DOFs; ROM at rel. error "
-                   f"< {TARGET:g}", fontsize=9)
+    cost.set_ylabel("run time [s] (median, compile apart)")
+    title(cost, f"(a) cost vs n: T = {data['problem']['horizon']:g}, 101 outputs at 3 DOFs; "
+                f"ROM at rel. error < {TARGET:g}")
 
     curve(step, "full_step_s", "full Dopri8 rtol 1e-8: s per step", "o-", color="C0")
     curve(step, "implicit_step_s", "full Kvaerno5: s per step (dense Jacobian)", "v-", color="C3")
-    step.set_ylabel("seconds per step (solid)")
+    step.set_ylabel("time per step [s] (solid)")
     counts = step.twinx()
     curve(counts, "steps", "full Dopri8 rtol 1e-8: steps", "o:", color="C0", mfc="none")
     curve(counts, "implicit_steps", "full Kvaerno5: steps (whole horizon)", "v:", color="C3",
           mfc="none")
     curve(counts, "rank", "ROM rank r(n) at the target", "x:", color="C4")
-    counts.set_ylabel("count: steps, rank (dotted)")
-    counts.legend(fontsize=7, loc="lower right")
-    step.set_title("(b) where the cost comes from: per-step cost, step count, ROM rank",
-                   fontsize=9)
+    counts.set_ylabel("steps, rank r (dotted; count)")
+    title(step, "(b) where the cost comes from: per-step cost, step count, ROM rank")
 
     for key, label, style in (("speedup_online", "full (equal accuracy) / ROM online", "o-"),
                               ("speedup_one_query", "full / (ROM offline + online), one query",
@@ -581,10 +589,9 @@ def plot(rows, summary, quick: bool, meta: dict):
         curve(payoff, key, label, style)
     curve(payoff, "break_even_queries", "queries that repay the offline cost", "d:", color="C2")
     payoff.axhline(1.0, color="k", linewidth=1)
-    payoff.set_ylabel("ratio  /  number of queries")
-    payoff.set_title("(c) pay-off. online: " + summary["crossover_online"]["note"] + "\none "
-                     "query: " + summary["crossover_offline_plus_online_one_query"]["note"],
-                     fontsize=8)
+    payoff.set_ylabel("time ratio; queries (dimensionless)")
+    title(payoff, "(c) pay-off. online: " + summary["crossover_online"]["note"] + "; one "
+                  "query: " + summary["crossover_offline_plus_online_one_query"]["note"])
 
     curve(memory, "peak_mb", "peak RSS of the process (all stages)", "o-", color="k")
     curve(memory, "peak_delta_mb", "peak RSS minus RSS after setup", "o--", color="k",
@@ -606,14 +613,16 @@ def plot(rows, summary, quick: bool, meta: dict):
             memory.loglog(*zip(*pts), marker + "--", label=label + (
                 "" if slope is None else f" (~n^{slope:.2f})"))
     memory.set_ylabel("memory [MiB]")
-    memory.set_title("(d) memory: process peak RSS, and XLA's footprint of each executable "
-                     "(arguments + outputs + temporaries)", fontsize=8)
+    title(memory, "(d) memory: process peak RSS, and XLA's footprint of each executable "
+                  "(arguments + outputs + temporaries)")
     for ax in (cost, step, payoff, memory):
-        ax.set_xlabel("chain size n")
-        ax.legend(fontsize=7)
+        ax.set_xlabel("chain size n (DOFs)")
         ax.grid(True, which="both", alpha=0.3)
+        handles = ax.get_legend_handles_labels()[0]
+        legend(ax, "below", handles=handles + (
+            counts.get_legend_handles_labels()[0] if ax is step else []))
     fig.suptitle(f"Mikota chain scaling, full model vs POD ROM{' (quick)' if quick else ''}: "
-                 f"{subtitle(meta)}", fontsize=9)
+                 f"{subtitle(data['metadata'])}")
     return save_figure(fig, NAME, quick)
 
 
@@ -621,10 +630,12 @@ def plot(rows, summary, quick: bool, meta: dict):
 
 
 def main(argv=None) -> dict:
-    args = parse_args(__doc__, argv,
+    args = parse_args(__doc__, argv, replot=True,
                       sizes=dict(type=int, nargs="+", help="chain sizes (default: the issue's)"),
                       worker=dict(type=int, help=argparse.SUPPRESS),
                       worker_out=dict(help=argparse.SUPPRESS))
+    if args.replot:
+        return plot(read_json(NAME, args.quick))
     if args.worker is not None:
         data = measure(args.worker, args.quick)
         Path(args.worker_out).write_text(json.dumps(data, allow_nan=False))
@@ -707,9 +718,7 @@ def main(argv=None) -> dict:
         "rows": rows, "summary": summary, "per_n": results, "total_wall_s": elapsed(wall),
     }
     path = write_json(NAME, quick, data)
-    for row, res in zip(rows, results):
-        row["raw"] = res
-    png = plot(rows, summary, quick, json.loads(path.read_text())["metadata"])
+    png = plot(read_json(NAME, quick))
     print(f"wrote {path} and {png} ({elapsed(wall):.0f} s)")
     return data
 

@@ -15,7 +15,17 @@ import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _common import figure, metadata, parse_args, print_table, save_figure, subtitle, write_json
+from _common import (
+    figure,
+    legend,
+    metadata,
+    parse_args,
+    print_table,
+    read_json,
+    save_figure,
+    subtitle,
+    write_json,
+)
 
 import mikota_jax as mj
 from mikota_jax.testing import stiffness_rate
@@ -240,8 +250,26 @@ def _fmt(entry, key, spec):
     return format(entry[key], spec)
 
 
+def plot(data: dict) -> None:
+    """Run time per solve against n, per solver (the size rows)."""
+    fig, ax = figure(figsize=(7, 4.5), readable=True)
+    for solver, style in (("dopri8", "o-"), ("kvaerno5", "s-"), ("exact", "^-")):
+        points = [(r["n"], r[solver]["run_s"]) for r in data["size"]
+                  if r.get(solver) and "run_s" in r[solver]]
+        if points:
+            ax.plot(*zip(*points), style, label=solver + {"kvaerno5": " (structured)",
+                                                          "exact": " (dense)"}.get(solver, ""))
+    ax.set(xscale="log", yscale="log", xlabel="chain size n (DOFs)",
+           ylabel="run time per solve [s]",
+           title="First-mode free vibration on [0, 20]\n" + subtitle(data["metadata"]))
+    legend(ax)
+    save_figure(fig, "stability", data["quick"])
+
+
 def main(argv=None) -> None:
-    args = parse_args(__doc__, argv)
+    args = parse_args(__doc__, argv, replot=True)
+    if args.replot:
+        return plot(read_json("stability", args.quick))
     sizes = [1, 10, 100, 1000] if args.quick else [1, 10, 100, 1000, 10_000, 100_000]
     size = size_rows(sizes, dopri_max=1000 if args.quick else 10_000)
     dampers = damper_rows([1e-8, 1.0, 1e3] if args.quick else [1e-8, 1.0, 1e3, 1e6])
@@ -302,17 +330,7 @@ def main(argv=None) -> None:
                 [("n", "n", "d"), ("auto", "auto", "s"), ("dopri", "Dopri8 s", ".3g"),
                  ("kvaerno", "Kvaerno5 s", ".3g")])
 
-    fig, ax = figure(figsize=(7, 4.5))
-    for solver, style in (("dopri8", "o-"), ("kvaerno5", "s-"), ("exact", "^-")):
-        points = [(r["n"], r[solver]["run_s"]) for r in size
-                  if solver in r and "run_s" in r[solver]]
-        if points:
-            ax.plot(*zip(*points), style, label=solver + (" (structured)" if solver ==
-                                                          "kvaerno5" else ""))
-    ax.set(xscale="log", yscale="log", xlabel="n", ylabel="run time per solve (s)",
-           title="First-mode free vibration on [0, 20]\n" + subtitle(meta))
-    ax.legend()
-    save_figure(fig, "stability", args.quick)
+    plot(read_json("stability", args.quick))
 
 
 if __name__ == "__main__":

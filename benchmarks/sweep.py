@@ -24,14 +24,10 @@ import time
 import _common  # noqa: F401  (sets OPENBLAS_NUM_THREADS before jax)
 import jax
 import jax.numpy as jnp
-import matplotlib
 import numpy as np
-from _common import parse_args, print_table, result_stem, write_json
+from _common import figure, parse_args, print_table, read_json, save_figure, subtitle, write_json
 
 import mikota_jax as mj
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
 
 
 def scene(solver: str):
@@ -65,8 +61,34 @@ def unbatched(function, points, index):
                      for i in index])
 
 
+def plot(data: dict) -> None:
+    """(a) the full model's energy over the grid, (b) the ROM's relative error there."""
+    if "values" not in data:
+        raise SystemExit("this sweep.json holds no grid values (written before they were "
+                         "stored): only a full run can draw its figure")
+    values = data["values"]
+    full, rom = np.asarray(values["J_full"]), np.asarray(values["J_rom"])
+    rank = next(r["rank"] for r in data["rows"] if r["variant"] == "ROM exact (map)")
+    fig, axes = figure(ncols=2, figsize=(11, 4.8), readable=True)
+    for ax, image, label, cmap, title in (
+            (axes[0], np.log10(full), "log10 J, full model (dimensionless)", "viridis",
+             f"(a) Section 5 energy, {full.size} points"),
+            (axes[1], np.log10(np.abs(rom - full) / full),
+             "log10 |J_ROM - J_full| / J_full (dimensionless)", "magma",
+             f"(b) ROM (r = {rank}) relative error")):
+        mesh = ax.pcolormesh(values["coefficients"], values["positions"], image,
+                             shading="nearest", cmap=cmap)
+        fig.colorbar(mesh, ax=ax, label=label)
+        ax.set(xscale="log", xlabel="damper coefficient c (dimensionless)",
+               ylabel="damper position (DOF index)", title=title)
+    fig.suptitle(f"mj.sweep over the Section 5 scene: {subtitle(data['metadata'])}")
+    save_figure(fig, "sweep", data["quick"])
+
+
 def main(argv=None) -> dict:
-    args = parse_args(__doc__, argv)
+    args = parse_args(__doc__, argv, replot=True)
+    if args.replot:
+        return plot(read_json("sweep", args.quick))
     size = 10 if args.quick else 100
     points = mj.grid(positions=np.linspace(1.0, 300.0, size)[:, None],
                      coefficients=np.geomspace(0.1, 10.0, size)[:, None])
@@ -121,22 +143,12 @@ def main(argv=None) -> dict:
                    best_full=dict(position=float(points["positions"][best, 0]),
                                   coefficient=float(points["coefficients"][best, 0]),
                                   J=float(full[best])))
-    figure, axes = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
-    extent = [np.log10(0.1), np.log10(10.0), 1, 300]
-    image = axes[0].imshow(np.log10(full.reshape(size, size)), origin="lower", aspect="auto",
-                           extent=extent)
-    figure.colorbar(image, ax=axes[0], label="log10 J (full model)")
     rom = values["ROM exact (map)"]
-    image = axes[1].imshow(np.log10(np.abs(rom - full) / full).reshape(size, size),
-                           origin="lower", aspect="auto", extent=extent, cmap="magma")
-    figure.colorbar(image, ax=axes[1], label="log10 |J_ROM - J_full| / J_full")
-    for axis in axes:
-        axis.set_xlabel("log10 damper coefficient")
-        axis.set_ylabel("damper position (DOF)")
-    axes[0].set_title(f"Section 5 energy, {total} points")
-    axes[1].set_title(f"ROM (r = {basis.shape[1]}) error")
-    figure.savefig(result_stem("sweep", args.quick).with_suffix(".png"), dpi=120)
+    summary["values"] = dict(positions=points["positions"][::size, 0],
+                             coefficients=points["coefficients"][:size, 0],
+                             J_full=full.reshape(size, size), J_rom=rom.reshape(size, size))
     print(f"wrote {write_json('sweep', args.quick, summary)}")
+    plot(read_json("sweep", args.quick))
     return summary
 
 

@@ -56,8 +56,8 @@ three repeats). Writes ``benchmarks/results/user_matrices[_quick].{json,png}``.
 
 # _common first: it sets OPENBLAS_NUM_THREADS before numpy and jax load.
 from _common import (  # noqa: I001
-    Compiled, elapsed, figure, fit_exponent, parse_args, print_table, save_figure, subtitle, timed,
-    write_json)
+    Compiled, elapsed, figure, fit_exponent, legend, parse_args, print_table, read_json,
+    save_figure, subtitle, timed, write_json)
 
 import time
 
@@ -301,11 +301,13 @@ def _first_n(quick: bool) -> int:
     return BRANCHES * (QUICK_LENGTHS if quick else LENGTHS)[0] + 1
 
 
-def plot(rows: list[dict], quick: bool, meta_line: str):
-    fig, axes = figure(ncols=3, figsize=(15, 6.2))
+def plot(data: dict):
+    """(a) Dopri8 and (b) Kvaerno5 run time per format against n, (c) compile time."""
+    rows, rtol = data["rows"], data["problem"]["rtol"]
+    fig, axes = figure(nrows=3, sharex=True, figsize=(8, 13), readable=True)
     sizes = sorted({r["n"] for r in rows})
     colours = dict(zip(FORMATS, ("C0", "C4", "C1", "C3", "C2")))
-    for ax, solver in zip(axes[:2], SOLVERS):
+    for ax, solver, letter in zip(axes[:2], SOLVERS, "ab"):
         for name in FORMATS:
             done = [r for r in rows if r["solver"] == solver and r["format"] == name
                     and r["run_s"] is not None]
@@ -314,16 +316,14 @@ def plot(rows: list[dict], quick: bool, meta_line: str):
             note = " (x: skipped, predicted)" if skipped else ""
             if done:
                 ax.loglog([r["n"] for r in done], [r["run_s"] for r in done], "o-",
-                          color=colours[name], label=f"{name}: {PATHS[name, solver]}{note}")
+                          color=colours[name],
+                          label=f"{name}: {data['paths'][f'{name} {solver}']}{note}")
             if done and skipped:
                 ax.loglog([done[-1]["n"]] + [r["n"] for r in skipped],
                           [done[-1]["run_s"]] + [r["predicted_s"] for r in skipped], "x:",
                           color=colours[name])
-        ax.set_title(f"{solver} (rtol {RTOL:g}): run time, median")
-        ax.set_xlabel("n (DOFs)")
-        ax.set_ylabel("seconds per call")
-        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14))
-        ax.grid(True, which="both", alpha=0.3)
+        ax.set_title(f"({letter}) {solver} (rtol {rtol:g}): run time, median")
+        ax.set_ylabel("run time per call [s]")
     ax = axes[2]
     for solver, marker in zip(SOLVERS, ("o", "s")):
         for name in FORMATS:
@@ -331,26 +331,29 @@ def plot(rows: list[dict], quick: bool, meta_line: str):
                     and r["compile_s"] is not None]
             if done:
                 ax.semilogx([r["n"] for r in done], [r["compile_s"] for r in done],
-                            marker + ("-" if solver == "dopri8" else "--"), color=colours[name],
-                            label=f"{name} {solver}")
-    ax.set_title("compile time (trace + lower + XLA)")
-    ax.set_xlabel("n (DOFs)")
-    ax.set_ylabel("seconds")
+                            marker + ("-" if solver == "dopri8" else "--"), color=colours[name])
+    ax.set_title("(c) compile time (trace + lower + XLA), colours as above")
+    ax.set_ylabel("compile time [s]")
     ax.set_ylim(bottom=0)
-    ax.legend(fontsize=7, ncol=2, loc="upper center", bbox_to_anchor=(0.5, -0.14))
-    ax.grid(True, which="both", alpha=0.3)
+    ax.plot([], [], "ko-", label="dopri8")
+    ax.plot([], [], "ks--", label="kvaerno5")
     for ax in axes:
+        ax.set_xlabel("chain size n (DOFs)")
+        ax.xaxis.set_tick_params(labelbottom=True)
         ax.set_xticks(sizes, [str(n) for n in sizes])
         ax.minorticks_off()
-    fig.suptitle("One branched chain (3 branches + hub) as branched_chain / scipy csr (detected) / "
-                 f"Sparse / Dense K / Dense M and K: "
-                 f"{meta_line}", fontsize=9)
-    return save_figure(fig, NAME, quick)
+        ax.grid(True, which="both", alpha=0.3)
+        legend(ax, "below", ncol=2 if ax is axes[2] else 1)
+    fig.suptitle("One branched chain (3 branches + hub) as branched_chain / scipy csr (detected) "
+                 f"/\nSparse / Dense K / Dense M and K: {subtitle(data['metadata'])}")
+    return save_figure(fig, NAME, data["quick"])
 
 
 def main(argv=None) -> dict:
-    args = parse_args(__doc__, argv, budget=dict(
+    args = parse_args(__doc__, argv, replot=True, budget=dict(
         type=float, default=20.0, help="skip a combination whose predicted call exceeds this (s)"))
+    if args.replot:
+        return plot(read_json(NAME, args.quick))
     quick, budget = args.quick, args.budget
     lengths = QUICK_LENGTHS if quick else LENGTHS
     wall = time.perf_counter()
@@ -398,7 +401,7 @@ def main(argv=None) -> dict:
         "wall_s": elapsed(wall),
     }
     path = write_json(NAME, quick, data)
-    png = plot(rows, quick, subtitle())
+    png = plot(read_json(NAME, quick))
     print(f"\nwrote {path} and {png} in {elapsed(wall):.0f} s")
     return data
 

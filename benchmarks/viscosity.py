@@ -26,7 +26,8 @@ of 100). Writes ``results/viscosity[_quick].json`` and ``.png``.
 """
 
 # _common first: it sets OPENBLAS_NUM_THREADS before jax and numpy load.
-from _common import figure, parse_args, print_table, save_figure, subtitle, write_json  # noqa: I001
+from _common import (figure, legend, parse_args, print_table, read_json,  # noqa: I001
+                     save_figure, subtitle, write_json)
 
 import time
 
@@ -50,8 +51,45 @@ LOWEST = 27
 TARGET_S = 60.0
 
 
+def plot(data: dict) -> None:
+    """(a) the projected BFGS history, (b) our optimum against the published one."""
+    result = data["result"]
+    fig, axes = figure(ncols=2, figsize=(10, 4.6), readable=True)
+    values = np.array([h[0] for h in result["history"]])
+    iterations = np.arange(values.shape[0])
+    best = min(values.min(), data["scipy"]["value"])
+    axes[0].semilogy(iterations, values - best + 1e-16 * values[-1], "o-",
+                     label="trace - best trace found")
+    axes[0].semilogy(iterations, [h[1] for h in result["history"]], "s--",
+                     label="relative gradient max |d_i df/dd_i| / f")
+    axes[0].axhline(1e-6, color="gray", linestyle=":", label="tolerance 1e-6")
+    axes[0].set_xlabel("iteration")
+    axes[0].set_ylabel("trace - best trace; relative gradient\n(dimensionless)")
+    start = ", ".join(f"{d:g}" for d in data["start"])
+    axes[0].set_title(f"(a) projected BFGS from ({start}): {result['seconds']:.1f} s")
+    legend(axes[0], "below")
+    x = np.arange(3)
+    for shift, d, label in ((-0.2, result["coefficients"], "ours (projected BFGS): trace "
+                             f"{result['value']:.9g}"),
+                            (0.2, data["published"], "published: our trace there "
+                             f"{data['published_trace']:.9g}")):
+        bars = axes[1].bar(x + shift, d, 0.4, label=label)
+        axes[1].bar_label(bars, [f"{v:.1f}" for v in d], padding=2)
+    axes[1].set_xticks(x, ["d(50)", "d(120)", "d(550, 520)"])
+    axes[1].set_xlabel("damper (DOF, or relative between DOFs)")
+    axes[1].set_ylabel("viscosity d (dimensionless)")
+    axes[1].set_ylim(top=1.15 * max(max(result["coefficients"]), max(data["published"])))
+    axes[1].set_title("(b) optimal viscosities")
+    legend(axes[1], "below")
+    fig.suptitle(f"FastOptimalDamping small example, n = {data['n']}, s = {data['lowest']}\n"
+                 + subtitle(data["metadata"]))
+    save_figure(fig, NAME, data["quick"])
+
+
 def main(argv=None):
-    args = parse_args(__doc__, argv)
+    args = parse_args(__doc__, argv, replot=True)
+    if args.replot:
+        return plot(read_json(NAME, args.quick))
     n1 = 100 if args.quick else 400
     system = fod_system(n1, START)
     print(f"n = {system.size}: optimising 3 viscosities from {START}", flush=True)
@@ -115,28 +153,6 @@ def main(argv=None):
           f"{'met' if met else 'MISSED'} ({result.seconds:.1f} s, "
           f"{result.relative_gradient:.1e})")
 
-    fig, axes = figure(ncols=2, figsize=(11, 4))
-    values = np.array([h[0] for h in result.history])
-    axes[0].semilogy(np.arange(values.shape[0]), values - min(values.min(), reference.fun)
-                     + 1e-16 * values[-1], "o-", label="trace - best trace")
-    axes[0].semilogy(np.arange(values.shape[0]), [h[1] for h in result.history], "s--",
-                     label="relative gradient max |d_i df/dd_i| / f")
-    axes[0].axhline(1e-6, color="gray", linestyle=":", label="tolerance 1e-6")
-    axes[0].set_xlabel("iteration")
-    axes[0].set_ylabel("dimensionless (trace in time units, relative)")
-    axes[0].set_title(f"(a) projected BFGS from {START}: {result.seconds:.1f} s", fontsize=9)
-    axes[0].legend(fontsize=7)
-    labels = ["d(50)", "d(120)", "d(550, 520)"]
-    x = np.arange(3)
-    axes[1].bar(x - 0.2, result.coefficients, 0.4, label=f"ours: trace {result.value:.6g}")
-    axes[1].bar(x + 0.2, PUBLISHED, 0.4, label=f"published: our trace {published_value:.6g}")
-    axes[1].set_xticks(x, labels)
-    axes[1].set_ylabel("viscosity [force * time per length]")
-    axes[1].set_title("(b) optimal viscosities", fontsize=9)
-    axes[1].legend(fontsize=7, loc="upper right")
-    fig.suptitle(f"FastOptimalDamping small example, n = {system.size}, s = {LOWEST}\n"
-                 + subtitle(), fontsize=8)
-    save_figure(fig, NAME, args.quick)
     write_json(NAME, args.quick, dict(
         n=system.size, lowest=LOWEST, start=list(START), published=list(PUBLISHED),
         published_trace_their_coordinates=PUBLISHED_TRACE,
@@ -156,6 +172,7 @@ def main(argv=None):
                    seconds=scipy_s, message=str(reference.message)),
         published_trace=float(published_value), published_relative_gradient=relative_published,
         target_s=TARGET_S, met=bool(met)))
+    plot(read_json(NAME, args.quick))
 
 
 if __name__ == "__main__":

@@ -34,10 +34,11 @@ from _common import (  # noqa: I001  (first: it sets OPENBLAS_NUM_THREADS before
     Compiled,
     elapsed,
     figure,
+    legend,
     max_error,
-    metadata,
     parse_args,
     print_table,
+    read_json,
     save_figure,
     subtitle,
     timed,
@@ -135,7 +136,9 @@ def scipy_solve(rhs, y0, ts, method: str, rtol: float, budget_s: float | None = 
 
 
 def main(argv=None) -> dict:
-    args = parse_args(__doc__, argv)
+    args = parse_args(__doc__, argv, replot=True)
+    if args.replot:
+        return plot(read_json(NAME, args.quick))
     quick = args.quick
     rtols = QUICK_RTOLS if quick else RTOLS
     diffrax_solvers = DIFFRAX[:2] if quick else DIFFRAX
@@ -378,7 +381,7 @@ def main(argv=None) -> dict:
         "total_wall_s": elapsed(wall_start),
     }
     path = write_json(NAME, quick, data)
-    png = plot(rows, reduced, quick)
+    png = plot(read_json(NAME, quick))
     print(f"wrote {path} and {png} ({data['total_wall_s']:.0f} s)")
     return data
 
@@ -386,9 +389,12 @@ def main(argv=None) -> dict:
 # --------------------------------------------------------------------------- the figure
 
 
-def plot(rows, reduced, quick: bool):
-    fig, (ax, ax_rom) = figure(ncols=2, figsize=(13.0, 5.5),
-                               gridspec_kw={"width_ratios": [1.6, 1.0]})
+def plot(data: dict):
+    """(a) run time against error for every setup, (b) the reduced models' errors against r."""
+    rows, reduced, problem = data["rows"], data["reduced"], data["problem"]
+    rom_rtol = problem["rom_rtol"]
+    fig, (ax, ax_rom) = figure(nrows=2, figsize=(10, 14.5),
+                               gridspec_kw={"height_ratios": [1.7, 1.0]}, readable=True)
     styles = {"simulate dopri8": ("C0", "o", "-"), "simulate tsit5": ("C1", "s", "-"),
               "simulate dopri5": ("C2", "D", "-"), "simulate kvaerno5": ("C3", "X", "-"),
               "scipy DOP853": ("C4", "^", "--"), "scipy RK45": ("C5", "v", "--"),
@@ -399,16 +405,16 @@ def plot(rows, reduced, quick: bool):
             continue
         ax.loglog([r["error"] for r in group], [r["run_s"] for r in group], color=color,
                   marker=marker, linestyle=line, markersize=5, label=name)
-        for r in group:
+        for r in {id(r): r for r in (group[0], group[-1])}.values():  # the sweep's two ends
             ax.annotate(f"{np.log10(r['rtol']):.0f}", (r["error"], r["run_s"]),
-                        textcoords="offset points", xytext=(3, 3), fontsize=6, color=color)
+                        textcoords="offset points", xytext=(3, 3), color=color)
     roms = [r for r in rows if r["rank"] is not None]
     for method, marker, color in (("exact", "*", "k"), ("dopri8", "P", "C9")):
         group = [r for r in roms if r["method"] == method]
         if not group:
             continue
         label = ("ROM, exact_solve" if method == "exact"
-                 else f"ROM, simulate dopri8 (rtol {ROM_RTOL:.0e})")
+                 else f"ROM, simulate dopri8 (rtol {rom_rtol:.0e})")
         ax.loglog([r["error"] for r in group], [r["run_s"] for r in group], color=color,
                   marker=marker, linestyle="none", markersize=9, label=label)
         labels: dict[float, list] = {}  # one label for points on top of each other
@@ -418,7 +424,9 @@ def plot(rows, reduced, quick: bool):
         for same in labels.values():
             ax.annotate("r=" + ",".join(str(r["rank"]) for r in same),
                         (same[0]["error"], same[0]["run_s"]), textcoords="offset points",
-                        xytext=(-8, -11 if method == "exact" else 6), fontsize=7, color=color)
+                        xytext=(-8, -13) if method == "exact" else (7, -14), color=color,
+                        ha="right" if method == "exact" else "left",
+                        bbox=dict(fc="white", ec="none", alpha=0.7, pad=0.2))
     exact = next(r for r in rows if r.get("reference"))
     ax.axhline(exact["run_s"], color="k", linestyle=":", linewidth=1.2,
                label=f"exact_solve dense, full (the reference): {exact['run_s']:.3f} s")
@@ -427,28 +435,32 @@ def plot(rows, reduced, quick: bool):
         ax.loglog([max(spectral["error"], 1e-16)], [spectral["run_s"]], color="k", marker="p",
                   linestyle="none", markersize=10,
                   label=f"exact_solve spectral, full (the default): {spectral['run_s']:.3f} s")
-    ax.set_xlabel("max abs displacement error vs exact solution (all DOFs, all 2001 times)")
-    ax.set_ylabel("run time [s] (median, compile excluded)")
-    ax.set_title("Section 5 scene (n = 300, [0, 20], 2001 outputs); labels: log10 rtol, "
-                 "atol = 1e-2 rtol\n" + subtitle(metadata()), fontsize=8)
+    times = problem["times"]
+    ax.set_xlabel(f"max abs displacement error vs exact solution, all DOFs and {times['count']} "
+                  "times\n(dimensionless: m = k = 1, x_3(0) = 1)")
+    ax.set_ylabel("run time [s] (median, compile apart)")
+    ax.set_title("(a) work vs precision; labels: log10 rtol at the ends of each sweep\n(a "
+                 "marker per decade), atol = 1e-2 rtol; ROM points: their rank r")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=6.5, loc="best")
+    legend(ax, "below", ncol=2)
 
     if reduced:
         r_values = [d["rank"] for d in reduced]
         for key, label, marker in (
                 ("error_exact", "max abs error, ROM exact_solve", "*"),
-                ("error_dopri8", f"max abs error, ROM dopri8 (rtol {ROM_RTOL:.0e})", "P"),
+                ("error_dopri8", f"max abs error, ROM dopri8 (rtol {rom_rtol:.0e})", "P"),
                 ("integration_error_dopri8", "ROM dopri8 vs ROM exact (integration only)", "x"),
                 ("phase_error_sum", "phase error eq. (5.4), aggregate 'sum'", "o"),
                 ("phase_error_max", "phase error eq. (5.4), aggregate 'max'", "s")):
             ax_rom.semilogy(r_values, [d[key] for d in reduced], marker=marker, label=label)
-        ax_rom.set_xlabel("ROM rank r (POD of displacements on [0, 10])")
-        ax_rom.set_ylabel("error vs the full exact solution")
-        ax_rom.set_title("Reduced model: truncation error and phase error vs r", fontsize=8)
+        ax_rom.set_xlabel(f"ROM rank r (POD of displacements on {problem['snapshot_window']})")
+        ax_rom.set_ylabel("error vs the full exact solution\n(dimensionless)")
+        ax_rom.set_title("(b) reduced model: truncation error and phase error vs r")
         ax_rom.grid(True, which="both", alpha=0.3)
-        ax_rom.legend(fontsize=6.5, loc="best")
-    return save_figure(fig, NAME, quick)
+        legend(ax_rom, "below", ncol=2)
+    fig.suptitle(f"Section 5 scene (n = {problem['n']}, [0, {times['end']:g}], "
+                 f"{times['count']} outputs)\n{subtitle(data['metadata'])}")
+    return save_figure(fig, NAME, data["quick"])
 
 
 if __name__ == "__main__":
