@@ -22,11 +22,16 @@ from ._certify import optimise_dampers as optimise_dampers
 from ._chain import branched_chain as branched_chain
 from ._chain import chain as chain
 from ._chain import mikota_chain as mikota_chain
+from ._classic import damper_directions as damper_directions
+from ._classic import modal_basis as modal_basis
+from ._classic import modal_static_basis as modal_static_basis
 from ._damper_search import DamperPlacement as DamperPlacement
 from ._damper_search import place_dampers as place_dampers
 from ._dampers import GroundedDamper as GroundedDamper
 from ._dampers import RelativeDamper as RelativeDamper
 from ._design import DamperProblem as DamperProblem
+from ._enrichment import enriched_reduce as enriched_reduce
+from ._enrichment import sensitivity_snapshots as sensitivity_snapshots
 from ._exact import exact_solve as exact_solve
 from ._excitation import LoadFunction as LoadFunction
 from ._excitation import Pulse as Pulse
