@@ -1,0 +1,125 @@
+"""Four reductions of the Section 5 scene compared on error against size and offline cost
+(issue 20): POD of the states (the paper's), sensitivity-enriched POD, modal truncation, and
+modal truncation with the static correction of the damper direction.
+
+The scene: Mikota n = 300, the damper at DOF 7 with c = 1, x_3(0) = 1, exact solves on [0, 20]
+(2001 times), snapshots on [0, 10]. For each method and basis size r: the Galerkin ROM's
+relative error in J (the scene's integrated energy), in dJ/dp and dJ/dc (max of the two), and in
+the displacement history of all DOFs (relative L2 over the whole run, eq. 5.4's "sum" reading
+for x alone), and the offline time to build the basis (warm: every method built once before
+timing). The full model is the reference (spectral path).
+
+Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/reductions.py [--quick] [--replot]``
+(``--quick``: two sizes). Writes ``results/reductions[_quick].json`` and ``.png``.
+"""
+
+# _common first: it sets OPENBLAS_NUM_THREADS before jax and numpy load.
+from _common import (elapsed, figure, legend, parse_args, print_table,  # noqa: I001
+                     read_json, save_figure, subtitle, write_json)
+
+import time
+
+import jax
+import numpy as np
+
+import mikota_jax as mj
+
+NAME = "reductions"
+SCENE = "section5_damped"
+WRT = ("positions", "coefficients")
+SIZES = (20, 40, 60, 76, 98, 120, 140)  # the POD snapshots have numerical rank 148
+METHODS = ("POD", "enriched POD", "modal", "modal + static")
+
+
+def builders(scene):
+    """method -> (r -> basis); the POD ones share their decomposition (built in ``warm``)."""
+    cache = {}
+
+    def pod(r):
+        if "pod" not in cache:
+            states = mj.exact_solve(scene.system, scene.ts, scene.x0, scene.v0).displacement
+            cache["pod"] = mj.reduce(states, scene.ts, scene.reduction).pod
+        return cache["pod"].basis(r)
+
+    def enriched(r):
+        if "enriched" not in cache:
+            cache["enriched"] = mj.enriched_reduce(scene, WRT).pod
+        return cache["enriched"].basis(r)
+
+    return {"POD": pod, "enriched POD": enriched,
+            "modal": lambda r: mj.modal_basis(scene.system, r),
+            "modal + static": lambda r: mj.modal_static_basis(scene.system, r - 2)}, cache
+
+
+def main(argv=None) -> dict:
+    args = parse_args(__doc__, argv, replot=True)
+    if args.replot:
+        return print(plot(read_json(NAME, args.quick), args.quick))
+    sizes = (40, 98) if args.quick else SIZES
+    scene = mj.load_scene(SCENE)
+    start = time.perf_counter()
+    full = mj.sensitivities(scene, "energy", wrt=WRT)
+    reference = np.asarray(mj.exact_solve(scene.system, scene.ts, scene.x0).displacement)
+    rows = []
+    for method in METHODS:
+        builds, cache = builders(scene)
+        build = builds[method]
+        jax.block_until_ready(build(sizes[0]))  # compile (and the POD, once) before timing
+        for r in sizes:
+            cache.clear()
+            t0 = time.perf_counter()
+            basis = jax.block_until_ready(build(r))
+            offline = elapsed(t0)
+            rom = mj.sensitivities(scene, "energy", wrt=WRT, model="reduced", basis=basis)
+            history = np.asarray(mj.exact_solve(mj.galerkin(scene.system, basis), scene.ts,
+                                                scene.x0).displacement)
+            row = dict(method=method, r=int(basis.shape[1]), offline_s=offline,
+                       J=abs(float(rom.value) / float(full.value) - 1),
+                       gradient=max(abs(float(rom.jacobian[k][0]) / float(full.jacobian[k][0])
+                                        - 1) for k in WRT),
+                       history=float(np.linalg.norm(history - reference)
+                                     / np.linalg.norm(reference)))
+            rows.append(row)
+            print(f"{method:>15} r = {row['r']:3d}: J {row['J']:.1e}, gradient "
+                  f"{row['gradient']:.1e}, history {row['history']:.1e}, offline "
+                  f"{offline:.2f} s", flush=True)
+    print_table(rows, [("method", "method", ""), ("r", "r", "d"), ("J", "J err", ".1e"),
+                       ("gradient", "dJ err", ".1e"), ("history", "x err", ".1e"),
+                       ("offline_s", "offline s", ".2f")])
+    data = dict(problem=dict(scene=SCENE, design=dict(position=7.0, coefficient=1.0),
+                             wrt=list(WRT), J="energy on [0, 20]",
+                             errors="relative to the full model (spectral exact solve)",
+                             modal_static="r - 2 modes + the split damper's two static "
+                                          "directions (r columns in all)"),
+                full=dict(J=float(full.value), dJdp=float(full.jacobian["positions"][0]),
+                          dJdc=float(full.jacobian["coefficients"][0])),
+                rows=rows, total_wall_s=elapsed(start))
+    path = write_json(NAME, args.quick, data)
+    png = plot(read_json(NAME, args.quick), args.quick)
+    print(f"wrote {path} and {png}")
+    return data
+
+
+def plot(data: dict, quick: bool):
+    rows = data["rows"]
+    fig, axes = figure(ncols=3, figsize=(12, 4.0), readable=True, sharex=True)
+    styles = dict(zip(METHODS, ("o-", "s-", "^--", "v--")))
+    for ax, key, title in zip(axes, ("J", "gradient", "history"),
+                              ("(a) energy J", "(b) max(dJ/dp, dJ/dc)", "(c) x(t), all DOFs")):
+        for method in METHODS:
+            mine = [r for r in rows if r["method"] == method]
+            ax.semilogy([r["r"] for r in mine], [max(r[key], 1e-16) for r in mine],
+                        styles[method], label=method)
+        ax.axhline(1e-3, color="k", lw=0.8, ls=":")
+        ax.set_title(title)
+        ax.set_xlabel("basis size r")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].set_ylabel("relative error (dimensionless)")
+    legend(axes[2], "right")
+    fig.suptitle("Section 5 scene (n = 300, damper at DOF 7, c = 1): reductions against the full "
+                 "model; dotted: 1e-3\n" + subtitle(data["metadata"]))
+    return save_figure(fig, NAME, quick)
+
+
+if __name__ == "__main__":
+    main()
