@@ -26,6 +26,8 @@ def chain_stiffness(springs: Vector) -> SymmetricTridiagonal:
     """K = tridiag(-k_i, k_i + k_{i+1}, -k_{i+1}) with k_{n+1} = 0 (eq. 2.2), from springs (n,),
     unchecked: ``chain`` checks first, the parameter map (``_parameters``) checks at its entry."""
     xp = array_module(springs)  # concrete springs: numpy (exact elementwise; nothing compiled)
+    if xp is np:
+        springs = np.asarray(springs)
     next_springs = xp.concatenate([springs[1:], xp.zeros(1)])
     return SymmetricTridiagonal(jnp.asarray(springs + next_springs), jnp.asarray(-springs[1:]),
                                 jnp.asarray(springs))

@@ -58,7 +58,9 @@ def is_traced(x) -> bool:
 def array_module(*xs):
     """``numpy`` when every leaf of ``xs`` is concrete, else ``jax.numpy``: host-side checks and
     index arithmetic on concrete inputs then compile nothing (each eager ``jnp`` op compiles once
-    per shape, ~40 ms on a 2-core CPU: a scene's cold start paid ~3 s for about 100 of them)."""
+    per shape, ~40 ms on a 2-core CPU: a scene's cold start paid ~3 s for about 100 of them).
+    Convert with ``np.asarray`` before indexing or slicing: under a caller's trace even a
+    concrete jax array's ``x[0]`` is staged into the trace (a tracer numpy cannot take)."""
     return jnp if any(is_traced(leaf) for x in xs for leaf in jax.tree.leaves(x)) else np
 
 

@@ -57,6 +57,8 @@ def _step_tolerance(ts, first, xp=jnp):
     """How far a step may differ from the first and still count as uniform: 1e-9 of it, or the
     rounding of t itself (8 ulps of the largest |t|): start + step k in float64 spreads the steps
     by ulp(t), 1.5e-8 of a 1e-3 step at t = 1e5 (such grids were refused as non-uniform)."""
+    if xp is np:  # concrete: numpy throughout (indexing a jax array under a trace is staged)
+        ts, first = np.asarray(ts), np.asarray(first)
     scale = xp.maximum(xp.abs(ts[0]), xp.abs(ts[-1]))
     return xp.maximum(_UNIFORM * xp.abs(first), 8 * xp.finfo(ts.dtype).eps * scale)
 METHODS = ("auto", "spectral", "dense")

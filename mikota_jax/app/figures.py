@@ -168,15 +168,16 @@ def placement_landscape(path, positions, coefficients, values, paths, optimum, t
     v = np.log10(np.asarray(values, dtype=float))
     mesh = ax.pcolormesh(np.asarray(positions), np.asarray(coefficients), v.T, shading="nearest",
                          cmap="viridis")
-    fig.colorbar(mesh, ax=ax, label=r"$\log_{10} J$")
+    fig.colorbar(mesh, ax=ax, label=r"$\log_{10} J$ (J in the model's energy units)")
     for k, (p, c) in enumerate(paths):
-        ax.plot(p, c, "-", color="white", lw=0.9, alpha=0.8,
-                label="optimiser paths" if k == 0 else None)
-        ax.plot(p[:1], c[:1], "o", color="white", ms=3)
-    ax.plot([optimum[0]], [optimum[1]], "*", color="red", ms=14, label="certified optimum")
-    ax.set(xlabel="damper position (DOF)", ylabel="damper coefficient", yscale="log",
-           title=title)
-    ax.legend(loc="upper right", fontsize=8)
+        ax.plot(p, c, "-", color="C1", lw=1.2, label="optimiser paths (o: start)" if k == 0
+                else None)
+        ax.plot(p[:1], c[:1], "o", color="C1", ms=4)
+    ax.plot([optimum[0]], [optimum[1]], "*", color="red", mec="white", ms=14,
+            label="certified optimum")
+    ax.set(xlabel="damper position p (DOF, 1-based)",
+           ylabel="damper coefficient c (force x time / length)", yscale="log", title=title)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), ncols=2, frameon=False)
     return _save(fig, Path(path))
 
 
