@@ -18,6 +18,8 @@ PAGES = {
     "paper.md": ("The paper, reproduced", ["The paper, reproduced"]),
     "placement.md": ("Damper placement", ["Damper placement"]),
     "sensitivities.md": ("Sensitivities and sweeps", ["Sensitivities and sweeps"]),
+    "reduced_models.md": ("Reduced models across the design space",
+                          ["Reduced models across the design space"]),
     "own_matrices.md": ("Your own matrices and scenes",
                         ["Beyond Mikota: your own matrices, internal damping, branched chains",
                          "Scenes"]),

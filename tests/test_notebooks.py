@@ -1,6 +1,7 @@
 """Every notebook in notebooks/ executes end to end at its small size
 (``MIKOTA_NOTEBOOK_SIZE=small``, the default run) and at its full size (``-m slow``), and is
-stored with its outputs stripped."""
+stored with its outputs stripped; the docs site's executed copy (``docs/examples/``, written by
+``docs/execute_notebooks.py``) has the same code, every cell run and no error."""
 
 import json
 import os
@@ -10,7 +11,8 @@ import nbformat
 import pytest
 from nbclient import NotebookClient
 
-NOTEBOOKS = sorted((Path(__file__).parent.parent / "notebooks").glob("*.ipynb"))
+ROOT = Path(__file__).parent.parent
+NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
 # the file each notebook writes into MIKOTA_NOTEBOOK_OUT when it has run to the end
 OUTPUTS = {"paper_reproduction.ipynb": "reproduce.json", "damper_placement.ipynb": "placement.json",
            "sensitivity_study.ipynb": "sensitivity.json",
@@ -21,6 +23,18 @@ OUTPUTS = {"paper_reproduction.ipynb": "reproduce.json", "damper_placement.ipynb
 def test_notebook_is_stored_without_outputs(path):
     cells = json.loads(path.read_text())["cells"]
     assert all(not cell.get("outputs") for cell in cells if cell["cell_type"] == "code")
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
+def test_the_docs_copy_is_this_notebook_executed(path):
+    # a notebook edited without re-running docs/execute_notebooks.py shows stale outputs
+    source = json.loads(path.read_text())["cells"]
+    executed = json.loads((ROOT / "docs" / "examples" / path.name).read_text())["cells"]
+    assert [c["source"] for c in executed] == [c["source"] for c in source]
+    code = [c for c in executed if c["cell_type"] == "code"]
+    assert all(c["execution_count"] is not None for c in code)
+    assert not [o for c in code for o in c["outputs"] if o["output_type"] == "error"]
+    assert any(o["output_type"] == "display_data" for c in code for o in c["outputs"])
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
