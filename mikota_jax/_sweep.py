@@ -95,7 +95,7 @@ class Sweep(eqx.Module):
 
 
 def sweep(function, points, *, chunk_size: int | None = None, devices=None,
-          batch: str = "auto", progress: bool = True, memory_limit: int | None = None,
+          batch: str = "auto", progress: bool = False, memory_limit: int | None = None,
           out: str | Path | None = None):
     """``function(point)`` at every point: a pytree like ``function``'s output, with a leading
     axis of points (numpy arrays on the host, or ``.npy`` memory maps in ``out``).
@@ -103,6 +103,8 @@ def sweep(function, points, *, chunk_size: int | None = None, devices=None,
     ``function``: pure, of one point (a pytree like ``points`` without the leading axis), e.g. a
     ``SceneFunction``. ``points``: pytree of float64 arrays, points along the leading axis (see
     ``grid``). ``devices``: default every device of every process (``jax.devices()``).
+    ``progress``: a progress bar over the chunks on stderr (off unless asked, as in every
+    library call).
     ``chunk_size``: points per compiled call (a multiple of the device count; default the largest
     power of two up to 256 per device whose compiled memory fits ``memory_limit`` bytes per
     device, default a quarter of the host RAM or half a GPU's). ``batch``: "vmap" (vectorised on
