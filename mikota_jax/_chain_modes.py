@@ -290,6 +290,11 @@ def _chain_modes_jvp(primals, tangents):
     return (omega2, modes), (domega2, dmodes)
 
 
+# compiled once per shape: called eagerly, the scans inside would be traced again on every call
+# (their bodies are fresh closures), so modal_decomposition retraced for each new chain
+_compiled_chain_modes = jax.jit(_chain_modes)
+
+
 def chain_modes(masses: Vector, springs: Vector) -> tuple[Vector, Matrix]:
     """(omega^2, U) of a fixed-free chain: K U = M U diag(omega^2), U^T M U = I, ascending.
 
@@ -299,13 +304,13 @@ def chain_modes(masses: Vector, springs: Vector) -> tuple[Vector, Matrix]:
     factorisations (see the module docstring). Differentiable (JVP and VJP) in both arguments.
     """
     masses, springs = _validate(masses, springs)
-    return _chain_modes(masses, springs)
+    return _compiled_chain_modes(masses, springs)
 
 
 def unchecked_chain_modes(masses: Vector, springs: Vector) -> tuple[Vector, Matrix]:
     """``chain_modes`` without its checks, for a system whose masses and springs were checked
     when it was built (no host callback in a compiled caller)."""
-    return _chain_modes(masses, springs)
+    return _compiled_chain_modes(masses, springs)
 
 
 def _chunked(omega2, size):
