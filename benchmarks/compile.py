@@ -42,8 +42,8 @@ reproduce. Writes ``benchmarks/results/compile[_quick].json`` and ``.png``.
 """
 
 # _common first: it sets OPENBLAS_NUM_THREADS before jax and numpy load.
-from _common import (elapsed, figure, parse_args, print_table, save_figure,  # noqa: I001
-                     subtitle, write_json)
+from _common import (elapsed, figure, legend, parse_args, print_table,  # noqa: I001
+                     save_figure, subtitle, write_json)
 
 import argparse
 import json
@@ -610,7 +610,8 @@ def merge(cold_rows, warm_rows) -> list[dict]:
 
 def plot(rows, repro, quick: bool, meta, cli=None) -> Path:
     panels = 1 + (repro is not None) + (cli is not None)
-    fig, axes = figure(ncols=panels, figsize=(7.5 * panels, 0.32 * len(rows) + 2.2),
+    fig, axes = figure(nrows=panels, figsize=(8, 0.32 * len(rows) + 2.2 + 2.6 * (panels - 1)),
+                       readable=True, height_ratios=[0.32 * len(rows) + 1.2] + [2.0] * (panels - 1),
                        squeeze=False)
     ax = axes[0][0]
     y = np.arange(len(rows))
@@ -622,17 +623,17 @@ def plot(rows, repro, quick: bool, meta, cli=None) -> Path:
     for i, r in enumerate(rows):
         if r["warm_events"]["uncacheable"]:
             ax.annotate("not storable", (warm[i], y[i] + 0.2), xytext=(3, -3),
-                        textcoords="offset points", fontsize=6, color="C0")
-    ax.set_yticks(y, [r["entry"] for r in rows], fontsize=7)
+                        textcoords="offset points", color="C0")
+    ax.set_yticks(y, [r["entry"] for r in rows])
     ax.invert_yaxis()
     ax.set_xscale("log")
     ax.set_xlabel("compile = first call - run [s] (log; floor 1 ms)")
     ax.set_title(f"first-call overhead per entry point (n = {N}, 2001 outputs)\n"
-                 + subtitle(meta), fontsize=8)
+                 + subtitle(meta))
     ax.grid(True, axis="x", which="both", alpha=0.3)
-    ax.legend(fontsize=7, loc="lower right")
+    legend(ax, "right")
     if repro is not None:
-        ax = axes[0][1]
+        ax = axes[1][0]
         labels, parts = [], []
         for key in ("cold", "warm"):
             r = repro[key]
@@ -650,11 +651,11 @@ def plot(rows, repro, quick: bool, meta, cli=None) -> Path:
         ax.set_xlabel("seconds, process start to exit")
         ax.set_title("python -m mikota_jax reproduce: time to first result\n"
                      f"warm compile / run = {repro['warm']['compile_over_run']:.2f} "
-                     f"(target <= {RATIO_TARGET:g})", fontsize=8)
-        ax.legend(fontsize=7, loc="lower right")
+                     f"(target <= {RATIO_TARGET:g})")
+        legend(ax, "right")
         ax.grid(True, axis="x", alpha=0.3)
     if cli is not None:
-        ax = axes[0][panels - 1]
+        ax = axes[panels - 1][0]
         labels = list(cli["runs"])
         y = np.arange(len(labels))
         ax.barh(y - 0.2, [cli["runs"][k]["cold_s"] for k in labels], height=0.4, color="C3",
@@ -667,8 +668,8 @@ def plot(rows, repro, quick: bool, meta, cli=None) -> Path:
         ax.invert_yaxis()
         ax.set_xlabel("seconds, process start to exit")
         ax.set_title(f"python -m mikota_jax run {SCENE}\n(median of {cli['repeats']}; the "
-                     "CLI compiles at level 0 up to 1000 DOFs)", fontsize=8)
-        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+                     "CLI compiles at level 0 up to 1000 DOFs)")
+        legend(ax, "right")
         ax.grid(True, axis="x", alpha=0.3)
     return save_figure(fig, NAME, quick)
 
