@@ -1,15 +1,16 @@
-"""Execute every notebook in notebooks/ at the size it ships with and store the executed copy,
-outputs included, in docs/examples/ (what the docs site renders; mkdocs-jupyter does not execute).
+"""Execute every notebook in notebooks/ at the size it ships with and store it, rendered with its
+outputs, as docs/examples/NAME.md plus its figures in docs/examples/NAME_files/ (what the docs
+site shows; no notebook with outputs is committed, and the docs build executes nothing).
 
-The notebooks themselves are stored without outputs; ``tests/test_notebooks.py`` checks that each
-copy here has the same code as its notebook, every code cell executed and no error, so a notebook
-changed without re-running this script fails the tests.
+``tests/test_notebooks.py`` checks that each page holds every code cell of its notebook verbatim,
+a figure and no traceback, so a notebook changed without re-running this script fails the tests.
 
 Run: ``OPENBLAS_NUM_THREADS=1 python docs/execute_notebooks.py [NAME.ipynb ...]`` (about 10
 minutes for all five on a 2-core CPU). Needs the ``notebooks`` extra.
 """
 
 import os
+import shutil
 import sys
 import tempfile
 import time
@@ -17,6 +18,7 @@ from pathlib import Path
 
 import nbformat
 from nbclient import NotebookClient
+from nbconvert import MarkdownExporter
 
 ROOT = Path(__file__).resolve().parent.parent
 SOURCE, TARGET = ROOT / "notebooks", ROOT / "docs" / "examples"
@@ -33,8 +35,15 @@ def execute(path: Path) -> Path:
     errors = [o for c in notebook.cells for o in c.get("outputs", []) if o.output_type == "error"]
     if errors:
         raise SystemExit(f"{path.name}: a cell failed: {errors[0].get('ename')}")
-    target = TARGET / path.name
-    nbformat.write(notebook, target)
+    files = f"{path.stem}_files"
+    body, resources = MarkdownExporter().from_notebook_node(
+        notebook, resources={"output_files_dir": files})
+    shutil.rmtree(TARGET / files, ignore_errors=True)
+    for name, data in resources.get("outputs", {}).items():
+        (TARGET / name).parent.mkdir(parents=True, exist_ok=True)
+        (TARGET / name).write_bytes(data)
+    target = TARGET / f"{path.stem}.md"
+    target.write_text(body)
     return target
 
 

@@ -1,7 +1,7 @@
 """Every notebook in notebooks/ executes end to end at its small size
 (``MIKOTA_NOTEBOOK_SIZE=small``, the default run) and at its full size (``-m slow``), and is
-stored with its outputs stripped; the docs site's executed copy (``docs/examples/``, written by
-``docs/execute_notebooks.py``) has the same code, every cell run and no error."""
+stored with its outputs stripped; the docs site's executed page (``docs/examples/NAME.md``,
+written by ``docs/execute_notebooks.py``) holds the same code, a figure and no traceback."""
 
 import json
 import os
@@ -28,13 +28,11 @@ def test_notebook_is_stored_without_outputs(path):
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
 def test_the_docs_copy_is_this_notebook_executed(path):
     # a notebook edited without re-running docs/execute_notebooks.py shows stale outputs
-    source = json.loads(path.read_text())["cells"]
-    executed = json.loads((ROOT / "docs" / "examples" / path.name).read_text())["cells"]
-    assert [c["source"] for c in executed] == [c["source"] for c in source]
-    code = [c for c in executed if c["cell_type"] == "code"]
-    assert all(c["execution_count"] is not None for c in code)
-    assert not [o for c in code for o in c["outputs"] if o["output_type"] == "error"]
-    assert any(o["output_type"] == "display_data" for c in code for o in c["outputs"])
+    page = (ROOT / "docs" / "examples" / f"{path.stem}.md").read_text()
+    code = [c for c in json.loads(path.read_text())["cells"] if c["cell_type"] == "code"]
+    assert all("".join(c["source"]).strip() in page for c in code)
+    assert f"]({path.stem}_files/" in page  # a figure
+    assert "Traceback (most recent call last)" not in page
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
