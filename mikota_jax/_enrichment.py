@@ -30,7 +30,7 @@ from ._pod import pod
 from ._reduction import ReducedBasis, snapshot_window
 from ._run import solve_scene
 from ._scene import Scene
-from ._sensitivity import SceneFunction, scene_parameters
+from ._sensitivity import SceneFunction, parameters_at
 
 DESIGN = ("positions", "coefficients")
 
@@ -68,13 +68,7 @@ def sensitivity_snapshots(scene: Scene, wrt: Sequence[str] = DESIGN, *,
     if scene.reduction is None:
         raise ValueError(MARK + "scene: sensitivity snapshots need a [reduction] table (the "
                          "snapshot window and the rank rule).")
-    nominal = scene_parameters(scene, wrt)
-    if parameters is not None:
-        unknown = set(parameters) - set(nominal)
-        if unknown:
-            raise ValueError(MARK + f"parameters: {sorted(unknown)} are not among wrt = "
-                             f"{sorted(nominal)}.")
-        nominal.update({k: jnp.asarray(v, dtype=jnp.float64) for k, v in parameters.items()})
+    nominal = parameters_at(scene, wrt, parameters)
     velocity = scene.reduction.quantity == "velocity"
     rows = jnp.asarray(np.flatnonzero(snapshot_window(scene.ts, scene.reduction.window)))
     states, tangents = _states_and_tangents(SceneFunction(scene, "energy"), velocity, nominal)

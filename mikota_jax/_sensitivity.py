@@ -125,6 +125,24 @@ def scene_parameters(scene: Scene, wrt=None) -> dict[str, jax.Array]:
     return {name: jnp.asarray(available[name], dtype=jnp.float64) for name in wrt}
 
 
+def parameters_at(scene: Scene, wrt=None, parameters: dict | None = None) -> dict:
+    """``scene_parameters(scene, wrt)`` with the entries of ``parameters`` (checked: names among
+    ``wrt``, float64 of the nominal shapes) in place of the scene's values."""
+    nominal = scene_parameters(scene, wrt)
+    if parameters is not None:
+        unknown = set(parameters) - set(nominal)
+        if unknown:
+            raise ValueError(MARK + f"parameters: {sorted(unknown)} are not among wrt = "
+                             f"{sorted(nominal)}.")
+        for name, value in parameters.items():
+            value = as_float(value, name)
+            if value.shape != nominal[name].shape:
+                raise ValueError(MARK + f"parameters[{name!r}] must have shape "
+                                 f"{nominal[name].shape}, got {value.shape}.")
+            nominal[name] = value
+    return nominal
+
+
 def _scene_basis(scene: Scene) -> jax.Array:
     """The scene's POD basis at its nominal parameters (as ``run_scene`` computes it)."""
     reduction = scene.reduction
@@ -309,18 +327,7 @@ def sensitivities(scene: Scene, output: str = "energy", *, wrt=None, model: str 
     """
     if mode not in MODES:
         raise ValueError(MARK + f"mode must be one of {list(MODES)}, got {mode!r}.")
-    nominal = scene_parameters(scene, wrt)
-    if parameters is not None:
-        unknown = set(parameters) - set(nominal)
-        if unknown:
-            raise ValueError(MARK + f"parameters: {sorted(unknown)} are not among wrt = "
-                             f"{sorted(nominal)}.")
-        for name, value in parameters.items():
-            value = as_float(value, name)
-            if value.shape != nominal[name].shape:
-                raise ValueError(MARK + f"parameters[{name!r}] must have shape "
-                                 f"{nominal[name].shape}, got {value.shape}.")
-            nominal[name] = value
+    nominal = parameters_at(scene, wrt, parameters)
     function = SceneFunction(scene, output, model=model, basis=basis, count=count)
     shape = jax.eval_shape(function, nominal).shape
     inputs = sum(int(np.prod(v.shape)) for v in nominal.values())
