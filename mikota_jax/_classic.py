@@ -21,6 +21,7 @@ a ``ReducedModel`` (solvers, objectives, ``jax.grad``), like ``POD.basis``:
 The static solves are O(n) for a chain (tridiagonal K), dense otherwise.
 """
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -68,6 +69,24 @@ def damper_directions(system: SecondOrderSystem) -> jnp.ndarray:
     return b
 
 
+def _stiffness_solve(system: SecondOrderSystem):
+    """Y -> K^-1 Y for (n, p) Y: O(n p) for a chain (tridiagonal K), a dense solve otherwise."""
+    stiffness = system.stiffness
+    if isinstance(stiffness, SymmetricTridiagonal) and not stiffness.links:
+        return lambda y: symmetric_tridiagonal_solve(stiffness.diagonal, stiffness.off_diagonal, y)
+    matrix = stiffness.as_matrix()
+    return lambda y: jnp.linalg.solve(matrix, y)
+
+
+def _force_columns(system: SecondOrderSystem, inputs, name: str) -> jnp.ndarray:
+    inputs = as_float(inputs, name)
+    inputs = inputs[:, None] if inputs.ndim == 1 else inputs
+    if inputs.ndim != 2 or inputs.shape[0] != system.size or inputs.shape[1] < 1:
+        raise ValueError(MARK + f"{name} must be (n,) or (n, s) with n = {system.size}, got "
+                         f"{inputs.shape}.")
+    return inputs
+
+
 def modal_static_basis(system: SecondOrderSystem, rank: int, *, loads=None,
                        dampers: bool = True) -> Basis:
     """The ``rank`` lowest undamped modes and the static responses K^-1 b of the damper
@@ -78,21 +97,12 @@ def modal_static_basis(system: SecondOrderSystem, rank: int, *, loads=None,
     _check(system, rank)
     columns = [damper_directions(system)] if dampers else []
     if loads is not None:
-        loads = as_float(loads, "loads")
-        loads = loads[:, None] if loads.ndim == 1 else loads
-        if loads.ndim != 2 or loads.shape[0] != system.size:
-            raise ValueError(MARK + f"loads must be (n,) or (n, s) with n = {system.size}, got "
-                             f"{loads.shape}.")
-        columns.append(loads)
+        columns.append(_force_columns(system, loads, "loads"))
     modes = modal_basis(system, rank)
     if not columns or rank == system.size:
         return modes
     forces = jnp.concatenate(columns, axis=1)
-    stiffness = system.stiffness
-    if isinstance(stiffness, SymmetricTridiagonal) and not stiffness.links:  # a chain: O(n)
-        static = symmetric_tridiagonal_solve(stiffness.diagonal, stiffness.off_diagonal, forces)
-    else:
-        static = jnp.linalg.solve(stiffness.as_matrix(), forces)
+    static = _stiffness_solve(system)(forces)
     scale = float(jnp.max(jnp.linalg.norm(static, axis=0)))
     # the part outside the kept modes, twice (classical Gram-Schmidt loses orthogonality once)
     for _ in range(2):
@@ -100,3 +110,71 @@ def modal_static_basis(system: SecondOrderSystem, rank: int, *, loads=None,
     q, r = jnp.linalg.qr(static)
     keep = np.flatnonzero(np.abs(np.diag(np.asarray(r))) > _DEPENDENT * scale)
     return jnp.concatenate([modes, q[:, keep]], axis=1)[:, : system.size]
+
+
+def krylov_basis(system: SecondOrderSystem, rank: int, inputs) -> Basis:
+    """A second-order Krylov basis (moment matching at s = 0) of ``rank`` orthonormal columns.
+
+    The transfer function H(s) = (s^2 M + s D + K)^-1 B of the force directions B = ``inputs``
+    ((n,) or (n, s)) has the moments of the second-order Krylov subspace G_k(A, C; R0) with
+    A = -K^-1 D, C = -K^-1 M, R0 = K^-1 B: R1 = A R0, R_j = A R_(j-1) + C R_(j-2) (Bai & Su,
+    "SOAR: a second-order Arnoldi method for the solution of the quadratic eigenvalue problem",
+    SIAM J. Matrix Anal. Appl. 26 (2005) 640-659; "Dimension reduction of large-scale
+    second-order dynamical systems via a second-order Arnoldi method", SIAM J. Sci. Comput. 26
+    (2005) 1692-1709): a Galerkin model on a basis that holds G_k matches the first k moments of
+    H at s = 0 (the static response and its first k - 1 derivatives). Built stably as the top
+    halves of a block Arnoldi basis of the linearisation L = [[A, C], [I, 0]] started from
+    [R0; 0] (full reorthogonalisation), then orthonormalised with dependent directions dropped;
+    O(n) per solve for a chain. For free vibration from x0 the forcing is (s M + D) x0 + M v0:
+    pass M x0 (and the damper directions, ``damper_directions``) as inputs. The basis may have
+    fewer than ``rank`` columns when the subspace is exhausted (its size depends on the values:
+    call it outside ``jit``)."""
+    _check(system, rank)
+    forces = _force_columns(system, inputs, "inputs")
+    n = system.size
+    push = _linearisation(system)  # one compiled function per block width
+    start = np.asarray(_stiffness_solve(system)(forces))
+    vectors = _orthonormal_in_order(np.concatenate([start, np.zeros_like(start)]), 2 * n)
+    block = vectors
+    while block.shape[1] and vectors.shape[1] < 2 * rank + start.shape[1]:
+        new = np.asarray(push(jnp.asarray(block)))
+        scale = np.max(np.linalg.norm(new, axis=0))
+        for _ in range(2):  # full reorthogonalisation, twice
+            new = new - vectors @ (vectors.T @ new)
+        new[:, np.linalg.norm(new, axis=0) <= _DEPENDENT * scale] = 0.0
+        block = _orthonormal_in_order(new, 2 * n) if np.any(new) else new[:, :0]
+        vectors = np.concatenate([vectors, block], axis=1)
+    return jnp.asarray(_orthonormal_in_order(vectors[:n], rank))
+
+
+def _linearisation(system: SecondOrderSystem):
+    """[u; w] -> L [u; w] = [-K^-1 (D u + M w); u], for (2n, p) blocks, compiled."""
+    solve = _stiffness_solve(system)
+    damping = system.damping_operator()
+    n = system.size
+
+    @jax.jit
+    def push(block):
+        top, bottom = block[:n], block[n:]
+        force = jax.vmap(system.mass.mv, in_axes=1, out_axes=1)(bottom)
+        if damping is not None:
+            force = force + jax.vmap(damping.mv, in_axes=1, out_axes=1)(top)
+        return jnp.concatenate([-solve(force), top])
+
+    return push
+
+
+def _orthonormal_in_order(columns: np.ndarray, rank: int) -> np.ndarray:
+    """Gram-Schmidt (twice) in column order, dropping a column whose new part is below
+    ``_DEPENDENT`` of the largest column: nested spans are kept nested."""
+    scale = float(np.max(np.linalg.norm(columns, axis=0))) if columns.size else 0.0
+    kept = np.zeros((columns.shape[0], 0))
+    for column in columns.T:
+        for _ in range(2):
+            column = column - kept @ (kept.T @ column)
+        norm = np.linalg.norm(column)
+        if norm > _DEPENDENT * scale:
+            kept = np.concatenate([kept, (column / norm)[:, None]], axis=1)
+        if kept.shape[1] == rank:
+            break
+    return kept

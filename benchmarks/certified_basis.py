@@ -1,0 +1,182 @@
+"""One reduced basis for the whole Section 5 design box, certified by the a posteriori bound.
+
+The Section 5 scene (Mikota n = 300, x_3(0) = 1, free vibration, J = int_0^20 energy dt); the
+design is the grounded damper's (position p in [1, 300], coefficient c in [0.1, 1000]).
+
+1. ``greedy_reduce`` from the scene's own POD (the paper's r = 98) over a training grid of
+   16 positions x 9 coefficients (log), tolerance 1e-4 on the bound of |J - J_r| / J, 10 modes
+   per iteration: its history (rank, largest bound), full solves and offline time.
+2. 1000 random designs (seed 0; p uniform, log10 c uniform): the bound there (``BoundFunction``
+   swept, no full solve) against the true error (the full model's J by the spectral path, swept
+   the same way): the largest true error, the share certified, the effectivity bound / error
+   (min, median, max; >= 1 means the bound held). Also the state-error effectivity at 20 of them
+   (max_t |z - z_r|_E from exact solves of both models).
+3. The rank rule from the bound at the paper's design (``rank_for_bound``, 1e-4) beside the
+   paper's 99.99 % energy rank, with the true error at each.
+4. Online cost per design (warm medians over the sweeps): the bound against the full model's J.
+
+``--quick``: 4 x 3 training designs, 50 random designs, 5 state checks.
+Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/certified_basis.py [--quick] [--replot]``.
+Writes ``results/certified_basis[_quick].json`` and ``.png``.
+"""
+
+# _common first: it sets OPENBLAS_NUM_THREADS before jax and numpy load.
+from _common import (elapsed, figure, legend, parse_args, read_json,  # noqa: I001
+                     save_figure, subtitle, write_json)
+
+import time
+
+import jax.numpy as jnp
+import numpy as np
+
+import mikota_jax as mj
+
+NAME = "certified_basis"
+SCENE = "section5_damped"
+TOLERANCE = 1e-4
+TARGET_EFFECTIVITY = (1.0, 20.0)
+
+
+def random_designs(count: int) -> dict:
+    rng = np.random.default_rng(0)
+    return {"positions": rng.uniform(1.0, 300.0, (count, 1)),
+            "coefficients": 10 ** rng.uniform(-1.0, 3.0, (count, 1))}
+
+
+def swept(function, points) -> tuple[np.ndarray, float]:
+    mj.sweep(function, {k: v[:2] for k, v in points.items()}, batch="map")  # compile
+    start = time.perf_counter()
+    values = mj.sweep(function, points, batch="map")
+    return values, elapsed(start) / len(next(iter(points.values())))
+
+
+def state_errors(scene, basis, design) -> tuple[float, float]:
+    """(true max_t |z - z_r|_E, its bound) at one design, from exact solves of both models."""
+    system = mj.SceneFunction(scene, "energy").system(
+        {k: jnp.asarray(v) for k, v in design.items()})
+    full = mj.exact_solve(system, scene.ts, scene.x0, velocity=True)
+    rom = mj.exact_solve(mj.galerkin(system, basis), scene.ts, scene.x0, velocity=True)
+    ex = np.asarray(full.displacement - rom.displacement)
+    ev = np.asarray(full.velocity - rom.velocity)
+    kx = np.stack([np.asarray(system.stiffness.mv(jnp.asarray(row))) for row in ex])
+    mv = ev * np.asarray(system.mass.diagonal)[None, :]
+    true = float(np.sqrt(np.max(np.sum(ex * kx, axis=1) + np.sum(ev * mv, axis=1))))
+    return true, float(mj.error_bound(system, basis, float(scene.ts[-1]), scene.x0).state)
+
+
+def plot(data: dict, quick: bool):
+    fig, axes = figure(ncols=2, figsize=(10, 4.2), readable=True)
+    ranks = [h[0] for h in data["greedy"]["history"]]
+    bounds = [h[1] for h in data["greedy"]["history"]]
+    axes[0].semilogy(ranks, bounds, "o-", label="largest bound on the training grid")
+    axes[0].axhline(data["tolerance"], color="k", ls="--", label=f"tolerance {data['tolerance']:g}")
+    axes[0].set_xlabel("basis size r")
+    axes[0].set_ylabel("bound on |J - J_r| / J (dimensionless)")
+    axes[0].set_title("(a) POD-greedy over the design box")
+    legend(axes[0], "below")
+    rows = data["random"]
+    error = np.array([r["true"] for r in rows])
+    bound = np.array([r["bound"] for r in rows])
+    axes[1].loglog(np.maximum(error, 1e-17), bound, ".", alpha=0.5,
+                   label=f"{len(rows)} random designs")
+    lo = min(np.min(np.maximum(error, 1e-17)), np.min(bound))
+    hi = max(np.max(error), np.max(bound))
+    line = np.array([lo, hi])
+    axes[1].loglog(line, line, "k-", label="bound = error")
+    axes[1].loglog(line, 20 * line, "k:", label="effectivity 20")
+    axes[1].set_xlabel("true |J - J_r| / J (dimensionless)")
+    axes[1].set_ylabel("bound (dimensionless)")
+    s = data["summary"]
+    axes[1].set_title(f"(b) r = {data['greedy']['rank']}: effectivity "
+                      f"{s['effectivity_min']:.2g} .. {s['effectivity_max']:.2g}")
+    legend(axes[1], "below", ncol=3)
+    fig.suptitle("Section 5 scene: one basis certified by the a posteriori bound; "
+                 + subtitle(data["metadata"]))
+    return save_figure(fig, NAME, quick)
+
+
+def main(argv=None) -> dict:
+    args = parse_args(__doc__, argv, replot=True)
+    if args.replot:
+        return print(plot(read_json(NAME, args.quick), args.quick))
+    scene = mj.load_scene(SCENE)
+    positions = np.linspace(1.0, 300.0, 4 if args.quick else 16)
+    coefficients = np.geomspace(0.1, 1000.0, 3 if args.quick else 9)
+    training = mj.grid(positions=positions[:, None], coefficients=coefficients[:, None])
+    start = time.perf_counter()
+    greedy = mj.greedy_reduce(scene, training, TOLERANCE, progress=True)
+    offline = elapsed(start)
+    print(f"greedy: r = {greedy.rank}, certified {greedy.certified}, {greedy.full_solves} full "
+          f"solves, {offline:.1f} s", flush=True)
+
+    points = random_designs(50 if args.quick else 1000)
+    bounds, bound_s = swept(mj.BoundFunction(scene, greedy.basis), points)
+    full, full_s = swept(mj.SceneFunction(scene, "energy"), points)
+    relative = mj._greedy.relative_bounds(bounds)
+    true = np.abs(bounds[:, 0] - full) / full
+    effectivity = relative / np.maximum(true, 1e-300)
+    rows = [dict(position=float(p), coefficient=float(c), J=float(j), true=float(t),
+                 bound=float(b)) for p, c, j, t, b in zip(
+        points["positions"][:, 0], points["coefficients"][:, 0], full, true, relative)]
+    checks = []
+    for i in range(5 if args.quick else 20):
+        design = {k: v[i] for k, v in points.items()}
+        t, b = state_errors(scene, greedy.basis, design)
+        checks.append(dict(position=float(design["positions"][0]),
+                           coefficient=float(design["coefficients"][0]), true=t, bound=b))
+
+    reduction = scene.reduction
+    states = mj.exact_solve(scene.system, scene.ts, scene.x0).displacement
+    pod = mj.reduce(states, scene.ts, mj.Reduction(reduction.window, rank=1)).pod
+    paper_rank = pod.rank_for_energy(reduction.energy, reduction.criterion)
+    bound_rank = mj.rank_for_bound(scene, pod, TOLERANCE)
+    j_full = float(mj.integrated_energy(scene.system, float(scene.ts[-1]), scene.x0))
+    rank_rule = {}
+    for label, r in (("energy", paper_rank), ("bound", bound_rank)):
+        j_r = float(mj.integrated_energy(mj.galerkin(scene.system, pod.basis(r)),
+                                         float(scene.ts[-1]), scene.x0))
+        b = mj.error_bound(scene.system, pod.basis(r), float(scene.ts[-1]), scene.x0)
+        rank_rule[label] = dict(rank=int(r), true=abs(j_r / j_full - 1),
+                                bound=float(b.relative))
+
+    summary = dict(
+        rank=greedy.rank, certified_training=greedy.certified,
+        certified_random=int(np.sum(relative <= TOLERANCE)), random=len(rows),
+        max_true=float(np.max(true)), max_bound=float(np.max(relative)),
+        bound_held=bool(np.all(relative >= true)),
+        effectivity_min=float(np.min(effectivity)),
+        effectivity_median=float(np.median(effectivity)),
+        effectivity_max=float(np.max(effectivity)),
+        state_effectivity=[c["bound"] / c["true"] for c in checks],
+        bound_s_per_design=bound_s, full_s_per_design=full_s, offline_s=offline,
+        full_solves=greedy.full_solves)
+    summary["effectivity_target_met"] = bool(
+        TARGET_EFFECTIVITY[0] <= summary["effectivity_min"]
+        and summary["effectivity_max"] <= TARGET_EFFECTIVITY[1])
+    print(f"\n{len(rows)} random designs at r = {greedy.rank}: true error <= "
+          f"{summary['max_true']:.2e}, bound <= {summary['max_bound']:.2e}, certified "
+          f"{summary['certified_random']}/{len(rows)}, bound held everywhere: "
+          f"{summary['bound_held']}; effectivity {summary['effectivity_min']:.3g} .. "
+          f"{summary['effectivity_median']:.3g} (median) .. {summary['effectivity_max']:.3g}")
+    print("state-error effectivity: " + ", ".join(f"{e:.3g}" for e in
+                                                  summary["state_effectivity"]))
+    print(f"online per design: bound {1e3 * bound_s:.1f} ms, full J (spectral) "
+          f"{1e3 * full_s:.1f} ms")
+    for label, r in rank_rule.items():
+        print(f"rank rule {label}: r = {r['rank']}, true {r['true']:.2e}, bound {r['bound']:.2e}")
+    data = dict(problem=dict(scene=SCENE, tolerance=TOLERANCE,
+                             training=dict(positions=positions.tolist(),
+                                           coefficients=coefficients.tolist())),
+                tolerance=TOLERANCE,
+                greedy=dict(rank=greedy.rank, certified=greedy.certified,
+                            history=[list(h) for h in greedy.history],
+                            full_solves=greedy.full_solves, offline_s=offline),
+                random=rows, state_checks=checks, rank_rule=rank_rule, summary=summary)
+    path = write_json(NAME, args.quick, data)
+    png = plot(read_json(NAME, args.quick), args.quick)
+    print(f"wrote {path} and {png}")
+    return data
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,165 @@
+"""A posteriori error bounds for a Galerkin reduced model: no full solve, O(n r^2 + r^3).
+
+For free vibration M x'' + D x' + K x = 0 (eq. 3.1, D >= 0) and the reduced model on an
+orthonormal basis Phi (eq. 3.4), x ~ Phi q, x' ~ Phi p, the error e = (x - Phi q, x' - Phi p)
+of the state z = (x, x') obeys e' = A e + rho with rho = (0, -M^-1 R) and the force residual
+
+    R(t) = M Phi p' + D Phi p + K Phi q      (Phi^T R = 0: Galerkin).
+
+In the energy norm |z|_E^2 = x^T K x + x'^T M x' the free flow is a contraction (d|z|_E^2/dt =
+-2 x'^T D x' <= 0), and |rho|_E = |R|_{M^-1}, so (Duhamel)
+
+    |e(t)|_E <= eps(t) := |e(0)|_E + int_0^t |R|_{M^-1} ds,
+
+with eps_0 = |e(0)|_E the initial state's part outside span Phi. R = Z (q, p) with Z = (I - M
+Phi M_r^-1 Phi^T) [K Phi, D Phi] (O(n r^2) to form; its triangular factor keeps the norm free
+of the cancellation a Gram matrix would have). [0, T] is cut into L intervals I_l of length h;
+on each, int_{I_l} |R|^2 and int_{I_l} |z_r|_E^2 are quadratic forms of the reduced state at
+the interval's start with finite-horizon Gramians over h (Van Loan's block exponential, O(r^3)
+once, as the energies of ``integrated_energy``), so with Cauchy-Schwarz per interval
+int_{I_l} |R| <= sqrt(h int_{I_l} |R|^2) and eps <= E_l on I_l (eps is nondecreasing). For the
+energy objective J = int_0^T |z|_E^2 / 2 dt, |J - J_r| = |int (|z| - |z_r|)(|z| + |z_r|)| / 2
+<= int eps |z_r| + int eps^2 / 2, so
+
+    |J - J_r| <= sum_l E_l sqrt(h int_{I_l} |z_r|^2) + h sum_l E_l^2 / 2.
+
+Both bounds are rigorous up to rounding (no sampling in time); the energy bound adds
+``ROUNDING`` J_r, the level at which two exact computations of J already differ. This is the
+residual bound of reduced-basis methods for linear evolution problems (Haasdonk & Ohlberger,
+"Reduced basis method for finite volume approximations of parametrized linear evolution
+equations", M2AN 42 (2008) 277-302; Grepl & Patera, M2AN 39 (2005) 157-181), in the energy
+norm in which the damped mechanical flow is dissipative. It bounds the error of the whole
+state history, so it is first order in the residual, while a Galerkin model's error in J is
+often second order: the bound on J is pessimistic by far more than the state's (measured on a
+40-DOF chain: state effectivity 2 to 35, energy effectivity 5 to 2e6 as the basis improves).
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import jax.scipy.linalg as jsl
+
+from ._custom_types import Array, Basis, Float, Vector
+from ._errors import MARK, as_float, positive_scalar
+from ._galerkin import galerkin
+from ._modal import scaled_modal, state_matrix
+from ._objectives import finite_gramian
+from ._operators import Diagonal
+from ._system import SecondOrderSystem
+
+# [0, T] is cut into this many intervals: Cauchy-Schwarz is applied on each, not on [0, T]
+INTERVALS = 64
+# relative rounding level of J_r and of the full model's J (Van Loan's doubling, the spectral
+# sums: measured 1e-10 .. 4e-10 apart): the energy bound never claims less than this
+ROUNDING = 1e-9
+
+
+class ErrorBound(eqx.Module):
+    """What ``error_bound`` returns (all scalars, float64).
+
+    ``value``: J_r, the reduced model's energy int_0^T |z_r|_E^2 / 2 dt (exact);
+    ``energy``: a bound on |J - J_r| (J the full model's); ``state``: a bound on
+    max_t |z(t) - z_r(t)|_E, the energy norm of the state error over [0, T]; ``initial``:
+    eps_0 = |z(0) - z_r(0)|_E; ``residual``: sqrt(G), the L2(0, T) norm of the residual;
+    ``history``: (L,) the state bound on each of the L intervals of [0, T] (nondecreasing).
+    """
+
+    value: Float[Array, ""]
+    energy: Float[Array, ""]
+    state: Float[Array, ""]
+    initial: Float[Array, ""]
+    residual: Float[Array, ""]
+    history: Float[Array, " L"]
+
+    @property
+    def relative(self) -> Float[Array, ""]:
+        """A bound on |J - J_r| / J: energy / (J_r - energy), inf where that is not positive."""
+        floor = self.value - self.energy
+        return jnp.where(floor > 0, self.energy / jnp.where(floor > 0, floor, 1.0), jnp.inf)
+
+
+def _columns(operator, basis):
+    return jax.vmap(operator.mv, in_axes=1, out_axes=1)(basis)
+
+
+def _residual_factor(system: SecondOrderSystem, basis):
+    """C with |R(t)|_{M^-1} = |C (q, p)|: the triangular factor of M^-1/2 Z (module docstring)."""
+    r = basis.shape[1]
+    mass_basis = _columns(system.mass, basis)
+    damping = system.damping_operator()
+    forces = jnp.concatenate([_columns(system.stiffness, basis),
+                              jnp.zeros_like(basis) if damping is None
+                              else _columns(damping, basis)], axis=1)
+    reduced_mass = basis.T @ mass_basis
+    z = forces - mass_basis @ jnp.linalg.solve(reduced_mass, basis.T @ forces)
+    if isinstance(system.mass, Diagonal):
+        scaled = z / jnp.sqrt(system.mass.diagonal)[:, None]
+    else:
+        scaled = jsl.solve_triangular(jnp.linalg.cholesky(system.mass.as_matrix()), z, lower=True)
+    factor = jnp.linalg.qr(scaled, mode="r")
+    return factor.reshape(-1, 2 * r)
+
+
+@eqx.filter_jit
+def _bound(system, basis, horizon, x0, v0, intervals: int = INTERVALS):
+    rom = system.project(basis)
+    q0, p0 = basis.T @ x0, basis.T @ v0
+    ex, ev = x0 - basis @ q0, v0 - basis @ p0
+    initial = jnp.sqrt(jnp.maximum(ex @ system.stiffness.mv(ex) + ev @ system.mass.mv(ev), 0.0))
+    # the reduced flow in its scaled modal coordinates w = (Omega eta, eta'), q = U eta
+    omega, modes, damping_modal, not_definite = scaled_modal(rom)
+    a = state_matrix(omega, damping_modal)
+    mass_r = rom.mass.as_matrix()
+    w0 = jnp.concatenate([omega * (modes.T @ (mass_r @ q0)), modes.T @ (mass_r @ p0)])
+    # (q, p) = T w with T = diag(U Omega^-1, U): the residual as a form in w
+    r = basis.shape[1]
+    lift = jnp.block([[modes / omega[None, :], jnp.zeros((r, r))], [jnp.zeros((r, r)), modes]])
+    c = _residual_factor(system, basis) @ lift
+    h = horizon / intervals
+    energy_gramian, step = finite_gramian(a, jnp.eye(2 * r), h)
+    residual_gramian, _ = finite_gramian(a, c.T @ c, h)
+    energy_gramian = (energy_gramian + energy_gramian.T) / 2
+    residual_gramian = (residual_gramian + residual_gramian.T) / 2
+
+    def interval(w, _):  # int over one interval of |z_r|^2 and of |R|^2: exact quadratic forms
+        return step @ w, (w @ energy_gramian @ w, jnp.maximum(w @ residual_gramian @ w, 0.0))
+
+    _, (energies, residuals) = jax.lax.scan(interval, w0, None, length=intervals)
+    # J_r itself over [0, T] in one Gramian, as ``integrated_energy`` computes it (the sum over
+    # the intervals is ~4e-10 relative off: enough for the bound, not for J_r)
+    whole, _ = finite_gramian(a, jnp.eye(2 * r), horizon)
+    value = w0 @ ((whole + whole.T) / 2) @ w0 / 2
+    # eps(t) <= eps_0 + int_0^t |R| <= E_l on interval l (Cauchy-Schwarz per interval)
+    states = initial + jnp.cumsum(jnp.sqrt(h * residuals))
+    energy = jnp.sum(states * jnp.sqrt(h * jnp.maximum(energies, 0.0))) + h * jnp.sum(
+        states**2) / 2 + ROUNDING * jnp.abs(value)
+    bad = not_definite | ~jnp.isfinite(energy)
+    return ErrorBound(value, jnp.where(bad, jnp.inf, energy),
+                      jnp.where(bad, jnp.inf, states[-1]), initial,
+                      jnp.sqrt(jnp.sum(residuals)), jnp.where(bad, jnp.inf, states))
+
+
+def error_bound(system: SecondOrderSystem, basis: Basis, horizon: float,
+                x0: Vector | None = None, v0: Vector | None = None) -> ErrorBound:
+    """Rigorous bounds on the error of the Galerkin model of ``system`` on ``basis`` for free
+    vibration from (``x0``, ``v0``) over [0, ``horizon``], without solving the full model (see
+    the module docstring): an ``ErrorBound`` with the reduced energy J_r, a bound on |J - J_r|
+    and one on the state's energy-norm error.
+
+    ``basis``: (n, r) orthonormal (as ``galerkin`` takes; checked there); ``x0``, ``v0``: (n,)
+    full coordinates (default zero). Cost O(n r^2) for the residual and O(r^3) for two
+    finite-horizon Gramians of size 2r: no full solve. Jit-, vmap- and grad-compatible in the
+    system's values (a design sweep: ``mj.sweep`` over a function that builds the system). A
+    bound that would not be finite (a stiffness not positive definite) is inf.
+    """
+    if not isinstance(system, SecondOrderSystem):
+        raise ValueError(MARK + f"system must be a SecondOrderSystem, got {type(system).__name__}.")
+    model = galerkin(system, basis)  # checks the basis
+    horizon = positive_scalar(horizon, "horizon")
+    n = system.size
+    x0 = jnp.zeros(n) if x0 is None else as_float(x0, "x0")
+    v0 = jnp.zeros(n) if v0 is None else as_float(v0, "v0")
+    for name, x in (("x0", x0), ("v0", v0)):
+        if x.shape != (n,):
+            raise ValueError(MARK + f"{name} must have shape ({n},), got {x.shape}.")
+    return _bound(system, model.basis, horizon, x0, v0)
