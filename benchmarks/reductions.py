@@ -1,6 +1,7 @@
-"""Four reductions of the Section 5 scene compared on error against size and offline cost
-(issue 20): POD of the states (the paper's), sensitivity-enriched POD, modal truncation, and
-modal truncation with the static correction of the damper direction.
+"""Five reductions of the Section 5 scene compared on error against size and offline cost
+(issue 20): POD of the states (the paper's), sensitivity-enriched POD, modal truncation,
+modal truncation with the static correction of the damper direction, and the second-order
+Krylov basis (SOAR, moments at s = 0 of the inputs M x0 and the damper directions).
 
 The scene: Mikota n = 300, the damper at DOF 7 with c = 1, x_3(0) = 1, exact solves on [0, 20]
 (2001 times), snapshots on [0, 10]. For each method and basis size r: the Galerkin ROM's
@@ -28,7 +29,7 @@ NAME = "reductions"
 SCENE = "section5_damped"
 WRT = ("positions", "coefficients")
 SIZES = (20, 40, 60, 76, 98, 120, 140)  # the POD snapshots have numerical rank 148
-METHODS = ("POD", "enriched POD", "modal", "modal + static")
+METHODS = ("POD", "enriched POD", "modal", "modal + static", "Krylov")
 
 
 def builders(scene):
@@ -48,7 +49,15 @@ def builders(scene):
 
     return {"POD": pod, "enriched POD": enriched,
             "modal": lambda r: mj.modal_basis(scene.system, r),
-            "modal + static": lambda r: mj.modal_static_basis(scene.system, r - 2)}, cache
+            "modal + static": lambda r: mj.modal_static_basis(scene.system, r - 2),
+            "Krylov": lambda r: mj.krylov_basis(scene.system, r, forcing(scene))}, cache
+
+
+def forcing(scene):
+    """The Krylov inputs of free vibration from x0: (s M + D) x0 -> M x0, and the damper's
+    directions (its force acts there)."""
+    mass_x0 = scene.system.mass.mv(scene.x0)
+    return np.column_stack([np.asarray(mass_x0), np.asarray(mj.damper_directions(scene.system))])
 
 
 def main(argv=None) -> dict:
@@ -103,7 +112,7 @@ def main(argv=None) -> dict:
 def plot(data: dict, quick: bool):
     rows = data["rows"]
     fig, axes = figure(ncols=3, figsize=(12, 4.0), readable=True, sharex=True)
-    styles = dict(zip(METHODS, ("o-", "s-", "^--", "v--")))
+    styles = dict(zip(METHODS, ("o-", "s-", "^--", "v--", "d-.")))
     for ax, key, title in zip(axes, ("J", "gradient", "history"),
                               ("(a) energy J", "(b) max(dJ/dp, dJ/dc)", "(c) x(t), all DOFs")):
         for method in METHODS:

@@ -14,6 +14,7 @@ by evaluating the bound there (``bound_function``).
 requested relative accuracy in J (bisection on r; the bound is evaluated, never the full model).
 """
 
+import sys
 from dataclasses import dataclass
 
 import equinox as eqx
@@ -162,8 +163,6 @@ def greedy_reduce(scene: Scene, training: dict, tolerance: float = 1e-4, *, basi
         worst = int(np.argmax(bounds))
         history.append((current.shape[1], float(bounds[worst]), worst))
         if progress:
-            import sys
-
             print(f"greedy: r = {current.shape[1]}, largest bound {bounds[worst]:.2e} at "
                   f"design {worst}", file=sys.stderr, flush=True)
         if bounds[worst] <= tolerance or current.shape[1] >= max_rank:
