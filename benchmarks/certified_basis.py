@@ -77,10 +77,15 @@ def state_errors(scene, basis, design) -> tuple[float, float]:
 
 
 def plot(data: dict, quick: bool):
-    fig, axes = figure(ncols=2, figsize=(10, 4.2), readable=True)
+    fig, axes = figure(ncols=2, figsize=(10, 4.6), readable=True)
     ranks = [h[0] for h in data["greedy"]["history"]]
     bounds = [np.nan if h[1] is None else h[1] for h in data["greedy"]["history"]]
+    finite_bounds = [b for b in bounds if np.isfinite(b)]
+    top = 10 * max(finite_bounds + [data["tolerance"]])
     axes[0].semilogy(ranks, bounds, "o-", label="largest bound on the training grid")
+    none = [r for r, b in zip(ranks, bounds) if not np.isfinite(b)]
+    axes[0].semilogy(none, [top] * len(none), "^", color="C3",
+                     label="bound >= J_r somewhere (drawn at the top)")
     axes[0].axhline(data["tolerance"], color="k", ls="--", label=f"tolerance {data['tolerance']:g}")
     axes[0].set_xlabel("basis size r")
     axes[0].set_ylabel("bound on |J - J_r| / J (dimensionless)")
@@ -101,8 +106,8 @@ def plot(data: dict, quick: bool):
     s = data["summary"]
     axes[1].set_title(f"(b) r = {data['greedy']['rank']}: effectivity "
                       f"{s['effectivity_min']:.2g} .. {show(s['effectivity_max'], '.2g')}")
-    legend(axes[1], "below", ncol=3)
-    fig.suptitle("Section 5 scene: one basis certified by the a posteriori bound; "
+    legend(axes[1], "below")
+    fig.suptitle("Section 5 scene: one basis certified by the a posteriori bound?\n"
                  + subtitle(data["metadata"]))
     return save_figure(fig, NAME, quick)
 
