@@ -41,7 +41,7 @@ import jax.scipy.linalg as jsl
 
 from ._custom_types import Array, Basis, Float, Vector
 from ._errors import MARK, as_float, positive_scalar
-from ._galerkin import galerkin
+from ._galerkin import check_basis
 from ._modal import scaled_modal, state_matrix
 from ._objectives import finite_gramian
 from ._operators import Diagonal
@@ -146,7 +146,7 @@ def error_bound(system: SecondOrderSystem, basis: Basis, horizon: float,
     the module docstring): an ``ErrorBound`` with the reduced energy J_r, a bound on |J - J_r|
     and one on the state's energy-norm error.
 
-    ``basis``: (n, r) orthonormal (as ``galerkin`` takes; checked there); ``x0``, ``v0``: (n,)
+    ``basis``: (n, r) orthonormal (checked as ``galerkin`` checks it); ``x0``, ``v0``: (n,)
     full coordinates (default zero). Cost O(n r^2) for the residual and O(r^3) for two
     finite-horizon Gramians of size 2r: no full solve. Jit-, vmap- and grad-compatible in the
     system's values (a design sweep: ``mj.sweep`` over a function that builds the system). A
@@ -154,7 +154,7 @@ def error_bound(system: SecondOrderSystem, basis: Basis, horizon: float,
     """
     if not isinstance(system, SecondOrderSystem):
         raise ValueError(MARK + f"system must be a SecondOrderSystem, got {type(system).__name__}.")
-    model = galerkin(system, basis)  # checks the basis
+    basis = check_basis(basis, system.size)
     horizon = positive_scalar(horizon, "horizon")
     n = system.size
     x0 = jnp.zeros(n) if x0 is None else as_float(x0, "x0")
@@ -162,4 +162,4 @@ def error_bound(system: SecondOrderSystem, basis: Basis, horizon: float,
     for name, x in (("x0", x0), ("v0", v0)):
         if x.shape != (n,):
             raise ValueError(MARK + f"{name} must have shape ({n},), got {x.shape}.")
-    return _bound(system, model.basis, horizon, x0, v0)
+    return _bound(system, basis, horizon, x0, v0)

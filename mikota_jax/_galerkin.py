@@ -63,11 +63,24 @@ def galerkin(system: SecondOrderSystem, basis: Basis) -> ReducedModel:
     """
     if not isinstance(system, SecondOrderSystem):
         raise ValueError(MARK + f"system must be a SecondOrderSystem, got {type(system).__name__}.")
+    basis = check_basis(basis, system.size)
+    return ReducedModel(_project(system, basis), basis)
+
+
+@eqx.filter_jit
+def _project(system, basis):
+    """eq. (3.4) as one compiled function (eagerly, its dozen small products would each compile)."""
+    return system.project(basis)
+
+
+def check_basis(basis, n: int):
+    """``basis`` as a checked (n, r) float64 array with orthonormal columns (``galerkin``'s rule,
+    ``ORTHONORMALITY``); a ``ValueError`` eagerly, an ``eqx.error_if`` under ``jit``."""
     basis = jnp.asarray(basis)
     if basis.dtype != jnp.float64:
         raise ValueError(MARK + f"basis must be float64, got {basis.dtype}.")
-    if basis.ndim != 2 or basis.shape[0] != system.size or not 1 <= basis.shape[1] <= system.size:
-        raise ValueError(MARK + f"basis must have shape (n, r) with n = {system.size} and "
+    if basis.ndim != 2 or basis.shape[0] != n or not 1 <= basis.shape[1] <= n:
+        raise ValueError(MARK + f"basis must have shape (n, r) with n = {n} and "
                          f"1 <= r <= n, got {basis.shape}.")
     xp = array_module(basis)  # numpy on a concrete basis: the checks compile nothing
     values = np.asarray(basis) if xp is np else basis
@@ -77,10 +90,4 @@ def galerkin(system: SecondOrderSystem, basis: Basis) -> ReducedModel:
                   f"basis must have orthonormal columns (max |basis^T basis - I| <= "
                   f"{ORTHONORMALITY:g}); orthonormalise it (QR, or the POD modes), or drop "
                   "dependent columns (a smaller rank).")
-    return ReducedModel(_project(system, basis), basis)
-
-
-@eqx.filter_jit
-def _project(system, basis):
-    """eq. (3.4) as one compiled function (eagerly, its dozen small products would each compile)."""
-    return system.project(basis)
+    return basis

@@ -25,6 +25,7 @@ import numpy as np
 from ._errors import MARK
 from ._estimator import _bound
 from ._exact import exact_solve
+from ._galerkin import check_basis
 from ._pod import POD
 from ._reduction import snapshot_window
 from ._scene import Scene
@@ -43,7 +44,7 @@ class BoundFunction(eqx.Module):
     def __init__(self, scene: Scene, basis):
         _check_scene(scene)
         self.function = SceneFunction(scene, "energy")
-        self.basis = jnp.asarray(basis)
+        self.basis = check_basis(basis, scene.size)
 
     def __call__(self, parameters: dict) -> jax.Array:
         function = self.function
