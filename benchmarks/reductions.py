@@ -1,7 +1,10 @@
-"""Five reductions of the Section 5 scene compared on error against size and offline cost
+"""Seven reductions of the Section 5 scene compared on error against size and offline cost
 (issue 20): POD of the states (the paper's), sensitivity-enriched POD, modal truncation,
-modal truncation with the static correction of the damper direction, and the second-order
-Krylov basis (SOAR, moments at s = 0 of the inputs M x0 and the damper directions).
+modal truncation with the static correction of the damper direction, the second-order
+Krylov basis (SOAR, moments at s = 0 of the inputs M x0 and the damper directions), the
+rational Krylov basis at r / 2 shifts spread over the excited band (``band_shifts``, input
+M x0) and the IRKA-type basis (``irka_basis``, input M x0, horizon 20: shifts at the reflected
+dominant poles of its own reduced model).
 
 The scene: Mikota n = 300, the damper at DOF 7 with c = 1, x_3(0) = 1, exact solves on [0, 20]
 (2001 times), snapshots on [0, 10]. For each method and basis size r: the Galerkin ROM's
@@ -29,7 +32,9 @@ NAME = "reductions"
 SCENE = "section5_damped"
 WRT = ("positions", "coefficients")
 SIZES = (20, 40, 60, 76, 98, 120, 140)  # the POD snapshots have numerical rank 148
-METHODS = ("POD", "enriched POD", "modal", "modal + static", "Krylov")
+METHODS = ("POD", "enriched POD", "modal", "modal + static", "Krylov", "rational Krylov",
+           "IRKA")
+HORIZON = 20.0
 
 
 def builders(scene):
@@ -50,7 +55,24 @@ def builders(scene):
     return {"POD": pod, "enriched POD": enriched,
             "modal": lambda r: mj.modal_basis(scene.system, r),
             "modal + static": lambda r: mj.modal_static_basis(scene.system, r - 2),
-            "Krylov": lambda r: mj.krylov_basis(scene.system, r, forcing(scene))}, cache
+            "Krylov": lambda r: mj.krylov_basis(scene.system, r, forcing(scene)),
+            "rational Krylov": lambda r: band(scene, r),
+            "IRKA": lambda r: irka(scene, r)}, cache
+
+
+def band(scene, r):
+    force = forcing(scene)[:, 0]
+    shifts = mj.band_shifts(scene.system, -(-r // 2), force)
+    return mj.rational_krylov_basis(scene.system, shifts, force)[:, :r]
+
+
+IRKA_RUNS = {}  # r -> (iterations, converged), for the JSON
+
+
+def irka(scene, r):
+    result = mj.irka_basis(scene.system, r, forcing(scene)[:, 0], HORIZON)
+    IRKA_RUNS[r] = dict(iterations=result.iterations, converged=result.converged)
+    return result.basis
 
 
 def forcing(scene):
@@ -102,6 +124,7 @@ def main(argv=None) -> dict:
                                           "directions (r columns in all)"),
                 full=dict(J=float(full.value), dJdp=float(full.jacobian["positions"][0]),
                           dJdc=float(full.jacobian["coefficients"][0])),
+                irka={str(r): v for r, v in IRKA_RUNS.items()},
                 rows=rows, total_wall_s=elapsed(start))
     path = write_json(NAME, args.quick, data)
     png = plot(read_json(NAME, args.quick), args.quick)
@@ -112,7 +135,7 @@ def main(argv=None) -> dict:
 def plot(data: dict, quick: bool):
     rows = data["rows"]
     fig, axes = figure(ncols=3, figsize=(12, 4.0), readable=True, sharex=True)
-    styles = dict(zip(METHODS, ("o-", "s-", "^--", "v--", "d-.")))
+    styles = dict(zip(METHODS, ("o-", "s-", "^--", "v--", "d-.", "x:", "P-")))
     for ax, key, title in zip(axes, ("J", "gradient", "history"),
                               ("(a) energy J", "(b) max(dJ/dp, dJ/dc)", "(c) x(t), all DOFs")):
         for method in METHODS:

@@ -52,6 +52,10 @@ from ._integrate import Trajectory as Trajectory
 from ._integrate import simulate as simulate
 from ._internal_damping import ModalDamping as ModalDamping
 from ._internal_damping import Rayleigh as Rayleigh
+from ._interpolatory import IRKABasis as IRKABasis
+from ._interpolatory import band_shifts as band_shifts
+from ._interpolatory import irka_basis as irka_basis
+from ._interpolatory import rational_krylov_basis as rational_krylov_basis
 from ._io import load_matrix as load_matrix
 from ._io import save_matrix_market as save_matrix_market
 from ._metrics import phase_error as phase_error
