@@ -40,8 +40,8 @@ from ._galerkin import ReducedModel
 from ._modal import modal_projection, scaled_modal
 from ._modal import state_matrix as modal_state_matrix
 from ._objectives import finite_gramian, infinite_gramian
-from ._spectral import spectral_applies
 from ._spectral_objectives import spectral_output_energy_with_result
+from ._spectral_system import spectral_applies
 from ._system import SecondOrderSystem
 
 _NOT_OK = ("the damped modes did not converge, or two roots nearly coincide (a mode at "

@@ -26,7 +26,8 @@ import jax.numpy as jnp
 
 from ._custom_types import Array
 from ._modal import modal_projection
-from ._spectral import DampedModes, complex_arithmetic, live_modes
+from ._spectral import DampedModes, complex_arithmetic
+from ._spectral_system import live_modes
 
 # --- the energy kernels: Gram matrix of the damped modes, pair sums, time integrals ----------
 

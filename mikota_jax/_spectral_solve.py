@@ -32,8 +32,9 @@ import jax.numpy as jnp
 
 from ._integrate import Trajectory
 from ._modal import modal_projection
-from ._spectral import complex_arithmetic, live_modes
-from ._spectral import spectral_applies as system_applies
+from ._spectral import complex_arithmetic
+from ._spectral_system import live_modes
+from ._spectral_system import spectral_applies as system_applies
 from ._system import SecondOrderSystem
 
 

@@ -59,13 +59,13 @@ from ._integrate import initial_vector
 from ._objectives import smooth_peak
 from ._output_criteria import output_arguments, output_horizon, output_states, state_matrix
 from ._parameters import with_parameters
-from ._spectral import spectral_applies
 from ._spectral_objectives import (
     spectral_energy_with_result,
     spectral_output_energy_with_result,
     spectral_trace_with_result,
 )
 from ._spectral_solve import spectral_solve_with_result
+from ._spectral_system import spectral_applies
 from ._system import SecondOrderSystem
 
 CRITERIA = ("average_energy", "energy", "output", "h2", "peak")

@@ -21,8 +21,8 @@ from ._operators import Dense as Dense
 from ._operators import Diagonal as Diagonal
 from ._operators import Sparse as Sparse
 from ._solver_choice import stiffness_rate as stiffness_rate
-from ._spectral import damped_modes as damped_modes
 from ._spectral_solve import spectral_solve_with_result as spectral_solve_with_result
+from ._spectral_system import damped_modes as damped_modes
 from ._viscosity import criterion_function as criterion_function
 
 __all__ = ["Dense", "Diagonal", "Sparse", "chain_mode_data", "chain_modes", "damped_modes",

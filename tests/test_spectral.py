@@ -10,11 +10,9 @@ import scipy.optimize as so
 from _helpers import lyapunov_trace
 
 import mikota_jax as mj
-from mikota_jax._spectral import (
-    DEFECTIVE_SEPARATION,
-    damped_modes,
-)
+from mikota_jax._spectral import DEFECTIVE_SEPARATION
 from mikota_jax._spectral_objectives import spectral_energy_with_result
+from mikota_jax._spectral_system import damped_modes
 
 T = 20.0
 
@@ -395,4 +393,24 @@ def test_a_settled_root_whose_residual_shows_cancellation_is_accepted_and_right(
     lowest = 20
     spectral = float(mj.total_average_energy(system, lowest, method="spectral"))
     dense = float(mj.total_average_energy(system, lowest, method="dense"))
+    assert spectral == pytest.approx(dense, rel=1e-9)
+
+
+@pytest.mark.parametrize("d1", [2.2584, 903.36])
+def test_a_missing_far_root_is_restarted_from_the_trace(d1):
+    # n = 151, d_3 = 229.26 at DOF 101: Aberth parked a second copy beside a real root (-27.9)
+    # while the far real root -76.44 went missing (the trace check caught it; 21 of the
+    # notebook's 441 landscape points fell back to the dense path). The missing root is minus
+    # the sum of the others (the trace), anchored at its eigenvector's largest modal entry,
+    # then polished by Newton
+    system = triple_chain(50, [d1, 36.577, 229.26])
+    modes = damped_modes(system)
+    assert bool(modes.converged)
+    m, d, k = (np.asarray(a) for a in system.dense())
+    n = m.shape[0]
+    a = np.block([[np.zeros((n, n)), np.eye(n)],
+                  [-np.linalg.solve(m, k), -np.linalg.solve(m, d)]])
+    assert_same_roots(np.asarray(modes.eigenvalues), np.linalg.eigvals(a), 1e-9)
+    spectral = float(mj.total_average_energy(system, 20, method="spectral"))
+    dense = float(mj.total_average_energy(system, 20, method="dense"))
     assert spectral == pytest.approx(dense, rel=1e-9)
