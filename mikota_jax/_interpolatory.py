@@ -46,7 +46,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._classic import _check, _force_columns, _orthonormal_in_order
+from ._classic import _check, _force_columns
 from ._custom_types import Basis
 from ._dampers import Dampers
 from ._errors import MARK
@@ -86,15 +86,11 @@ def _pencil(system: SecondOrderSystem) -> _ModalPencil:
     omega, modes = modal_decomposition(system)
     n = omega.shape[0]
     damping = system.damping
-    if damping is None:
-        factor, weights = jnp.zeros((n, 0)), jnp.zeros(0)
-    elif isinstance(damping, Dampers):
+    factor, weights, diagonal, dense = jnp.zeros((n, 0)), jnp.zeros(0), jnp.zeros(n), None
+    if isinstance(damping, Dampers):
         projected = damping.project(modes)
         factor, weights = projected.factor, projected.weights
-    else:  # a user's damping operator: dense in the modes
-        factor, weights = jnp.zeros((n, 0)), jnp.zeros(0)
-    diagonal, dense = jnp.zeros(n), None
-    if damping is not None and not isinstance(damping, Dampers):
+    elif damping is not None:  # a user's damping operator: dense in the modes
         dense = modes.T @ jax.vmap(damping.mv, in_axes=1, out_axes=1)(modes)
     if system.internal is not None:
         internal = system.internal.in_modes(omega**2, modes)
@@ -125,15 +121,6 @@ def _check_shifts(shifts) -> np.ndarray:
     return shifts
 
 
-def _basis(pencil, shifts, forces, rank: int | None, n: int) -> np.ndarray:
-    columns = np.asarray(_responses(pencil, jnp.asarray(shifts), forces))
-    if not np.all(np.isfinite(columns)):
-        raise ValueError(MARK + "shifts: the response at a shift is not finite (a shift on an "
-                         "undamped pole i omega_l?).")
-    # a real shift's zero imaginary part is dropped as dependent
-    return _orthonormal_in_order(columns, rank if rank is not None else n)
-
-
 def rational_krylov_basis(system: SecondOrderSystem, shifts, inputs) -> Basis:
     """An orthonormal basis of span{Re X(sigma_j), Im X(sigma_j)}, X(sigma) = (sigma^2 M +
     sigma D + K)^-1 B (module docstring): the Galerkin model on it reproduces X at every shift
@@ -148,7 +135,7 @@ def rational_krylov_basis(system: SecondOrderSystem, shifts, inputs) -> Basis:
                          f"{type(system).__name__}.")
     shifts = _check_shifts(shifts)
     forces = _force_columns(system, inputs, "inputs")
-    return jnp.asarray(_basis(_pencil(system), shifts, forces, None, system.size))
+    return jnp.asarray(_filled(_pencil(system), shifts, forces, system.size, system.size)[0])
 
 
 class IRKABasis(eqx.Module):

@@ -26,9 +26,18 @@ def direct(system, s, forces):
     return np.linalg.solve(s**2 * m + s * d + k, forces)
 
 
-@pytest.mark.parametrize("rayleigh", [None, (0.01, 0.002)])
-def test_the_modal_woodbury_solve_is_the_direct_complex_solve(rayleigh):
-    system = chain(rayleigh=None if rayleigh is None else mj.Rayleigh(*rayleigh))
+def users_damping():
+    """The chain's M and K with a user's dense damping matrix: the dense modal solve."""
+    m, _, k = (np.asarray(a) for a in chain().dense())
+    rng = np.random.default_rng(3)
+    b = rng.standard_normal((N, 3))
+    return mj.system(m, k, 0.05 * np.eye(N) + b @ b.T / N)
+
+
+@pytest.mark.parametrize("case", ["dampers", "rayleigh", "user"])
+def test_the_modal_woodbury_solve_is_the_direct_complex_solve(case):
+    system = {"dampers": chain, "rayleigh": lambda: chain(rayleigh=mj.Rayleigh(0.01, 0.002)),
+              "user": users_damping}[case]()
     forces = np.zeros((N, 2))
     forces[N - 1, 0], forces[4, 1] = 1.0, 1.0
     pencil = _pencil(system)
