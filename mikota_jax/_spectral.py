@@ -379,18 +379,28 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
     anchor, offset, iterations, _ = jax.lax.while_loop(not_done, sweep, init)
     anchor = jnp.where(root_active, anchor, jnp.arange(2 * n))
     anchor, offset = _best_anchors(poles, gamma, factor, weights, active, anchor, offset)
-    def polish(_, offset):  # a loop, not unrolled: one copy of _secular to compile
-        phi, phi_prime, *_ = _secular(poles, gamma, factor, weights, active, anchor, offset)
-        return jnp.where(root_active & (phi_prime != 0),
-                         offset - phi / jnp.where(phi_prime != 0, phi_prime, 1.0), offset)
+    def settle(anchor, offset, moving, steps):
+        """``steps`` Newton steps on the roots ``moving``, then the secular terms at the result:
+        (offset, (phi, phi', c, scale)). A loop, not unrolled, whose last pass only evaluates:
+        one copy of _secular to compile for the steps and the checks together."""
+        def body(i, carry):
+            offset, _ = carry
+            phi, phi_prime, _, c, scale = _secular(poles, gamma, factor, weights, active,
+                                                   anchor, offset)
+            step = jnp.where(moving & (phi_prime != 0) & (i < steps),
+                             phi / jnp.where(phi_prime != 0, phi_prime, 1.0), 0.0)
+            return offset - step, (phi, phi_prime, c, scale)
 
-    offset = jax.lax.fori_loop(0, _POLISH_STEPS, polish, offset)
+        shapes = jax.eval_shape(lambda o: _secular(poles, gamma, factor, weights, active,
+                                                   anchor, o), offset)
+        empty = tuple(jnp.zeros(x.shape, x.dtype) for i, x in enumerate(shapes) if i != 2)
+        return jax.lax.fori_loop(0, steps + 1, body, (offset, empty))
+
     trace = jnp.sum(jnp.where(active, coupling**2 + gamma, 0.0))
 
-    def assess(anchor, offset):
-        """(lambda, c, per-root residual ok, trace ok)."""
-        phi, phi_prime, _, c, scale = _secular(poles, gamma, factor, weights, active, anchor,
-                                               offset)
+    def assess(anchor, offset, secular):
+        """(anchor, offset, lambda, c, per-root residual ok, trace ok)."""
+        phi, phi_prime, c, scale = secular
         lam = poles[anchor] + offset
         # a root holds where phi_J is small against its terms, or where Newton cannot move it
         # any more (a step at rounding level) with phi_J small against a looser bar: phi_J's
@@ -403,14 +413,15 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
         root_ok = ~root_active | (jnp.abs(phi) <= _RESIDUAL_TOL * scale) | settled
         trace_ok = (jnp.abs(jnp.sum(jnp.where(root_active, lam, 0.0)) + trace)
                     <= _TRACE_TOL * jnp.sum(jnp.where(root_active, jnp.abs(lam), 0.0)))
-        return lam, c, root_ok, trace_ok
+        return anchor, offset, lam, c, root_ok, trace_ok
 
-    def restart(anchor, offset, bad):
+    def restart(state):
         # the trace fixes the roots' sum: one missing root is minus the sum of the others
         # (on the triple chain, d_3 = 229 at DOF 101, Aberth parked a second copy beside a real
         # root, -27.9 + 7e-5 i, while a far real root went missing; 21 of the notebook's 441
         # landscape points); Newton from there, then the usual checks
-        lam = poles[anchor] + offset
+        anchor, offset, lam, _, root_ok, _ = state
+        bad = ~root_ok
         missing = -trace - jnp.sum(jnp.where(root_active & ~bad, lam, 0.0))
         # its anchor: the mode with the largest eigenvector entry y_l = r_l f_l^T diag(d) c,
         # c the null vector of det(I + lambda F^T R F diag(d)) there (the nearest poles can all
@@ -425,19 +436,11 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
                         mode, n + mode)
         anchor = jnp.where(bad, own, anchor)
         offset = jnp.where(bad, missing - poles[own], offset)
+        return assess(anchor, *settle(anchor, offset, bad, _RESTART_STEPS))
 
-        def newton(_, offset):
-            phi, phi_prime, *_ = _secular(poles, gamma, factor, weights, active, anchor, offset)
-            return jnp.where(bad & (phi_prime != 0),
-                             offset - phi / jnp.where(phi_prime != 0, phi_prime, 1.0), offset)
-
-        return anchor, jax.lax.fori_loop(0, _RESTART_STEPS, newton, offset)
-
-    lam, c, root_ok, trace_ok = assess(anchor, offset)
-    bad = ~root_ok
-    anchor, offset = jax.lax.cond((jnp.sum(bad) == 1) & ~trace_ok, restart,
-                                  lambda a, o, _: (a, o), anchor, offset, bad)
-    lam, c, root_ok, trace_ok = assess(anchor, offset)
+    state = assess(anchor, *settle(anchor, offset, root_active, _POLISH_STEPS))
+    state = jax.lax.cond((jnp.sum(~state[4]) == 1) & ~state[5], restart, lambda s: s, state)
+    anchor, offset, lam, c, root_ok, trace_ok = state
     residual_ok = jnp.all(root_ok)
     # roots that interact: two damped ones, or the two poles of one undamped-by-dampers mode
     # (critical internal damping makes that pair defective)
