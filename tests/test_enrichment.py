@@ -47,6 +47,7 @@ def test_enriched_basis_gives_the_full_gradient_where_plain_pod_does_not(case):
     assert max(enriched_errors.values()) < 1e-3
 
 
+@pytest.mark.slow  # ~21 s of finite differences (default-run time: CI under 15 min)
 def test_sensitivity_snapshots_are_the_states_derivatives():
     scene = scene_for(position=36.5, coefficient=3.0)  # off the integer kink of the position
     x, derivatives = mj.sensitivity_snapshots(scene, WRT)

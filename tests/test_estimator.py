@@ -36,7 +36,7 @@ def case():
     return system, x0, mj.pod(states.T)
 
 
-@pytest.mark.parametrize("rank", [8, 16, 24])
+@pytest.mark.parametrize("rank", [8, 16, pytest.param(24, marks=pytest.mark.slow)])  # 24: ~30 s
 def test_bounds_are_above_the_true_errors(case, rank):
     system, x0, pod = case
     basis = pod.basis(rank)
@@ -104,6 +104,7 @@ def small_scene(position=7.0, coefficient=1.0):
         "reduction": {"snapshots": [0.0, 10.0], "rank": 6}})
 
 
+@pytest.mark.slow  # ~50 s (default-run time: CI under 15 min)
 def test_greedy_basis_certifies_the_training_designs_and_holds_between_them():
     scene = small_scene()
     training = mj.grid(positions=np.linspace(1.0, 40.0, 4)[:, None],
@@ -121,6 +122,7 @@ def test_greedy_basis_certifies_the_training_designs_and_holds_between_them():
         assert abs(j - float(bound.value)) <= float(bound.energy)
 
 
+@pytest.mark.slow  # ~14 s, a compile per rank tried (default-run time: CI under 15 min)
 def test_rank_for_bound_is_the_smallest_rank_that_meets_the_tolerance(case):
     scene = small_scene()
     pod = mj.reduce(mj.exact_solve(scene.system, scene.ts, scene.x0).displacement, scene.ts,

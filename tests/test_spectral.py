@@ -376,7 +376,7 @@ def triple_chain(n1, viscosities):
         internal_damping=mj.ModalDamping(0.02))
 
 
-@pytest.mark.parametrize("d1", [10.1, 13.6])
+@pytest.mark.parametrize("d1", [10.1, pytest.param(13.6, marks=pytest.mark.slow)])
 def test_a_settled_root_whose_residual_shows_cancellation_is_accepted_and_right(d1):
     # n = 151: one real root (-1.617 at d_1 = 10.1) settles to the last bit while |phi_J| stays
     # 1e-7 of its terms; it was reported unconverged, the notebook's landscape fell back to the
@@ -396,7 +396,7 @@ def test_a_settled_root_whose_residual_shows_cancellation_is_accepted_and_right(
     assert spectral == pytest.approx(dense, rel=1e-9)
 
 
-@pytest.mark.parametrize("d1", [2.2584, 903.36])
+@pytest.mark.parametrize("d1", [2.2584, pytest.param(903.36, marks=pytest.mark.slow)])
 def test_a_missing_far_root_is_restarted_from_the_trace(d1):
     # n = 151, d_3 = 229.26 at DOF 101: Aberth parked a second copy beside a real root (-27.9)
     # while the far real root -76.44 went missing (the trace check caught it; 21 of the
