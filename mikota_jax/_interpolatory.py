@@ -255,7 +255,9 @@ def irka_basis(system: SecondOrderSystem, rank: int, inputs, horizon: float, *,
         basis, used = _filled(pencil, shifts, forces, rank, system.size)
         poles, dominance = _reduced_poles(system, jnp.asarray(basis), forces, horizon)
         order = np.argsort(-dominance)
-        shifts = -poles.real[order] + 1j * poles.imag[order]
+        # always ``rank`` shifts (a repeat adds only dependent columns, which are dropped):
+        # one shape, one compile of the responses, however many poles the model has
+        shifts = np.resize(-poles.real[order] + 1j * poles.imag[order], rank)
         new = float(np.sum(dominance))
         changes.append(abs(new - energy) / abs(new) if energy is not None else float("inf"))
         energy = new
