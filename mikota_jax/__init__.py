@@ -26,6 +26,7 @@ from ._classic import damper_directions as damper_directions
 from ._classic import krylov_basis as krylov_basis
 from ._classic import modal_basis as modal_basis
 from ._classic import modal_static_basis as modal_static_basis
+from ._classic import static_moments as static_moments
 from ._damper_search import DamperPlacement as DamperPlacement
 from ._damper_search import place_dampers as place_dampers
 from ._dampers import GroundedDamper as GroundedDamper
@@ -34,6 +35,8 @@ from ._design import DamperProblem as DamperProblem
 from ._enrichment import enriched_reduce as enriched_reduce
 from ._enrichment import sensitivity_snapshots as sensitivity_snapshots
 from ._estimator import ErrorBound as ErrorBound
+from ._estimator import HierarchicalEstimate as HierarchicalEstimate
+from ._estimator import HierarchicalEstimator as HierarchicalEstimator
 from ._estimator import error_bound as error_bound
 from ._exact import exact_solve as exact_solve
 from ._excitation import LoadFunction as LoadFunction

@@ -1,0 +1,107 @@
+"""The hierarchical error estimate (``HierarchicalEstimator``) and the static moments it and
+``modal_static_basis(moments=...)`` use: the estimate is above the true error of J (exact
+dense solves of the full chain) and within safety (1 + theta) of it, its fine model holds the
+basis (nested), and bad input fails in one line."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import mikota_jax as mj
+
+N, T = 40, 20.0
+
+
+def chain(position, coefficient):
+    return mj.mikota_chain(N, dampers=[mj.GroundedDamper(position, coefficient)])
+
+
+@pytest.fixture(scope="module")
+def case():
+    x0 = jnp.zeros(N).at[2].set(1.0)
+    nominal = chain(7.0, 1.0)
+    states = mj.exact_solve(nominal, jnp.linspace(0.0, 10.0, 501), x0).displacement
+    return x0, nominal, mj.pod(states.T).basis(12)
+
+
+# (position, coefficient): the nominal design, a weak damper mid-chain, strong ones that pin
+# their DOF (a fixed basis built at the nominal design is far off there), one between DOFs
+DESIGNS = [(7.0, 1.0), (20.0, 0.1), (25.0, 300.0), (12.5, 40.0)]
+
+
+def test_the_estimate_is_above_the_true_error_and_within_safety_times_it(case):
+    x0, nominal, basis = case
+    estimator = mj.HierarchicalEstimator(nominal, basis, modes=24, moments=3)
+    for position, coefficient in DESIGNS:
+        system = chain(position, coefficient)
+        e = estimator(system, T, x0)
+        j = float(mj.integrated_energy(system, T, x0, method="dense"))
+        j_r = float(mj.integrated_energy(mj.galerkin(system, basis), T, x0, method="dense"))
+        assert float(e.value) == pytest.approx(j_r, rel=1e-9)
+        true = abs(j - j_r)
+        assert true > 1e-6 * j  # the basis is off at these designs: the check is not vacuous
+        assert float(e.energy) >= true
+        # saturation held (the fine model far closer to J): effectivity ~ safety = 2
+        assert float(e.energy) <= 2.2 * true
+        assert abs(float(e.fine) - j) < 0.05 * true
+        assert float(e.relative) >= true / j
+
+
+def test_the_fine_space_holds_the_basis_and_the_damper_moments(case):
+    x0, nominal, basis = case
+    estimator = mj.HierarchicalEstimator(nominal, basis, modes=20, moments=2)
+    system = chain(25.0, 300.0)
+    fine = np.asarray(estimator.fine_basis(system))
+    np.testing.assert_allclose(fine.T @ fine, np.eye(fine.shape[1]), atol=1e-12)
+    moments = np.asarray(mj.static_moments(system, mj.damper_directions(system), 2))
+    for columns in (np.asarray(basis), moments):
+        outside = columns - fine @ (fine.T @ columns)
+        assert np.max(np.abs(outside)) < 1e-10
+    # a complete fine space: the fine J is the full J, the estimate 2 |J - J_r|
+    whole = mj.HierarchicalEstimator(nominal, basis, modes=N, moments=0)
+    e = whole(system, T, x0)
+    j = float(mj.integrated_energy(system, T, x0, method="dense"))
+    assert float(e.fine) == pytest.approx(j, rel=1e-9)
+
+
+def test_the_estimate_runs_under_jit_and_vmap_over_designs(case):
+    x0, nominal, basis = case
+    estimator = mj.HierarchicalEstimator(nominal, basis, modes=24)
+
+    def relative(c):
+        return estimator(mj.mikota_chain(N, dampers=[mj.GroundedDamper(25.0, c)]), T, x0).relative
+
+    batched = jax.jit(jax.vmap(relative))(jnp.array([1.0, 300.0]))
+    assert np.allclose(np.asarray(batched), [float(relative(1.0)), float(relative(300.0))],
+                       rtol=1e-10)
+
+
+def test_static_moments_follow_the_krylov_recurrence_and_nest():
+    system = chain(25.0, 300.0)
+    forces = mj.damper_directions(system)
+    g = forces.shape[1]
+    moments = np.asarray(mj.static_moments(system, forces, 3))
+    k, m = (np.asarray(a) for a in (system.stiffness.as_matrix(), system.mass.as_matrix()))
+    np.testing.assert_allclose(np.linalg.norm(moments, axis=0), 1.0, rtol=1e-12)
+    for j in (1, 2):  # K R_j is parallel to M R_(j-1), column by column
+        left, right = k @ moments[:, j * g:(j + 1) * g], m @ moments[:, (j - 1) * g:j * g]
+        for a, b in zip(left.T, right.T, strict=True):
+            assert abs(abs(a @ b) / (np.linalg.norm(a) * np.linalg.norm(b)) - 1) < 1e-10
+    np.testing.assert_allclose(k @ moments[:, :g] * np.linalg.norm(
+        np.linalg.solve(k, np.asarray(forces)), axis=0), forces, atol=1e-10)
+    one = np.asarray(mj.modal_static_basis(system, 14))
+    two = np.asarray(mj.modal_static_basis(system, 14, moments=2))
+    assert two.shape[1] > one.shape[1]
+    assert np.max(np.abs(one - two @ (two.T @ one))) < 1e-10  # span(one) in span(two)
+
+
+def test_bad_input_fails_in_one_line(case):
+    _, nominal, basis = case
+    for kwargs, match in ((dict(modes=0), "modes must be"), (dict(modes=N + 1), "modes must be"),
+                          (dict(moments=-1), "moments must be"),
+                          (dict(safety=0.5), "safety must be")):
+        with pytest.raises(ValueError, match=match):
+            mj.HierarchicalEstimator(nominal, basis, **kwargs)
+    with pytest.raises(ValueError, match="moments must be"):
+        mj.modal_static_basis(nominal, 10, moments=0)
