@@ -47,7 +47,10 @@ from ._frequency import frequency_response as frequency_response
 from ._galerkin import ReducedModel as ReducedModel
 from ._galerkin import galerkin as galerkin
 from ._greedy import BoundFunction as BoundFunction
+from ._greedy import CertifiedSweep as CertifiedSweep
+from ._greedy import EstimateFunction as EstimateFunction
 from ._greedy import GreedyBasis as GreedyBasis
+from ._greedy import certified_sweep as certified_sweep
 from ._greedy import greedy_reduce as greedy_reduce
 from ._greedy import rank_for_bound as rank_for_bound
 from ._implicit import StructuredKvaerno5 as StructuredKvaerno5

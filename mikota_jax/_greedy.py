@@ -10,6 +10,9 @@ design is certified to ``tolerance`` or the basis reaches ``max_rank``. The full
 per iteration, at the designs the bound picks; a design outside the training set is certified
 by evaluating the bound there (``bound_function``).
 
+``certified_sweep``: J over many designs through the reduced model where a ``HierarchicalEstimator``
+certifies it, by the full model only where it does not (``EstimateFunction`` for ``mj.sweep``).
+
 ``rank_for_bound``: the smallest rank r of a POD whose bound at the scene's design is within a
 requested relative accuracy in J (bisection on r; the bound is evaluated, never the full model).
 """
@@ -23,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._errors import MARK
-from ._estimator import _bound
+from ._estimator import HierarchicalEstimator, _bound
 from ._exact import exact_solve
 from ._galerkin import check_basis
 from ._pod import POD
@@ -206,3 +209,74 @@ def rank_for_bound(scene: Scene, pod: POD, tolerance: float, *, parameters: dict
         else:
             low = mid
     return high
+
+
+class EstimateFunction(eqx.Module):
+    """parameters -> (J_r, estimate of |J - J_r|, J_f) of ``scene``'s free vibration by a
+    ``HierarchicalEstimator``: a pure function for ``mj.sweep`` (the scene's values where a name
+    is missing, as ``SceneFunction``). The scene's M and K must be those the estimator was built
+    with (designs differ in their dampers)."""
+
+    function: SceneFunction
+    estimator: HierarchicalEstimator
+
+    def __init__(self, scene: Scene, estimator: HierarchicalEstimator):
+        _check_scene(scene)
+        if not isinstance(estimator, HierarchicalEstimator):
+            raise ValueError(MARK + f"estimator must be a HierarchicalEstimator, got "
+                             f"{type(estimator).__name__}.")
+        if estimator.basis.shape[0] != scene.size:
+            raise ValueError(MARK + f"estimator: its basis has {estimator.basis.shape[0]} rows, "
+                             f"the scene {scene.size} DOFs.")
+        self.function = SceneFunction(scene, "energy")
+        self.estimator = estimator
+
+    def __call__(self, parameters: dict) -> jax.Array:
+        scene = self.function.scene
+        n = scene.size
+        x0, v0, _ = self.function.excitation(parameters)
+        x0 = jnp.zeros(n) if x0 is None else x0
+        v0 = jnp.zeros(n) if v0 is None else v0
+        e = self.estimator(self.function.system(parameters), scene.ts[-1] - scene.ts[0], x0, v0)
+        return jnp.stack([e.value, e.energy, e.fine])
+
+
+@dataclass(frozen=True)
+class CertifiedSweep:
+    """What ``certified_sweep`` returns, per design (S,): ``values`` J (the reduced model's
+    where ``certified``, else the full model's), ``certified`` whether the estimate met the
+    tolerance there, ``estimates`` the relative estimate of |J - J_r| / J, ``reduced`` J_r
+    everywhere; ``full_solves`` the full-model solves taken (the designs not certified)."""
+
+    values: np.ndarray
+    certified: np.ndarray
+    estimates: np.ndarray
+    reduced: np.ndarray
+    tolerance: float
+    full_solves: int
+
+
+def certified_sweep(scene: Scene, points: dict, estimator: HierarchicalEstimator,
+                    tolerance: float = 1e-4, *, batch: str = "map",
+                    progress: bool = False) -> CertifiedSweep:
+    """J of ``scene`` at every design of ``points`` (``mj.grid``), through the reduced model
+    where ``estimator`` certifies it to ``tolerance`` (relative) and by the full model (its
+    exact integral, the spectral path for chains) only where it does not: the sweep decides
+    by the estimate, not by full solves. ``batch``: as ``mj.sweep``'s. The certificate is the
+    estimator's (a saturation assumption, checked in ``benchmarks/hierarchical.py``), not a
+    proof.
+    """
+    if not (isinstance(tolerance, float | int) and 0 < tolerance < 1):
+        raise ValueError(MARK + f"tolerance must be in (0, 1), got {tolerance!r}.")
+    points, count = _training(scene, points)
+    values = sweep(EstimateFunction(scene, estimator), points, batch=batch, progress=progress)
+    estimates = relative_bounds(values)
+    certified = estimates <= tolerance
+    result = np.array(values[:, 0])
+    missing = np.flatnonzero(~certified)
+    if missing.size:
+        subset = {name: v[missing] for name, v in points.items()}
+        result[missing] = np.asarray(sweep(SceneFunction(scene, "energy"), subset, batch=batch,
+                                           progress=progress))
+    return CertifiedSweep(result, certified, estimates, np.asarray(values[:, 0]),
+                          float(tolerance), int(missing.size))
