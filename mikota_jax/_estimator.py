@@ -40,6 +40,7 @@ import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 import numpy as np
 
+from ._classic import damper_directions, modal_basis, static_moments
 from ._custom_types import Array, Basis, Float, Vector
 from ._errors import MARK, as_float, positive_scalar
 from ._galerkin import check_basis
@@ -256,8 +257,6 @@ class HierarchicalEstimator(eqx.Module):
 
     def __init__(self, system: SecondOrderSystem, basis: Basis, modes: int | None = None,
                  moments: int = 3, safety: float = 2.0, *, basis_moments: int = 0):
-        from ._classic import modal_basis
-
         if not isinstance(system, SecondOrderSystem):
             raise ValueError(MARK + f"system must be a SecondOrderSystem, got "
                              f"{type(system).__name__}.")
@@ -282,8 +281,6 @@ class HierarchicalEstimator(eqx.Module):
         self.safety = float(safety)
 
     def _with_moments(self, system, columns, count):
-        from ._classic import damper_directions, static_moments
-
         forces = damper_directions(system)
         if count == 0 or forces.shape[1] == 0:
             return columns

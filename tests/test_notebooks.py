@@ -1,5 +1,6 @@
 """Every notebook in notebooks/ executes end to end at its small size
-(``MIKOTA_NOTEBOOK_SIZE=small``, the default run) and at its full size (``-m slow``), and is
+(``MIKOTA_NOTEBOOK_SIZE=small``, the default run; the paper's, which has one size, under
+``-m slow``) and at its full size (``-m slow``), and is
 stored with its outputs stripped; the docs site's executed page (``docs/examples/NAME.md``,
 written by ``docs/execute_notebooks.py``) holds the same code, a figure and no traceback."""
 
@@ -43,8 +44,17 @@ def test_notebook_cells_have_ids(path):
     assert all("id" in cell for cell in notebook["cells"])
 
 
-@pytest.mark.parametrize("size", ["small", pytest.param("full", marks=pytest.mark.slow)])
-@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
+# paper_reproduction has one size (the paper's): its one computation, ``mj.reproduce``, is what
+# tests/test_paper.py runs in the default run, so the notebook runs once, under -m slow (43 s)
+ONE_SIZE = {"paper_reproduction.ipynb"}
+RUNS = [pytest.param(path, "small", id=f"{path.name}-small",
+                     marks=[pytest.mark.slow] if path.name in ONE_SIZE else [])
+        for path in NOTEBOOKS] + [pytest.param(path, "full", id=f"{path.name}-full",
+                                               marks=pytest.mark.slow)
+                                  for path in NOTEBOOKS if path.name not in ONE_SIZE]
+
+
+@pytest.mark.parametrize(("path", "size"), RUNS)
 def test_notebook_executes(path, size, tmp_path, monkeypatch):
     # the default run executes every notebook at its small size, -m slow at the size it ships
     # with; the kernel inherits conftest's XLA_FLAGS (no LLVM optimisation passes: at these
