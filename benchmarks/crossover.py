@@ -30,7 +30,8 @@ Per n, one process, compile time apart from run time (``Compiled``), run time = 
   a lower bound on any Dopri8 gradient (which needs at least one more solve).
 * **Reductions**: POD (the paper's), sensitivity-enriched POD (``enriched_reduce``), modal
   truncation, modal + static correction (r - 2 modes + the split damper's two static directions),
-  second-order Krylov (SOAR; inputs M x0 and the damper directions), built as ``reductions.py``
+  modal + 2 moments (r - 4 modes + K^-1 b and K^-1 M K^-1 b of both: ``modal_static_basis(...,
+  moments=2)``), second-order Krylov (SOAR; inputs M x0 and the damper directions), built as ``reductions.py``
   builds them, at the nominal design. Rank: the smallest r whose ROM J is within TOL = 1e-4
   (relative) of the full J at the nominal design, found by a ladder r = 16, 16 * 1.4, ... (up to
   min(n, 400, the POD's numerical rank): a ROM query at r = 400 costs ~20 s, and the cap keeps the
@@ -69,6 +70,7 @@ Per n, one process, compile time apart from run time (``Compiled``), run time = 
   against the full model; the worst error is reported, however large (a basis built at one design
   need not hold at another). Histories are not compared there (a full history per design costs
   more than the query). **Rebuild variant** for the bases that need no full solve (modal + static,
+  modal + 2 moments,
   Krylov): the basis rebuilt at each design (same r), its build time added to every query of the
   sweep; the modal basis does not depend on the damper, so its rebuild is its fixed basis.
 * **Crossover** per method: the smallest measured n from which (that n and every larger measured
@@ -112,8 +114,10 @@ HISTORY_EVERY = 5  # history errors at t = 0, 0.05, ..., 20 (401 times, all DOFs
 POSITION, COEFFICIENT, INITIAL_DOF = 7.0, 1.0, 3
 WRT = ("positions", "coefficients")
 TOL = 1e-4  # relative J error of the ROM at the nominal design: "equal accuracy"
-METHODS = ("POD", "enriched POD", "modal", "modal + static", "Krylov")
-REBUILD = ("modal + static", "Krylov")  # bases that need no full solve: rebuilt per design
+METHODS = ("POD", "enriched POD", "modal", "modal + static", "modal + 2 moments", "Krylov")
+# bases that need no full solve: rebuilt per design
+REBUILD = ("modal + static", "modal + 2 moments", "Krylov")
+STATIC_COLUMNS = {"modal + static": 2, "modal + 2 moments": 4}  # the split damper's 2 DOFs
 SWEEP = 1000
 RANK_START, RANK_FACTOR, RANK_CAP = 16, 1.4, 400
 RANK_BUMPS = 4  # tries at r * 1.05 when the library's J misses TOL at the searched r
@@ -295,8 +299,9 @@ def static_directions(system) -> np.ndarray:
 
 
 def modal_static_columns(modes: np.ndarray, static: np.ndarray, r: int) -> np.ndarray:
-    """``modal_static_basis(system, r - 2)`` in numpy, from precomputed modes and K^-1 B."""
-    kept = modes[:, : r - 2]
+    """``modal_static_basis(system, r - s)`` in numpy, from precomputed modes and the s static
+    columns (K^-1 B, or ``static_moments``: K^-1 B and K^-1 M K^-1 B, each of unit length)."""
+    kept = modes[:, : r - static.shape[1]]
     scale = float(np.max(np.linalg.norm(static, axis=0)))
     rest = static.copy()
     for _ in range(2):
@@ -368,6 +373,7 @@ def measure(n: int, quick: bool, check_public: bool) -> dict:
     enriched = mj.enriched_reduce(window_scene, WRT).pod  # compiles and runs once (warm-up)
     modes = np.asarray(mj.modal_basis(system, cap))
     static = static_directions(system)
+    moments = np.asarray(mj.static_moments(system, mj.damper_directions(system), 2))
     krylov = np.asarray(mj.krylov_basis(system, cap, forcing))
     say("bases for the rank search")
 
@@ -380,6 +386,7 @@ def measure(n: int, quick: bool, check_public: bool) -> dict:
         "enriched POD": lambda r: mj.enriched_reduce(window_scene, WRT, rank=r).basis,
         "modal": lambda r: mj.modal_basis(system, r),
         "modal + static": lambda r: mj.modal_static_basis(system, r - 2),
+        "modal + 2 moments": lambda r: mj.modal_static_basis(system, r - 4, moments=2),
         "Krylov": lambda r: mj.krylov_basis(system, r, forcing),
     }
     nested = {"POD": np.asarray(pod.basis(min(cap, pod.numerical_rank()))),
@@ -395,8 +402,9 @@ def measure(n: int, quick: bool, check_public: bool) -> dict:
             energy_at = lambda r, matrices=matrices: rom_energy(leading(matrices, r))  # noqa: E731
         else:
             search_cap = cap
-            energy_at = lambda r: rom_energy(projection(modal_static_columns(  # noqa: E731
-                modes, static, r)))
+            extra = moments if method == "modal + 2 moments" else static
+            energy_at = lambda r, extra=extra: rom_energy(projection(  # noqa: E731
+                modal_static_columns(modes, extra, r)))
         t0 = time.perf_counter()
         r, searched = rank_search(energy_at, search_cap, float(j_full))
         row.update(search_cap=search_cap, search_s=elapsed(t0),
@@ -532,7 +540,9 @@ def measure_designs(n, quick, scene, function, full, queries, forcing, say) -> d
                 inputs = np.column_stack([forcing[:, 0], np.asarray(mj.damper_directions(system))])
                 fresh = jax.block_until_ready(mj.krylov_basis(system, basis.shape[1], inputs))
             else:
-                fresh = jax.block_until_ready(mj.modal_static_basis(system, basis.shape[1] - 2))
+                fresh = jax.block_until_ready(mj.modal_static_basis(
+                    system, basis.shape[1] - STATIC_COLUMNS[method],
+                    moments=2 if method == "modal + 2 moments" else 1))
             build_s = elapsed(t0)
             rom = mj.SceneFunction(scene, "energy", model="reduced", basis=fresh, forward=True)
             exe = query
@@ -743,6 +753,7 @@ COLOURS = {path: f"C{i}" for i, path in enumerate(
     list(METHODS) + [m + " (rebuilt)" for m in REBUILD])}
 STYLES = {"POD": "o-", "enriched POD": "s-", "modal": "^--", "modal + static": "v--",
           "Krylov": "d-.", "modal + static (rebuilt)": "v:", "Krylov (rebuilt)": "d:",
+          "modal + 2 moments": "P--", "modal + 2 moments (rebuilt)": "P:",
           "full spectral": "*-", "full Dopri8": "x-", "full Dopri8, J alone": "x:"}
 
 
@@ -792,7 +803,7 @@ def plot(data: dict, quick: bool):
         ("o", "J"), ("s", "max(dJ/dp, dJ/dc)"), ("^", "x(t), all DOFs (nominal only)"))]
     markers.append(err_sweep.plot([], [], "k:", label="full spectral cost")[0])
     markers.append(err_sweep.plot([], [], "--", color="grey", label=f"TOL = {TOL:g}")[0])
-    legend(err_sweep, "below", handles=markers, ncol=2, title="marker size grows with n")
+    legend(err_sweep, "below", handles=markers, ncol=1, title="marker size grows with n")
     fig.suptitle(f"Error against cost: Mikota chain, damper at DOF 7 (c = 1), J on [0, 20] + "
                  f"gradient;\nROM rank: J within {TOL:g} at the nominal design. "
                  + subtitle(data["metadata"]))
