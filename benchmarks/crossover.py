@@ -31,16 +31,17 @@ Per n, one process, compile time apart from run time (``Compiled``), run time = 
 * **Reductions**: POD (the paper's), sensitivity-enriched POD (``enriched_reduce``), modal
   truncation, modal + static correction (r - 2 modes + the split damper's two static directions),
   modal + 2 moments (r - 4 modes + K^-1 b and K^-1 M K^-1 b of both: ``modal_static_basis(...,
-  moments=2)``), second-order Krylov (SOAR; inputs M x0 and the damper directions), built as ``reductions.py``
-  builds them, at the nominal design. Rank: the smallest r whose ROM J is within TOL = 1e-4
-  (relative) of the full J at the nominal design, found by a ladder r = 16, 16 * 1.4, ... (up to
-  min(n, 400, the POD's numerical rank): a ROM query at r = 400 costs ~20 s, and the cap keeps the
-  full run near 25 min) then bisection between the last rung that misses and the first that meets
-  TOL (the error is assumed to fall with r), with a numpy evaluation of the ROM's J (modes of the
-  Galerkin matrices, expm, a Lyapunov solve: the same integral as ``integrated_energy``). The
-  library's J at that r is then checked (r is raised by 5 % until it meets TOL). The search is not
-  counted in the offline cost (a user would pick r by an energy rule). The rule is on J only, as
-  asked: the gradient and history errors at that r are reported beside it, not matched.
+  moments=2)``), second-order Krylov (SOAR; inputs M x0 and the damper directions), built as
+  ``reductions.py`` builds them, at the nominal design. Rank: the smallest r whose ROM J is within
+  TOL = 1e-4 (relative) of the full J at the nominal design, found by a ladder r = 16, 16 * 1.4, ...
+  (up to min(n, 400, the POD's numerical rank): a ROM query at r = 400 costs ~20 s, and the cap
+  keeps the full run near 25 min) then bisection between the last rung that misses and the first
+  that meets TOL (the error is assumed to fall with r), with a numpy evaluation of the ROM's J
+  (modes of the Galerkin matrices, expm, a Lyapunov solve: the same integral as
+  ``integrated_energy``). The library's J at that r is then checked (r is raised by 5 % until it
+  meets TOL). The search is not counted in the offline cost (a user would pick r by an energy rule).
+  The rule is on J only, as asked: the gradient and history errors at that r are reported beside it,
+  not matched.
 * **Errors** at that r, against the full model: relative J, max over (p, c) of the relative
   gradient error (right-sided derivative in p at the integer position, as the library defines
   it, for the full model and the ROM alike), and the displacement history: relative L2 over all
@@ -63,16 +64,16 @@ Per n, one process, compile time apart from run time (``Compiled``), run time = 
   below): a per-design median times 1000, NOT a measured 1000-run; the basis is built once, at the
   nominal design. Full: 1000 x the spectral median over the same designs, or 1000 x Dopri8's
   nominal time (a lower bound), whichever is cheaper.
-* **Sweep accuracy**: random designs (p uniform in [1, n], c log-uniform in [0.1, 1000]; 10 at
-  n = 300, 4 at n = 1000, 2 at n = 3000, ``--quick``: 2 per n, fewer than the 10-20 hoped for, to
-  fit the time: each costs one full query, itself ~1.5-2 x the nominal one since a damper between
-  two DOFs has two columns, plus one query per ROM). Each ROM's J and gradient on its nominal basis
+* **Sweep accuracy**: random designs (p uniform in [1, n], c log-uniform in [0.1, 1000]; 10 at n =
+  300, 4 at n = 1000, 2 at n = 3000, ``--quick``: 2 per n, fewer than the 10-20 hoped for, to fit
+  the time: each costs one full query, itself ~1.5-2 x the nominal one since a damper between two
+  DOFs has two columns, plus one query per ROM). Each ROM's J and gradient on its nominal basis
   against the full model; the worst error is reported, however large (a basis built at one design
-  need not hold at another). Histories are not compared there (a full history per design costs
-  more than the query). **Rebuild variant** for the bases that need no full solve (modal + static,
-  modal + 2 moments,
-  Krylov): the basis rebuilt at each design (same r), its build time added to every query of the
-  sweep; the modal basis does not depend on the damper, so its rebuild is its fixed basis.
+  need not hold at another). Histories are not compared there (a full history per design costs more
+  than the query). **Rebuild variant** for the bases that need no full solve (modal + static, modal
+  + 2 moments, Krylov): the basis rebuilt at each design (same r), its build time added to every
+  query of the sweep; the modal basis does not depend on the damper, so its rebuild is its fixed
+  basis.
 * **Crossover** per method: the smallest measured n from which (that n and every larger measured
   one) the ROM is cheaper than the best full path, for one query and for the sweep, with the ROM
   at TOL in J at the nominal design (gradient, history and random-design errors reported beside;
