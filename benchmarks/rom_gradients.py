@@ -84,7 +84,7 @@ def plot(data: dict, quick: bool):
     rows = data["rows"]
     positions = sorted({r["position"] for r in rows})
     coefficients = sorted({r["coefficient"] for r in rows})
-    fig, axes = figure(ncols=3, figsize=(13.5, 4.2), readable=True)
+    fig, axes = figure(nrows=3, figsize=(9, 12.5), readable=True)
     for ax, label, title in ((axes[0], "plain", "(a) POD of the states"),
                              (axes[1], "enriched", "(b) sensitivity-enriched POD"),
                              (axes[2], "moments", "(c) modes + 2 damper moments")):
@@ -105,9 +105,9 @@ def plot(data: dict, quick: bool):
         ax.set_ylabel("damper coefficient c (dimensionless)")
         worst = max(r[f"{label}_r98"] for r in rows)
         ax.set_title(f"{title}: worst {worst:.1e}")
-    fig.suptitle(f"Section 5 scene: max relative error of the ROM's dJ/dp, dJ/dc at r = {RANK}, "
-                 f"basis built at each design\n(colour: log10 of the error, 1e-8 to 1; target "
-                 f"{TARGET:g}); " + subtitle(data["metadata"]))
+    fig.suptitle(f"Section 5 scene: max relative error of the ROM's dJ/dp, dJ/dc at r <= {RANK},\n"
+                 f"basis built at each design (colour: log10 of the error, 1e-8 to 1; target "
+                 f"{TARGET:g})\n" + subtitle(data["metadata"]))
     return save_figure(fig, NAME, quick)
 
 
