@@ -304,9 +304,17 @@ class HierarchicalEstimator(eqx.Module):
     def __call__(self, system: SecondOrderSystem, horizon, x0=None, v0=None
                  ) -> HierarchicalEstimate:
         n = system.size
+        if system.size != self.basis.shape[0]:
+            raise ValueError(MARK + f"system has {system.size} DOFs, the estimator's basis "
+                             f"{self.basis.shape[0]} rows.")
         horizon = jnp.asarray(horizon, dtype=jnp.float64)
+        horizon = eqx.error_if(horizon, ~(jnp.isfinite(horizon) & (horizon > 0)),
+                               MARK + "horizon must be finite and > 0.")
         x0 = jnp.zeros(n) if x0 is None else jnp.asarray(x0, dtype=jnp.float64)
         v0 = jnp.zeros(n) if v0 is None else jnp.asarray(v0, dtype=jnp.float64)
+        for name, x in (("x0", x0), ("v0", v0)):
+            if x.shape != (n,):
+                raise ValueError(MARK + f"{name} must have shape ({n},), got {x.shape}.")
         value, bad = _reduced_energy(system, self.reduced_basis(system), horizon, x0, v0)
         fine, bad_fine = _reduced_energy(system, self.fine_basis(system), horizon, x0, v0)
         energy = self.safety * jnp.abs(fine - value) + ROUNDING * jnp.abs(value)

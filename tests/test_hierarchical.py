@@ -148,6 +148,11 @@ def test_bad_input_fails_in_one_line(case):
             mj.HierarchicalEstimator(nominal, basis, **kwargs)
     with pytest.raises(ValueError, match="moments must be"):
         mj.modal_static_basis(nominal, 10, moments=0)
+    estimator = mj.HierarchicalEstimator(nominal, basis, modes=20)
+    with pytest.raises(ValueError, match=r"x0 must have shape \(40,\)"):
+        estimator(nominal, T, jnp.zeros(3))
+    with pytest.raises(Exception, match="horizon must be finite and > 0"):
+        estimator(nominal, -1.0, jnp.zeros(N))
 
 
 def small_scene(x0, position=7.0, coefficient=1.0):
