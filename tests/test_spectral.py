@@ -231,10 +231,7 @@ def test_internal_damping_diagonal_in_modes_matches_the_refined_dense_eigenvalue
     assert_same_roots(np.asarray(modes.eigenvalues), physical_roots(system), 1e-10)
 
 
-# all three -m slow (~21 s each, default-run time: CI under 15 min); the modal internal damping's
-# spectral path stays in the default run through test_spectral_solve's internal-damping tests
-@pytest.mark.parametrize("internal", [pytest.param("rayleigh", marks=pytest.mark.slow),
-                                      pytest.param("modal", marks=pytest.mark.slow),
+@pytest.mark.parametrize("internal", [pytest.param("rayleigh", marks=pytest.mark.slow), "modal",
                                       pytest.param("overdamped", marks=pytest.mark.slow)])
 def test_the_spectral_energy_with_internal_damping_equals_the_van_loan_energy(internal, close):
     n = 30
@@ -379,9 +376,7 @@ def triple_chain(n1, viscosities):
         internal_damping=mj.ModalDamping(0.02))
 
 
-# both -m slow (~22-30 s each, default-run time: CI under 15 min)
-@pytest.mark.parametrize("d1", [pytest.param(10.1, marks=pytest.mark.slow),
-                                pytest.param(13.6, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("d1", [10.1, pytest.param(13.6, marks=pytest.mark.slow)])
 def test_a_settled_root_whose_residual_shows_cancellation_is_accepted_and_right(d1):
     # n = 151: one real root (-1.617 at d_1 = 10.1) settles to the last bit while |phi_J| stays
     # 1e-7 of its terms; it was reported unconverged, the notebook's landscape fell back to the
