@@ -55,13 +55,6 @@ FLOOR = 1e-9
 SEED = 2026
 
 
-def union(basis, modes):
-    rest = modes - basis @ (basis.T @ modes)
-    rest = rest - basis @ (basis.T @ rest)
-    u, s, _ = np.linalg.svd(rest, full_matrices=False)
-    return np.concatenate([basis, u[:, s > 1e-10 * s[0]]], axis=1)
-
-
 def main(argv=None) -> dict:
     args = parse_args(__doc__, argv, replot=True)
     if args.replot:
@@ -97,7 +90,7 @@ def main(argv=None) -> dict:
         return [(p, c) for p in positions for c in COEFFICIENTS]
 
     def screened(m, basis_moments):
-        basis = union(pod, modes[:, :m])
+        basis = np.asarray(mj.extend_basis(pod, modes[:, :m]))
         est, run = estimator_for(basis, min(n, m + FINE_EXTRA), basis_moments)
         worst = max(float(run(est, p, c)[3]) for p, c in grid(SCREEN_STEP))
         rank = int(basis.shape[1]) + 2 * basis_moments

@@ -36,6 +36,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._classic import extend_basis
 from ._design import DamperProblem
 from ._errors import MARK, RESULTS, check_x64
 from ._integrate import simulate_with_result
@@ -84,15 +85,6 @@ def _snapshot_modes(problem, positions, coefficients):
     request = Reduction(problem.snapshots, energy=problem.energy, rank=problem.rank,
                         criterion=problem.criterion)
     return reduce(displacement, jnp.asarray(ts[:count]), request, cap_rank=True).basis
-
-
-def _enrich(basis, modes, tol: float = 1e-8):
-    """basis plus the part of ``modes`` outside its span (orthonormal, directions above tol)."""
-    residual = modes - basis @ (basis.T @ modes)
-    residual = residual - basis @ (basis.T @ residual)  # twice is enough (Kahan-Parlett)
-    u, s, _ = jnp.linalg.svd(residual, full_matrices=False)
-    keep = int(np.sum(np.asarray(s) > tol))
-    return jnp.concatenate([basis, u[:, :keep]], axis=1)
 
 
 @dataclasses.dataclass
@@ -289,7 +281,7 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
             break
         say(f"round {round_ + 1}: enriching the basis with full-model snapshots there ...")
         modes = full_timed(_snapshot_modes, problem, positions, coefficients)
-        basis = _enrich(basis, modes)
+        basis = extend_basis(basis, modes, tol=1e-8)
     return PlacementResult(
         positions=np.asarray(positions), coefficients=np.asarray(coefficients),
         objective=float(full_value), objective_reduced=float(rom_value), rom_error=rom_error,

@@ -104,6 +104,28 @@ def static_moments(system: SecondOrderSystem, forces, count: int) -> jnp.ndarray
     return moments / jnp.where(norms > 0, norms, 1.0)[None, :]
 
 
+def extend_basis(basis: Basis, extra, tol: float = 1e-10) -> Basis:
+    """``basis`` (n, r), orthonormal, followed by the directions of ``extra`` ((n,) or (n, s))
+    outside its span, orthonormal: the left singular vectors of the part of ``extra`` outside
+    span(basis) whose singular values exceed ``tol`` times the largest column norm of ``extra``
+    (e.g. a POD basis plus undamped modes, or plus snapshots of a new design). The size depends on
+    the values: call it outside ``jit``, as POD's rank rule."""
+    basis = np.asarray(basis, dtype=float)
+    extra = np.asarray(extra, dtype=float)
+    extra = extra[:, None] if extra.ndim == 1 else extra
+    if basis.ndim != 2 or extra.ndim != 2 or extra.shape[0] != basis.shape[0]:
+        raise ValueError(MARK + f"extra must have shape ({basis.shape[0]},) or "
+                         f"({basis.shape[0]}, s) for a basis of shape {basis.shape}, got "
+                         f"{extra.shape}.")
+    if not (np.isfinite(tol) and 0 <= tol < 1):
+        raise ValueError(MARK + f"tol must lie in [0, 1), got {tol!r}.")
+    rest = extra - basis @ (basis.T @ extra)
+    rest = rest - basis @ (basis.T @ rest)  # twice is enough (Kahan-Parlett)
+    u, s, _ = np.linalg.svd(rest, full_matrices=False)
+    scale = float(np.max(np.linalg.norm(extra, axis=0))) if extra.size else 0.0
+    return jnp.asarray(np.concatenate([basis, u[:, s > tol * scale]], axis=1))
+
+
 def modal_static_basis(system: SecondOrderSystem, rank: int, *, loads=None,
                        dampers: bool = True, moments: int = 1) -> Basis:
     """The ``rank`` lowest undamped modes and the static responses K^-1 b of the damper

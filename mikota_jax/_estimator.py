@@ -40,7 +40,7 @@ import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 import numpy as np
 
-from ._classic import damper_directions, modal_basis, static_moments
+from ._classic import damper_directions, extend_basis, modal_basis, static_moments
 from ._custom_types import Array, Basis, Float, Vector
 from ._errors import MARK, as_float, positive_scalar
 from ._galerkin import check_basis
@@ -102,17 +102,29 @@ def _residual_factor(system: SecondOrderSystem, basis):
     return factor.reshape(-1, 2 * r)
 
 
+def _reduced_flow(system, basis, x0, v0):
+    """(A, w0, Omega, U, not definite): the Galerkin model on the orthonormal ``basis`` as the
+    first-order flow w' = A w in its scaled modal coordinates w = (Omega eta, eta'), q = U eta,
+    from the orthogonal projection of (x0, v0), as ``galerkin`` projects it."""
+    rom = system.project(basis)
+    mass_r = rom.mass.as_matrix()
+    omega, modes, damping_modal, not_definite = scaled_modal(rom)
+    w0 = jnp.concatenate([omega * (modes.T @ (mass_r @ (basis.T @ x0))),
+                          modes.T @ (mass_r @ (basis.T @ v0))])
+    return state_matrix(omega, damping_modal), w0, omega, modes, not_definite
+
+
+def _flow_energy(a, w0, horizon):
+    """J = 1/2 int_0^T |w|^2 of w' = A w, w(0) = w0: one finite-horizon Gramian."""
+    whole, _ = finite_gramian(a, jnp.eye(a.shape[0]), horizon)
+    return w0 @ ((whole + whole.T) / 2) @ w0 / 2
+
+
 @eqx.filter_jit
 def _bound(system, basis, horizon, x0, v0, intervals: int = INTERVALS):
-    rom = system.project(basis)
-    q0, p0 = basis.T @ x0, basis.T @ v0
-    ex, ev = x0 - basis @ q0, v0 - basis @ p0
+    ex, ev = x0 - basis @ (basis.T @ x0), v0 - basis @ (basis.T @ v0)
     initial = jnp.sqrt(jnp.maximum(ex @ system.stiffness.mv(ex) + ev @ system.mass.mv(ev), 0.0))
-    # the reduced flow in its scaled modal coordinates w = (Omega eta, eta'), q = U eta
-    omega, modes, damping_modal, not_definite = scaled_modal(rom)
-    a = state_matrix(omega, damping_modal)
-    mass_r = rom.mass.as_matrix()
-    w0 = jnp.concatenate([omega * (modes.T @ (mass_r @ q0)), modes.T @ (mass_r @ p0)])
+    a, w0, omega, modes, not_definite = _reduced_flow(system, basis, x0, v0)
     # (q, p) = T w with T = diag(U Omega^-1, U): the residual as a form in w
     r = basis.shape[1]
     lift = jnp.block([[modes / omega[None, :], jnp.zeros((r, r))], [jnp.zeros((r, r)), modes]])
@@ -129,8 +141,7 @@ def _bound(system, basis, horizon, x0, v0, intervals: int = INTERVALS):
     _, (energies, residuals) = jax.lax.scan(interval, w0, None, length=intervals)
     # J_r itself over [0, T] in one Gramian, as ``integrated_energy`` computes it (the sum over
     # the intervals is ~4e-10 relative off: enough for the bound, not for J_r)
-    whole, _ = finite_gramian(a, jnp.eye(2 * r), horizon)
-    value = w0 @ ((whole + whole.T) / 2) @ w0 / 2
+    value = _flow_energy(a, w0, horizon)
     # eps(t) <= eps_0 + int_0^t |R| <= E_l on interval l (Cauchy-Schwarz per interval)
     states = initial + jnp.cumsum(jnp.sqrt(h * residuals))
     energy = jnp.sum(states * jnp.sqrt(h * jnp.maximum(energies, 0.0))) + h * jnp.sum(
@@ -173,15 +184,8 @@ def error_bound(system: SecondOrderSystem, basis: Basis, horizon: float,
 def _reduced_energy(system, basis, horizon, x0, v0):
     """(J_r, not definite) of the Galerkin model on the orthonormal ``basis``: ``_bound``'s J_r
     (the initial state projected orthogonally, as ``galerkin`` does)."""
-    rom = system.project(basis)
-    q0, p0 = basis.T @ x0, basis.T @ v0
-    mass_r = rom.mass.as_matrix()
-    omega, modes, damping_modal, not_definite = scaled_modal(rom)
-    a = state_matrix(omega, damping_modal)
-    w0 = jnp.concatenate([omega * (modes.T @ (mass_r @ q0)), modes.T @ (mass_r @ p0)])
-    r = basis.shape[1]
-    whole, _ = finite_gramian(a, jnp.eye(2 * r), horizon)
-    return w0 @ ((whole + whole.T) / 2) @ w0 / 2, not_definite
+    a, w0, _, _, not_definite = _reduced_flow(system, basis, x0, v0)
+    return _flow_energy(a, w0, horizon), not_definite
 
 
 class HierarchicalEstimate(eqx.Module):
@@ -199,17 +203,6 @@ class HierarchicalEstimate(eqx.Module):
         ``ErrorBound.relative``)."""
         floor = self.value - self.energy
         return jnp.where(floor > 0, self.energy / jnp.where(floor > 0, floor, 1.0), jnp.inf)
-
-
-def _orthonormal_union(first, second, tol: float = 1e-10):
-    """first plus the directions of ``second`` outside its span (above ``tol``), orthonormal;
-    numpy, outside jit (the size depends on the values)."""
-    first, second = np.asarray(first), np.asarray(second)
-    rest = second - first @ (first.T @ second)
-    rest = rest - first @ (first.T @ rest)  # twice is enough (Kahan-Parlett)
-    u, s, _ = np.linalg.svd(rest, full_matrices=False)
-    keep = s > tol * max(float(s[0]) if s.size else 0.0, 1e-300)
-    return np.concatenate([first, u[:, keep]], axis=1)
 
 
 class HierarchicalEstimator(eqx.Module):
@@ -275,7 +268,7 @@ class HierarchicalEstimator(eqx.Module):
                              f"{moments} (the fine space holds the reduced one), got "
                              f"{basis_moments!r}.")
         self.basis = basis
-        self.fixed = jnp.asarray(_orthonormal_union(basis, modal_basis(system, modes)))
+        self.fixed = extend_basis(basis, modal_basis(system, modes))
         self.moments = moments
         self.basis_moments = basis_moments
         self.safety = float(safety)

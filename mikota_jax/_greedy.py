@@ -50,15 +50,20 @@ class BoundFunction(eqx.Module):
         self.basis = check_basis(basis, scene.size)
 
     def __call__(self, parameters: dict) -> jax.Array:
-        function = self.function
-        scene = function.scene
-        n = scene.size
-        x0, v0, _ = function.excitation(parameters)
-        x0 = jnp.zeros(n) if x0 is None else x0
-        v0 = jnp.zeros(n) if v0 is None else v0
-        horizon = scene.ts[-1] - scene.ts[0]
-        b = _bound(function.system(parameters), self.basis, horizon, x0, v0)
+        system, horizon, x0, v0 = _free_vibration(self.function, parameters)
+        b = _bound(system, self.basis, horizon, x0, v0)
         return jnp.stack([b.value, b.energy, b.state])
+
+
+def _free_vibration(function: SceneFunction, parameters: dict):
+    """(system, horizon, x0, v0) of the scene's free vibration at ``parameters`` (zero where the
+    scene gives no start)."""
+    scene = function.scene
+    n = scene.size
+    x0, v0, _ = function.excitation(parameters)
+    x0 = jnp.zeros(n) if x0 is None else x0
+    v0 = jnp.zeros(n) if v0 is None else v0
+    return function.system(parameters), scene.ts[-1] - scene.ts[0], x0, v0
 
 
 def _check_scene(scene) -> None:
@@ -232,12 +237,7 @@ class EstimateFunction(eqx.Module):
         self.estimator = estimator
 
     def __call__(self, parameters: dict) -> jax.Array:
-        scene = self.function.scene
-        n = scene.size
-        x0, v0, _ = self.function.excitation(parameters)
-        x0 = jnp.zeros(n) if x0 is None else x0
-        v0 = jnp.zeros(n) if v0 is None else v0
-        e = self.estimator(self.function.system(parameters), scene.ts[-1] - scene.ts[0], x0, v0)
+        e = self.estimator(*_free_vibration(self.function, parameters))
         return jnp.stack([e.value, e.energy, e.fine])
 
 
@@ -268,7 +268,7 @@ def certified_sweep(scene: Scene, points: dict, estimator: HierarchicalEstimator
     """
     if not (isinstance(tolerance, float | int) and 0 < tolerance < 1):
         raise ValueError(MARK + f"tolerance must be in (0, 1), got {tolerance!r}.")
-    points, count = _training(scene, points)
+    points, _ = _training(scene, points)
     values = sweep(EstimateFunction(scene, estimator), points, batch=batch, progress=progress)
     estimates = relative_bounds(values)
     certified = estimates <= tolerance

@@ -62,3 +62,21 @@ def test_bad_input_fails_in_one_line():
         mj.modal_static_basis(system, 3, loads=np.ones(4))
     with pytest.raises(ValueError, match="system must be a SecondOrderSystem"):
         mj.modal_basis("chain", 3)
+
+
+def test_extend_basis_adds_only_the_directions_outside_the_span():
+    rng = np.random.default_rng(3)
+    basis, _ = np.linalg.qr(rng.standard_normal((20, 4)))
+    inside = basis @ rng.standard_normal((4, 2))  # adds nothing
+    new = rng.standard_normal((20, 2))
+    extra = np.concatenate([inside, new, new @ np.array([[1.0], [2.0]])], axis=1)
+    out = np.asarray(mj.extend_basis(basis, extra))
+    assert out.shape == (20, 6)  # two new directions, the third new column is their sum
+    assert np.max(np.abs(out.T @ out - np.eye(6))) < 1e-12
+    assert np.array_equal(out[:, :4], basis)
+    assert np.max(np.abs(extra - out @ (out.T @ extra))) < 1e-12
+    assert mj.extend_basis(basis, basis[:, 0]).shape == (20, 4)
+    with pytest.raises(ValueError, match="extra must have shape"):
+        mj.extend_basis(basis, np.ones(19))
+    with pytest.raises(ValueError, match="tol must lie in"):
+        mj.extend_basis(basis, new, tol=-1.0)
