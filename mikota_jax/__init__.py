@@ -22,8 +22,10 @@ from ._certify import optimise_dampers as optimise_dampers
 from ._chain import branched_chain as branched_chain
 from ._chain import chain as chain
 from ._chain import mikota_chain as mikota_chain
+from ._classic import craig_bampton_basis as craig_bampton_basis
 from ._classic import damper_directions as damper_directions
 from ._classic import extend_basis as extend_basis
+from ._classic import fixed_interface_modes as fixed_interface_modes
 from ._classic import krylov_basis as krylov_basis
 from ._classic import modal_basis as modal_basis
 from ._classic import modal_static_basis as modal_static_basis
