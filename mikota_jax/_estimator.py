@@ -42,11 +42,14 @@ import numpy as np
 
 from ._classic import damper_directions, extend_basis, modal_basis, static_moments
 from ._custom_types import Array, Basis, Float, Vector
+from ._dampers import Dampers
 from ._errors import MARK, as_float, positive_scalar
 from ._galerkin import check_basis
-from ._modal import scaled_modal, state_matrix
+from ._modal import generalized_modes, scaled_modal, state_matrix
 from ._objectives import finite_gramian
 from ._operators import Diagonal
+from ._spectral import DEFECTIVE_SEPARATION, modal_damped_modes
+from ._spectral_objectives import energy_from_modes
 from ._system import SecondOrderSystem
 
 # [0, T] is cut into this many intervals: Cauchy-Schwarz is applied on each, not on [0, T]
@@ -188,6 +191,36 @@ def _reduced_energy(system, basis, horizon, x0, v0):
     return _flow_energy(a, w0, horizon), not_definite
 
 
+def _spectral_reduced_energy(system, basis, horizon, x0, v0):
+    """(J_r, ok, not definite) of the Galerkin model on ``basis`` by the spectral path on its
+    own modes: (K_r, M_r) -> (Omega_r, U_r) by one symmetric eigenproblem (O(r^3)), the
+    projected dampers F = U_r^T Phi^T B stay low rank, so the damped roots and J are O(k r^2)
+    (``modal_damped_modes``, ``energy_from_modes``; Veselic's low-rank structure, as the full
+    model's spectral path). No derivatives (the roots are not differentiated); where ``ok`` is
+    False (no convergence, nearly coincident roots) the value must not be used."""
+    rom = system.project(basis)
+    omega2, modes = generalized_modes(rom)
+    not_definite = jnp.any(omega2 <= 0)
+    omega = jnp.sqrt(jnp.where(omega2 > 0, omega2, 1.0))
+    roots = modal_damped_modes(omega, modes.T @ rom.damping.factor, rom.damping.weights)
+    mass_r = rom.mass.as_matrix()
+    value = energy_from_modes(roots, modes.T @ (mass_r @ (basis.T @ x0)),
+                              modes.T @ (mass_r @ (basis.T @ v0)), horizon)
+    ok = roots.converged & (roots.separation > DEFECTIVE_SEPARATION) & jnp.isfinite(value)
+    return value, ok & ~not_definite, not_definite
+
+
+def _estimator_energy(system, basis, horizon, x0, v0):
+    """(J_r, not definite): the spectral value where the system has only discrete dampers and
+    the spectral path holds, else (and where it does not hold) ``_reduced_energy``'s Van Loan
+    value (a ``lax.cond``: under ``vmap`` both run)."""
+    if not isinstance(system.damping, Dampers) or system.internal is not None:
+        return _reduced_energy(system, basis, horizon, x0, v0)
+    value, ok, not_definite = _spectral_reduced_energy(system, basis, horizon, x0, v0)
+    return jax.lax.cond(ok, lambda: (value, not_definite),
+                        lambda: _reduced_energy(system, basis, horizon, x0, v0))
+
+
 class HierarchicalEstimate(eqx.Module):
     """What ``HierarchicalEstimator`` returns (scalars, float64): ``value`` J_r (the reduced
     model's energy), ``fine`` J_f (the enriched model's), ``energy`` the estimate of |J - J_r|
@@ -293,23 +326,26 @@ class HierarchicalEstimator(eqx.Module):
         model; r_f <= n)."""
         return self._with_moments(system, self.fixed, self.moments)
 
-    @eqx.filter_jit
     def __call__(self, system: SecondOrderSystem, horizon, x0=None, v0=None
                  ) -> HierarchicalEstimate:
         n = system.size
         if system.size != self.basis.shape[0]:
             raise ValueError(MARK + f"system has {system.size} DOFs, the estimator's basis "
                              f"{self.basis.shape[0]} rows.")
-        horizon = jnp.asarray(horizon, dtype=jnp.float64)
-        horizon = eqx.error_if(horizon, ~(jnp.isfinite(horizon) & (horizon > 0)),
-                               MARK + "horizon must be finite and > 0.")
         x0 = jnp.zeros(n) if x0 is None else jnp.asarray(x0, dtype=jnp.float64)
         v0 = jnp.zeros(n) if v0 is None else jnp.asarray(v0, dtype=jnp.float64)
         for name, x in (("x0", x0), ("v0", v0)):
             if x.shape != (n,):
                 raise ValueError(MARK + f"{name} must have shape ({n},), got {x.shape}.")
-        value, bad = _reduced_energy(system, self.reduced_basis(system), horizon, x0, v0)
-        fine, bad_fine = _reduced_energy(system, self.fine_basis(system), horizon, x0, v0)
+        # an array, so that a new horizon is a new value, not a new compilation
+        return self._estimate(system, jnp.asarray(horizon, dtype=jnp.float64), x0, v0)
+
+    @eqx.filter_jit
+    def _estimate(self, system, horizon, x0, v0) -> HierarchicalEstimate:
+        horizon = eqx.error_if(horizon, ~(jnp.isfinite(horizon) & (horizon > 0)),
+                               MARK + "horizon must be finite and > 0.")
+        value, bad = _estimator_energy(system, self.reduced_basis(system), horizon, x0, v0)
+        fine, bad_fine = _estimator_energy(system, self.fine_basis(system), horizon, x0, v0)
         energy = self.safety * jnp.abs(fine - value) + ROUNDING * jnp.abs(value)
         bad = bad | bad_fine | ~jnp.isfinite(energy)
         return HierarchicalEstimate(value, fine, jnp.where(bad, jnp.inf, energy))

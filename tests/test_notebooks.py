@@ -45,10 +45,15 @@ def test_notebook_cells_have_ids(path):
 
 
 # paper_reproduction has one size (the paper's): its one computation, ``mj.reproduce``, is what
-# tests/test_paper.py runs in the default run, so the notebook runs once, under -m slow (43 s)
+# tests/test_paper.py runs in the default run, so the notebook runs once, under -m slow (43 s).
+# damper_placement's small run (139 s of the default run's ~1800 worker-seconds, over the
+# 15-minute budget with it) runs under -m slow beside its full one: what it calls, one and two
+# dampers by optimise_dampers, the split search, the certification's enrichment, sweep_dampers
+# and reduced_landscape (through the CLI's placement), tests/test_optimise.py runs by default.
 ONE_SIZE = {"paper_reproduction.ipynb"}
+SLOW_SMALL = ONE_SIZE | {"damper_placement.ipynb"}
 RUNS = [pytest.param(path, "small", id=f"{path.name}-small",
-                     marks=[pytest.mark.slow] if path.name in ONE_SIZE else [])
+                     marks=[pytest.mark.slow] if path.name in SLOW_SMALL else [])
         for path in NOTEBOOKS] + [pytest.param(path, "full", id=f"{path.name}-full",
                                                marks=pytest.mark.slow)
                                   for path in NOTEBOOKS if path.name not in ONE_SIZE]
