@@ -254,12 +254,16 @@ class HierarchicalEstimator(eqx.Module):
     estimate ``safety`` |J_f - J_r| never under-estimates for theta <= 1 - 1 / safety (1/2 at
     the default 2) and over-estimates by at most safety (1 + theta) (3). Saturation is an
     assumption, checked, not proven: on 1000 random designs of the Section 5 box
-    (``benchmarks/hierarchical.py``) it never under-estimated, with effectivities 1.9-3.1
-    (the paper's POD, errors up to 121 %: 2.0-2.01); the fine models were within 9.6e-8 of J.
-    Unlike ``error_bound`` it is not rigorous, but second order like the error itself: its
-    effectivity is ~``safety`` where the residual bound's was 1e4-1e6. It costs a reduced
-    solve of size r_f: at n = 300 (0.36 s) more than the full model's spectral J (0.10 s); it
-    pays where the full model is expensive (large n, no spectral path).
+    (``benchmarks/hierarchical.py``) it never under-estimated, with effectivities 1.34-3.06
+    (the paper's POD, errors up to 121 %: 2.0-2.01); the fine models were within 1.2e-7 of J.
+    (With 4 of the fixed basis' directions dropped as "below 1e-10" the fine model was 6.2e-7
+    off and 5 designs were under-estimated: saturation is what fails first.) Unlike
+    ``error_bound`` it is not rigorous, but second order like the error itself: its
+    effectivity is ~``safety`` where the residual bound's was 1e4-1e6. Both J's are computed
+    by the spectral path on the reduced models' own modes (``_spectral_reduced_energy``: one
+    r x r symmetric eigenproblem, then O(k r^2) damped roots, Veselic's low-rank structure),
+    with the Van Loan value where that path does not hold: 0.049 s per design at n = 300
+    against 0.096 s for the full model's spectral J.
 
     ``system``: any design of the family (its M and K, which the dampers do not change);
     ``basis``: (n, r) orthonormal; ``modes``: how many undamped modes (default min(n, 2 r)),
@@ -267,9 +271,9 @@ class HierarchicalEstimator(eqx.Module):
     ``basis_moments``: the reduced model's basis is ``basis`` united with that many static
     moments of the design's dampers (``reduced_basis``; default 0: ``basis`` alone). No fixed
     basis of <= 200 columns holds J to 1e-4 over the Section 5 box (a strong damper pins its
-    DOF, anywhere: the POD with 200 modes is 9 % off), while the POD united with 40 modes
-    (r = 111) and the damper's two moments (4 columns) is certified to 1e-4 on 755 training
-    designs, 2e-5 off at worst at 1000 random ones.
+    DOF, anywhere: the POD with 200 modes is 8.5 % off), while the POD united with 40 modes
+    (r = 113) and the damper's two moments (4 columns) is certified to 1e-4 on 755 training
+    designs, 1.6e-5 off at worst at 1000 random ones.
     Call it with a design's system (same M and K), the horizon and the initial state:
     jit- and vmap-compatible in the system's values (``mj.sweep``); not differentiable (the fine
     space's QR at dependent columns).
