@@ -46,12 +46,15 @@ def test_notebook_cells_have_ids(path):
 
 # paper_reproduction has one size (the paper's): its one computation, ``mj.reproduce``, is what
 # tests/test_paper.py runs in the default run, so the notebook runs once, under -m slow (43 s).
-# damper_placement's small run (139 s of the default run's ~1800 worker-seconds, over the
-# 15-minute budget with it) runs under -m slow beside its full one: what it calls, one and two
-# dampers by optimise_dampers, the split search, the certification's enrichment, sweep_dampers
-# and reduced_landscape (through the CLI's placement), tests/test_optimise.py runs by default.
+# Two small runs go under -m slow beside their full ones, for the 15-minute budget (the default
+# run was 919-931 s with them; 885 s without damper_placement's, ~4 % slower on CI), each where
+# the default run tests what it calls: damper_placement (139 s: optimise_dampers for one and two
+# dampers, the split search, the certification's enrichment, sweep_dampers and
+# reduced_landscape through the CLI: tests/test_optimise.py) and custom_systems (100 s: Matrix
+# Market files, branched chains, Rayleigh and modal damping, mj.system: tests/test_io.py,
+# test_systems.py, test_scene_systems.py, test_viscosity.py).
 ONE_SIZE = {"paper_reproduction.ipynb"}
-SLOW_SMALL = ONE_SIZE | {"damper_placement.ipynb"}
+SLOW_SMALL = ONE_SIZE | {"damper_placement.ipynb", "custom_systems.ipynb"}
 RUNS = [pytest.param(path, "small", id=f"{path.name}-small",
                      marks=[pytest.mark.slow] if path.name in SLOW_SMALL else [])
         for path in NOTEBOOKS] + [pytest.param(path, "full", id=f"{path.name}-full",
