@@ -213,7 +213,8 @@ def craig_bampton_basis(system: SecondOrderSystem, rank: int, *, loads=None,
     DOF fixed, a relative damper's two DOFs tied) and ``moments`` static moments
     (``static_moments``) of all damper directions and of ``loads``: the constraint modes
     K^-1 B and their mass-weighted successors. Orthonormal, (n, <= rank + moments x columns);
-    moments that add nothing above 1e-10 are dropped, so call it outside ``jit``.
+    moments that add nothing above rounding (1e-14 of their length, ``extend_basis``) are
+    dropped, so call it outside ``jit``.
 
     Craig & Bampton, "Coupling of substructures for dynamic analyses", AIAA J. 6 (1968)
     1313-1319. Where a damper is strong enough to pin its DOF the held modes are the limit the
