@@ -65,22 +65,17 @@ def one_design(scene, p: float, c: float) -> dict:
     enriched = mj.enriched_reduce(scene, WRT, parameters=design, energy=ENERGY)
     row["enriched_offline_s"] = elapsed(start)
     row["plain_rank"], row["enriched_rank"] = plain.rank, enriched.rank
-    start = time.perf_counter()
-    moments = mj.modal_static_basis(system, RANK - 4, moments=2)  # 94 modes + 4 moment columns
-    row["moments_offline_s"] = elapsed(start)
-    e = errors(scene, design, moments, full)
-    row["moments_r98"] = max(e["positions"], e["coefficients"])
-    row["moments_r98_J"], row["moments_r98_p"], row["moments_r98_c"] = (
-        e["J"], e["positions"], e["coefficients"])
-    row["moments_rank"] = int(moments.shape[1])
-    start = time.perf_counter()
-    held = mj.craig_bampton_basis(system, RANK - 6)  # 92 held modes + 3 moments x 2 columns
-    row["held_offline_s"] = elapsed(start)
-    e = errors(scene, design, held, full)
-    row["held_r98"] = max(e["positions"], e["coefficients"])
-    row["held_r98_J"], row["held_r98_p"], row["held_r98_c"] = (
-        e["J"], e["positions"], e["coefficients"])
-    row["held_rank"] = int(held.shape[1])
+    # no snapshots: 94 modes + 4 moment columns; 92 held modes + 3 moments x 2 columns
+    for label, build in (("moments", lambda: mj.modal_static_basis(system, RANK - 4, moments=2)),
+                         ("held", lambda: mj.craig_bampton_basis(system, RANK - 6))):
+        start = time.perf_counter()
+        basis = build()
+        row[f"{label}_offline_s"] = elapsed(start)
+        e = errors(scene, design, basis, full)
+        row[f"{label}_r98"] = max(e["positions"], e["coefficients"])
+        row[f"{label}_r98_J"], row[f"{label}_r98_p"], row[f"{label}_r98_c"] = (
+            e["J"], e["positions"], e["coefficients"])
+        row[f"{label}_rank"] = int(basis.shape[1])
     for label, pod, own in (("plain", plain.pod, plain.rank), ("enriched", enriched.pod,
                                                                enriched.rank)):
         for tag, r in (("r98", RANK), ("own", own)):
