@@ -188,22 +188,27 @@ def fixed_interface_modes(system: SecondOrderSystem, interface, rank: int) -> jn
     c = np.asarray(_force_columns(system, interface, "interface"))
     n = system.size
     single = np.count_nonzero(c, axis=0) == 1
-    if np.all(single):  # held DOFs: delete them (exactly)
+    stiffness, mass = system.stiffness.as_matrix(), system.mass.as_matrix()
+    if np.all(single):  # held DOFs: delete their rows and columns (exactly, no products)
         held = np.unique(np.flatnonzero(np.any(c != 0, axis=1)))
-        free = np.eye(n)[:, np.setdiff1d(np.arange(n), held)]
-    else:  # an orthonormal basis of the null space of C^T
+        keep = np.setdiff1d(np.arange(n), held)
+        stiffness, mass = stiffness[np.ix_(keep, keep)], mass[np.ix_(keep, keep)]
+        size = keep.size
+        lift = lambda y: jnp.zeros((n, y.shape[1])).at[keep].set(y)  # noqa: E731
+    else:  # an orthonormal basis Z of the null space of C^T: Z^T K Z, Z^T M Z
         u, sigma, _ = np.linalg.svd(c, full_matrices=True)
-        free = u[:, int(np.sum(sigma > 1e-12 * sigma[0])):]
-    if isinstance(rank, bool) or not isinstance(rank, int) or not 1 <= rank <= free.shape[1]:
-        raise ValueError(MARK + f"rank must be an integer in 1..{free.shape[1]} (n less the "
+        free = jnp.asarray(u[:, int(np.sum(sigma > 1e-12 * sigma[0])):])
+        stiffness, mass = free.T @ stiffness @ free, free.T @ mass @ free
+        size = free.shape[1]
+        lift = lambda y: free @ y  # noqa: E731
+    if isinstance(rank, bool) or not isinstance(rank, int) or not 1 <= rank <= size:
+        raise ValueError(MARK + f"rank must be an integer in 1..{size} (n less the "
                          f"interface constraints), got {rank!r}.")
-    free = jnp.asarray(free)
-    stiffness = free.T @ system.stiffness.as_matrix() @ free
-    lower = jnp.linalg.cholesky(free.T @ system.mass.as_matrix() @ free)
+    lower = jnp.linalg.cholesky(mass)
     half = jsl.solve_triangular(lower, stiffness, lower=True)
     symmetric = jsl.solve_triangular(lower, half.T, lower=True)
     _, vectors = jnp.linalg.eigh((symmetric + symmetric.T) / 2)
-    return free @ jsl.solve_triangular(lower.T, vectors[:, :rank], lower=False)
+    return lift(jsl.solve_triangular(lower.T, vectors[:, :rank], lower=False))
 
 
 def craig_bampton_basis(system: SecondOrderSystem, rank: int, *, loads=None,
