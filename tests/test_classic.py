@@ -2,6 +2,7 @@
 orthonormal bases that take the exact modal solution, hold the static responses of the damper
 directions, and improve on plain modal truncation where a damper is strong."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -156,3 +157,33 @@ def test_craig_bampton_basis_takes_a_strong_damper_that_pins_its_dof():
         errors.append(abs(float(mj.integrated_energy(mj.galerkin(system, basis), 10.0, x0))
                           / full - 1))
     assert errors[1] < 1e-5 < errors[0] < 1e-3
+
+
+def test_craig_bampton_basis_with_the_start_kept_gives_the_gradients():
+    # the same pinned chain (c = 1e4 at DOF 20, x_3(0) = 1): with x0 kept in the basis the ROM
+    # starts exactly, and its J, dJ/dc and dJ/dp follow the full model's dense ones (measured at
+    # 24 held modes + 6 moment columns: J 5.7e-3 / dJ/dc 3.8e-3 / dJ/dp 5.3 off without the start,
+    # 5.3e-8 / 9.3e-5 / 2.0e-3 with it)
+    n = 40
+    x0 = jnp.zeros(n).at[2].set(1.0)
+
+    def energy(position, coefficient, basis=None):
+        system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(position, coefficient)])
+        model = system if basis is None else mj.galerkin(system, basis)
+        return mj.integrated_energy(model, 10.0, x0, method="dense")
+
+    values = jax.value_and_grad(energy, argnums=(0, 1))
+    system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(20.0, 1e4)])
+    full, (dp, dc) = values(20.0, 1e4)
+    errors = {}
+    for kept in (False, True):
+        basis = mj.craig_bampton_basis(system, 24, states=x0 if kept else None)
+        assert basis.shape == (n, 31 if kept else 30)
+        value, (rp, rc) = values(20.0, 1e4, basis)
+        errors[kept] = (abs(value / full - 1), abs(rc / dc - 1), abs(rp / dp - 1))
+    basis = np.asarray(mj.craig_bampton_basis(system, 24, states=x0))
+    assert np.linalg.norm(x0 - basis @ (basis.T @ x0)) < 1e-12
+    assert errors[True][0] < 1e-6 and errors[True][1] < 1e-3 and errors[True][2] < 1e-2
+    assert errors[False][0] > 1e-3 and errors[False][2] > 1.0
+    with pytest.raises(ValueError, match=r"states must be \(n,\) or \(n, s\)"):
+        mj.craig_bampton_basis(system, 10, states=np.ones(4))
