@@ -55,21 +55,22 @@ def _validate(masses, springs):
     return masses, springs
 
 
-def _qd(masses, springs):
+def _qd(masses, springs, xp=jnp):
     """(q, e, t) of T = M^-1/2 K M^-1/2 in work order: T = L D L^T, D = diag(q), e_j = l_j^2 q_j,
-    off-diagonal t_j = l_j q_j (each entry one rounding from the data)."""
+    off-diagonal t_j = l_j q_j (each entry one rounding from the data). ``xp``: jax.numpy or
+    numpy (host-side, no compile per shape)."""
     m, k = masses[::-1], springs[::-1]
-    return k / m, k[:-1] / m[1:], -k[:-1] / jnp.sqrt(m[:-1] * m[1:])
+    return k / m, k[:-1] / m[1:], -k[:-1] / xp.sqrt(m[:-1] * m[1:])
 
 
-def _bracket(masses, springs):
+def _bracket(masses, springs, xp=jnp):
     """(lower, upper) with every eigenvalue inside: 1 / trace T^-1 and trace T, with margins.
 
     trace T^-1 = ||C^-1||_F^2 = sum_i m_i sum_{j <= i} 1 / k_j (C^-1 = M^1/2 L^-1 diag(k^-1/2),
     L^-1 all ones below the diagonal): sums of positive terms, so both bounds are accurate.
     """
-    flexibility = jnp.sum(masses * jnp.cumsum(1 / springs))
-    trace = jnp.sum(springs / masses) + jnp.sum(springs[1:] / masses[:-1])
+    flexibility = xp.sum(masses * xp.cumsum(1 / springs))
+    trace = xp.sum(springs / masses) + xp.sum(springs[1:] / masses[:-1])
     return 0.5 / flexibility, 2 * trace
 
 
@@ -118,12 +119,17 @@ def _eigenvalues(masses, springs):
     return jax.lax.cond(mikota, lambda: squares * ratio, lambda: _bisection(masses, springs))
 
 
-def _bisection(masses, springs):
-    """Ascending eigenvalues of T by vectorised bisection, each to about one ulp relative."""
+def _bisection(masses, springs, count: int | None = None):
+    """Ascending eigenvalues of T by vectorised bisection, each to about one ulp relative: all
+    of them, or the ``count`` lowest."""
     q, e, _ = _qd(masses, springs)
-    index = jnp.arange(q.shape[0])
-    lower, upper = _bracket(masses, springs)
-    lo, hi = jnp.full(q.shape, lower), jnp.full(q.shape, upper)
+    return _bisect_qd(q, e, *_bracket(masses, springs), q.shape[0] if count is None else count)
+
+
+def _bisect_qd(q, e, lower, upper, count: int):
+    """The ``count`` lowest eigenvalues of L D L^T (qd data ``q``, ``e``) in [lower, upper]."""
+    index = jnp.arange(count)
+    lo, hi = jnp.full(index.shape, lower), jnp.full(index.shape, upper)
 
     def unconverged(state):
         lo, hi, step = state
@@ -387,3 +393,82 @@ def chain_mode_data(masses: Vector, springs: Vector, rows, vectors: Float[Array,
         raise ValueError(MARK + f"chunk must be an int >= 1 or None, got {chunk!r}.")
     size = jnp.zeros((min(chunk, n), 0))  # the chunk size as a shape: static through custom_jvp
     return _mode_data(masses, springs, rows, vectors, size)
+
+
+@eqx.filter_jit
+def _lowest_of_pieces(q, e, t, lower, upper, count: int):
+    """Per piece (rows of the (pieces, N) qd data, padded): the ``count`` lowest eigenvalues
+    and their unit eigenvectors of L D L^T, in work order."""
+    def one(q, e, t, lower, upper):
+        omega2 = _bisect_qd(q, e, lower, upper, count)
+        z = _twisted_vectors(t, _twisted(q, e, omega2))
+        return omega2, z / jnp.linalg.norm(z, axis=0, keepdims=True)
+
+    return jax.vmap(one)(q, e, t, lower, upper)
+
+
+def _as_fixed_free(masses: np.ndarray, springs: np.ndarray, right: float):
+    """(masses', springs', s) of a chain piece held at both ends (``right`` > 0: the spring that
+    ties its last DOF to a held one; 0: a free end) as a fixed-free chain in the coordinates
+    x = diag(s) x'. The piece's K = L^T D L with L unit lower bidiagonal (-a_i below the
+    diagonal) is the backward Cholesky factorisation: D = k + e with e_(P-1) = ``right`` and
+    e_i = 1 / (1 / k_(i+1) + 1 / e_(i+1)) (the springs from i on to the held end in series: sums
+    of positive terms, no cancellation), a_i = k_i / d_i. With s_0 = 1, s_i = a_i s_(i-1),
+    L diag(s) = diag(s) L_1 for the chain's difference matrix L_1, so S K S = L_1^T diag(d s^2)
+    L_1 and S M S = diag(m s^2): a fixed-free chain of masses m s^2 and springs d s^2, whose
+    M'-orthonormal modes u' give the piece's as u = s u'."""
+    if right <= 0:
+        return masses, springs, np.ones_like(masses)
+    flexibility = 1 / right + np.concatenate([np.cumsum((1 / springs[1:])[::-1])[::-1], [0.0]])
+    d = springs + 1 / flexibility
+    s = np.cumprod(np.concatenate([[1.0], springs[1:] / d[1:]]))
+    return masses * s**2, d * s**2, s
+
+
+def held_chain_modes(masses, springs, held, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """(omega^2, U) of the ``count`` lowest modes of a fixed-free chain with the DOFs ``held``
+    (0-based) fixed: K U = M U diag(omega^2) on the other DOFs, U zero on the held ones, U^T M U
+    = I, ascending. O(n count) time and memory per piece, no dense eigenproblem: the held DOFs
+    cut the chain into pieces; each piece is a chain held at one or both ends, written as a
+    fixed-free chain (``_as_fixed_free``) and its qd data padded to length n with decoupled
+    entries (a zero coupling, a pivot above every eigenvalue of the piece), so that one compiled
+    kernel (per n, number of pieces and ``count``, wherever the held DOFs are) finds each
+    piece's ``count`` lowest modes by bisection and twisted factorisations as in
+    ``chain_modes`` (a piece's eigenvalues are simple: an unreduced tridiagonal); the pieces'
+    modes are merged by frequency, the padding's dropped. Called outside ``jit``."""
+    masses, springs = np.asarray(masses, dtype=float), np.asarray(springs, dtype=float)
+    n = masses.shape[0]
+    held = np.unique(np.asarray(held, dtype=int))
+    starts, stops = np.concatenate([[0], held + 1]), np.concatenate([held, [n]])
+    qs, es, ts, roots, scales, lowers, uppers = [], [], [], [], [], [], []
+    for start, stop in zip(starts, stops):
+        size = stop - start
+        m, k, s = (_as_fixed_free(masses[start:stop], springs[start:stop],
+                                  springs[stop] if stop < n else 0.0) if size
+                   else (np.ones(1), np.ones(1), np.zeros(1)))
+        size = m.shape[0]
+        q, e, t = _qd(m, k, np)
+        lower, upper = _bracket(m, k, np)
+        pad = n - size
+        qs.append(np.concatenate([q, np.full(pad, 2 * upper)]))
+        es.append(np.concatenate([e, np.zeros(pad)]))
+        ts.append(np.concatenate([t, np.zeros(pad)]))
+        roots.append(np.concatenate([np.ones(pad), np.sqrt(m)]))  # physical order, pad first
+        scales.append(np.concatenate([np.zeros(pad), s]))
+        lowers.append(lower)
+        uppers.append(4 * upper)
+    omega2, z = _lowest_of_pieces(*(jnp.asarray(np.stack(a)) for a in (qs, es, ts)),
+                                  jnp.asarray(lowers), jnp.asarray(uppers), int(count))
+    values, vectors = [], []
+    for piece, (start, stop) in enumerate(zip(starts, stops)):
+        kept = min(count, stop - start)  # the rest are the padding's eigenvalues
+        if kept <= 0:
+            continue
+        u = np.asarray(z[piece])[::-1, :kept] * (scales[piece] / roots[piece])[:, None]
+        block = np.zeros((n, kept))
+        block[start:stop] = u[n - (stop - start):]
+        values.append(np.asarray(omega2[piece, :kept]))
+        vectors.append(block)
+    omega2, modes = np.concatenate(values), np.concatenate(vectors, axis=1)
+    order = np.argsort(omega2, kind="stable")[:count]
+    return omega2[order], modes[:, order]

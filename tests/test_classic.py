@@ -107,6 +107,37 @@ def test_fixed_interface_modes_of_a_uniform_chain_held_at_a_dof_are_the_two_piec
         mj.fixed_interface_modes(system, c, n)
 
 
+def test_fixed_interface_modes_of_a_long_chain_take_the_o_n_r_path_to_full_accuracy():
+    # n >= 256: no dense eigenproblem (held_chain_modes). A uniform chain of 400 held at DOF 150:
+    # DOFs 1..149 fixed-fixed (omega_j = 2 sin(j pi / 300)), 151..400 fixed-free
+    # (omega_j = 2 sin((2j - 1) pi / 1002)), the 60 lowest to 1e-12 relative
+    n = 400
+    system = mj.chain(np.ones(n), np.ones(n))
+    modes = np.asarray(mj.fixed_interface_modes(system, np.eye(n)[149], 60))
+    omega, _, _ = _frequencies(system, modes)
+    exact = np.sort(np.concatenate([2 * np.sin(np.arange(1, 150) * np.pi / 300),
+                                    2 * np.sin((2 * np.arange(1, 251) - 1) * np.pi / 1002)]))
+    np.testing.assert_allclose(omega, exact[:60], rtol=1e-12)
+    np.testing.assert_allclose(modes.T @ modes, np.eye(60), atol=1e-12)  # M = I
+    assert np.max(np.abs(modes[149])) == 0.0
+    # an uneven chain held at its first DOF, two neighbours and its last: against a dense eigh of
+    # K and M with those rows and columns deleted
+    rng = np.random.default_rng(5)
+    n, held = 300, [0, 120, 121, 299]
+    masses, springs = rng.uniform(0.2, 5.0, n), rng.uniform(0.2, 5.0, n)
+    system = mj.chain(masses, springs)
+    modes = np.asarray(mj.fixed_interface_modes(system, np.eye(n)[:, held], 40))
+    omega, k, m = _frequencies(system, modes)
+    keep = np.setdiff1d(np.arange(n), held)
+    scale = 1 / np.sqrt(masses[keep])
+    dense = np.linalg.eigvalsh(scale[:, None] * k[np.ix_(keep, keep)] * scale[None, :])
+    np.testing.assert_allclose(omega, np.sqrt(dense[:40]), rtol=1e-10)
+    np.testing.assert_allclose(modes.T @ m @ modes, np.eye(40), atol=1e-12)
+    residual = (k @ modes - m @ modes * omega**2)[keep]
+    assert np.max(np.abs(residual)) < 1e-12 * np.max(np.abs(k))
+    assert np.max(np.abs(modes[held])) == 0.0
+
+
 def test_fixed_interface_modes_with_a_tie_are_stationary_on_the_constraint():
     # DOF 3 tied to DOF 9 (C = e_3 - e_9): u_3 = u_9, and K u - omega^2 M u is a multiple of C
     # (the constraint force), for every mode
