@@ -117,14 +117,16 @@ def result_stem(name: str, quick: bool) -> Path:
     return RESULTS / (f"{name}_quick" if quick else name)
 
 
-def write_json(name: str, quick: bool, data: dict) -> Path:
-    """Write ``data`` (with metadata added) atomically to ``results/NAME[_quick].json``.
+def write_json(name: str, quick: bool, data: dict, meta: dict | None = None) -> Path:
+    """Write ``data`` (with metadata added: this run's, or ``meta``, the measuring run's when
+    results are only recomputed from stored measurements) atomically to
+    ``results/NAME[_quick].json``.
 
     The package's one JSON writer (``mikota_jax.app.write_json``: arrays by ``to_plain``, NaN or
     inf refused).
     """
     path = result_stem(name, quick).with_suffix(".json")
-    payload = {"benchmark": name, "quick": quick, "metadata": metadata(), **data}
+    payload = {"benchmark": name, "quick": quick, "metadata": meta or metadata(), **data}
     return write_json_file(payload, path, newline=True)
 
 

@@ -5,9 +5,20 @@ full-order path at equal accuracy.
 Problem at every n: Mikota's chain (m = k = 1), a grounded damper at p = 7 with c = 1 (the nominal
 design), x_3(0) = 1, v(0) = 0, J = the energy integrated over [0, T = 20] (``"energy"``), outputs
 every 0.01 (2001 times), POD snapshots on [0, 10] (1001 times): the paper's Section 5 scene at
-n = 300. n in {300, 1000, 3000}; ``--quick``: {300, 1000}. n = 30000 is not run (recorded as such
-in the JSON): the spectral path needs ~36 GiB there and Dopri8 on [0, 20] takes many minutes per
-query.
+n = 300. n in {300, 1000, 3000}; ``--quick``: {300, 1000}.
+
+**n = 30000** is not in the default run (``NOT_RUN``: its Dopri8 reference had not finished after 25
+min); ``--sizes 300 1000 3000 30000`` runs it by the large-n path, from ``LARGE`` = 10^4 on
+(``--large-from N`` moves that threshold, which checks the path against the spectral one at a small
+n: at n = 300 it gives the same ranks and errors). There the spectral path needs ~36 GiB (this
+machine has 24), so the reference and the full path are Dopri8 at rtol 1e-10, J + gradient by two
+jvps, timed once (for J alone the step there is set by stability, not by rtol: [0, 0.5] took 3.4 s
+at rtol 1e-8, 4.0 s at 1e-10; a J alone at rtol 1e-6 is timed beside); the reference history and the
+POD snapshots are Dopri8 solves at the same rtol, which the POD's offline cost includes. Bases: POD
+and the snapshot-free ones (modal, modal + static, modal + 2 moments, Craig-Bampton: O(n r) builds
+for a chain); no random designs (each would need its own reference): the rebuilt bases' sweep is
+1000 x (build + query) at the nominal design, its accuracy not measured there. ``NOT_RUN`` in the
+JSON says what is left out and why.
 
 Per n, one process, compile time apart from run time (``Compiled``), run time = median of repeats
 (3 at n <= 1000, 2 beyond and in ``--quick``):
@@ -32,16 +43,18 @@ Per n, one process, compile time apart from run time (``Compiled``), run time = 
   truncation, modal + static correction (r - 2 modes + the split damper's two static directions),
   modal + 2 moments (r - 4 modes + K^-1 b and K^-1 M K^-1 b of both: ``modal_static_basis(...,
   moments=2)``), second-order Krylov (SOAR; inputs M x0 and the damper directions), built as
-  ``reductions.py`` builds them, at the nominal design. Rank: the smallest r whose ROM J is within
-  TOL = 1e-4 (relative) of the full J at the nominal design, found by a ladder r = 16, 16 * 1.4, ...
-  (up to min(n, 400, the POD's numerical rank): a ROM query at r = 400 costs ~20 s, and the cap
-  keeps the full run near 25 min) then bisection between the last rung that misses and the first
-  that meets TOL (the error is assumed to fall with r), with a numpy evaluation of the ROM's J
-  (modes of the Galerkin matrices, expm, a Lyapunov solve: the same integral as
-  ``integrated_energy``). The library's J at that r is then checked (r is raised by 5 % until it
-  meets TOL). The search is not counted in the offline cost (a user would pick r by an energy rule).
-  The rule is on J only, as asked: the gradient and history errors at that r are reported beside it,
-  not matched.
+  ``reductions.py`` builds them, and Craig-Bampton with the start kept (r - 7 modes held at the
+  damper + 3 moments of its two DOFs + x0: ``craig_bampton_basis(system, r - 7, states=x0)``, the
+  basis that holds the Section 5 gradients, ``rom_gradients.py``), at the nominal design. Rank: the
+  smallest r whose ROM J is within TOL = 1e-4 (relative) of the full J at the nominal design, found
+  by a ladder r = 16, 16 * 1.4, ... (up to min(n, 400, the POD's numerical rank): a ROM query at r =
+  400 costs ~20 s, and the cap keeps the full run near 25 min) then bisection between the last rung
+  that misses and the first that meets TOL (the error is assumed to fall with r), with a numpy
+  evaluation of the ROM's J (modes of the Galerkin matrices, expm, a Lyapunov solve: the same
+  integral as ``integrated_energy``). The library's J at that r is then checked (r is raised by 5 %
+  until it meets TOL). The search is not counted in the offline cost (a user would pick r by an
+  energy rule). The rule is on J only, as asked: the gradient and history errors at that r are
+  reported beside it, not matched.
 * **Errors** at that r, against the full model: relative J, max over (p, c) of the relative
   gradient error (right-sided derivative in p at the integer position, as the library defines
   it, for the full model and the ROM alike), and the displacement history: relative L2 over all
@@ -71,9 +84,9 @@ Per n, one process, compile time apart from run time (``Compiled``), run time = 
   against the full model; the worst error is reported, however large (a basis built at one design
   need not hold at another). Histories are not compared there (a full history per design costs more
   than the query). **Rebuild variant** for the bases that need no full solve (modal + static, modal
-  + 2 moments, Krylov): the basis rebuilt at each design (same r), its build time added to every
-  query of the sweep; the modal basis does not depend on the damper, so its rebuild is its fixed
-  basis.
+  + 2 moments, Krylov, Craig-Bampton): the basis rebuilt at each design (same r), its build time
+  added to every query of the sweep; the modal basis does not depend on the damper, so its
+  rebuild is its fixed basis.
 * **Crossover** per method: the smallest measured n from which (that n and every larger measured
   one) the ROM is cheaper than the best full path, for one query and for the sweep, with the ROM
   at TOL in J at the nominal design (gradient, history and random-design errors reported beside;
@@ -81,8 +94,9 @@ Per n, one process, compile time apart from run time (``Compiled``), run time = 
   power-law fit of both costs over the measured n and the n where the fits cross, flagged as an
   EXTRAPOLATION (None where they do not cross).
 
-Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/crossover.py [--quick] [--replot]`` (~25 min on
-2 cores, n = 3000 about 60 % of it; ``--quick`` ~8 min). Writes ``results/crossover[_quick].json``
+Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/crossover.py [--quick] [--replot] [--sizes N ...]
+[--large-from N]`` (~22 min on 2 cores; ``--quick`` ~8 min; ``--sizes``/``--large-from`` write
+``crossover_sizes``). Writes ``results/crossover[_quick].json``
 and ``.png``.
 """
 
@@ -106,19 +120,27 @@ import scipy.sparse
 import mikota_jax as mj
 
 NAME = "crossover"
-SIZES = (300, 1000, 3000)
+SIZES = (300, 1000, 3000)  # 30000: ``--sizes 300 1000 3000 30000`` (NOT_RUN)
 QUICK_SIZES = (300, 1000)
-NOT_RUN = {30000: "not run: the spectral path needs ~36 GiB at n = 30000 (12 n^2 complex "
-                  "values, more under jacfwd) and Dopri8 on [0, 20] takes many minutes per query"}
+LARGE = 10_000  # from here: no spectral path (memory), a Dopri8 reference, snapshot-free bases
+LARGE_RTOL = 1e-10  # the Dopri8 reference's rtol at large n
+NOT_RUN = {30000: "not in the default run: the spectral path needs ~36 GiB there, and the "
+                  "Dopri8 reference that replaces it (rtol 1e-10, J + two forward-mode tangents) "
+                  "had not finished after 25 min on 2 cores (2026-11-26); every basis needs "
+                  "r > 400 (the cap) there, ~850 by r ~ n^0.5 from n = 300-3000. The large-n "
+                  "path (``--large-from``) is checked against the spectral one at n = 300"}
 HORIZON, STEP, WINDOW = 20.0, 0.01, (0.0, 10.0)
 HISTORY_EVERY = 5  # history errors at t = 0, 0.05, ..., 20 (401 times, all DOFs)
 POSITION, COEFFICIENT, INITIAL_DOF = 7.0, 1.0, 3
 WRT = ("positions", "coefficients")
 TOL = 1e-4  # relative J error of the ROM at the nominal design: "equal accuracy"
-METHODS = ("POD", "enriched POD", "modal", "modal + static", "modal + 2 moments", "Krylov")
+METHODS = ("POD", "enriched POD", "modal", "modal + static", "modal + 2 moments", "Krylov",
+           "Craig-Bampton")
+LARGE_METHODS = ("POD", "modal", "modal + static", "modal + 2 moments", "Craig-Bampton")
 # bases that need no full solve: rebuilt per design
-REBUILD = ("modal + static", "modal + 2 moments", "Krylov")
-STATIC_COLUMNS = {"modal + static": 2, "modal + 2 moments": 4}  # the split damper's 2 DOFs
+REBUILD = ("modal + static", "modal + 2 moments", "Krylov", "Craig-Bampton")
+# columns besides the modes: the split damper's 2 DOFs x moments (+ x0 for Craig-Bampton)
+STATIC_COLUMNS = {"modal + static": 2, "modal + 2 moments": 4, "Craig-Bampton": 7}
 SWEEP = 1000
 RANK_START, RANK_FACTOR, RANK_CAP = 16, 1.4, 400
 RANK_BUMPS = 4  # tries at r * 1.05 when the library's J misses TOL at the searched r
@@ -132,10 +154,10 @@ def repeats_for(n: int, quick: bool) -> int:
     return 2 if quick or n > 1000 else 3
 
 
-def designs_for(n: int, quick: bool) -> int:
+def designs_for(n: int, quick: bool, large: bool) -> int:
     """Random designs per n: each costs one full query (2 x the nominal one: a damper between
     two DOFs has two columns) and one query per ROM, so fewer at larger n."""
-    return 2 if quick else 10 if n <= 300 else 4 if n <= 1000 else 2
+    return 0 if large else 2 if quick else 10 if n <= 300 else 4 if n <= 1000 else 2
 
 
 def scene_for(n: int, end: float = HORIZON):
@@ -216,12 +238,16 @@ class Projection:
     (sparse M, D, K): the rank search and the ROM histories without a compile per rank."""
 
     def __init__(self, system, x0):
-        self.operators = [scipy.sparse.csr_matrix(np.asarray(a)) for a in system.dense()]
+        damping = system.damping_operator()
+        self.operators = [jax.jit(jax.vmap(op.mv, in_axes=1, out_axes=1)) if op is not None
+                          else None for op in (system.mass, damping, system.stiffness)]
         self.x0 = np.asarray(x0)
 
     def __call__(self, basis):
         b = np.asarray(basis)
-        return tuple(b.T @ (op @ b) for op in self.operators) + (b.T @ self.x0,)
+        return tuple(b.T @ np.asarray(op(jnp.asarray(b))) if op is not None
+                     else np.zeros((b.shape[1], b.shape[1])) for op in self.operators) + (
+            b.T @ self.x0,)
 
 
 def leading(matrices, r: int):
@@ -312,6 +338,12 @@ def modal_static_columns(modes: np.ndarray, static: np.ndarray, r: int) -> np.nd
     return np.concatenate([kept, q[:, keep]], axis=1)
 
 
+def craig_bampton(system, x0, r: int):
+    """Craig-Bampton with the start kept, r columns at most: r - 7 modes held at the damper,
+    3 moments of its two DOFs and x0 (``craig_bampton_basis(..., states=x0)``)."""
+    return mj.craig_bampton_basis(system, r - STATIC_COLUMNS["Craig-Bampton"], states=x0)
+
+
 def krylov_inputs(system, x0) -> np.ndarray:
     """The Krylov inputs of free vibration from x0: M x0 and the damper directions."""
     return np.column_stack([np.asarray(system.mass.mv(x0)),
@@ -321,7 +353,7 @@ def krylov_inputs(system, x0) -> np.ndarray:
 # --------------------------------------------------------------------------- one n
 
 
-def measure(n: int, quick: bool, check_public: bool) -> dict:
+def measure(n: int, quick: bool, check_public: bool, large_from: int = LARGE) -> dict:
     start = time.perf_counter()
     repeats = repeats_for(n, quick)
     say = lambda text: print(f"  n={n}: {text} ({elapsed(start):.0f} s)", flush=True)  # noqa: E731
@@ -330,52 +362,33 @@ def measure(n: int, quick: bool, check_public: bool) -> dict:
     nominal = design(POSITION, COEFFICIENT)
     function = mj.SceneFunction(scene, "energy")
     out = {"n": n, "repeats": repeats}
-
-    # ---- full model, spectral: the reference J and gradient, timed
-    full = Compiled(full_query, function, nominal)
-    (j_full, g_full), run_s, times = timed(full, function, nominal, repeats=repeats)
-    reference = (j_full, g_full)
-    out["full_spectral"] = {"compile_s": full.compile_s, "run_s": run_s, "run_times_s": times,
-                            "J": float(j_full),
-                            "gradient": {k: float(g_full[k][0]) for k in WRT}}
-    if check_public:  # the compiled query is what sensitivities() computes
-        public = mj.sensitivities(scene, "energy", wrt=WRT)
-        out["full_spectral"]["vs_sensitivities"] = errors_of(public.value, public.jacobian,
-                                                             reference)
-    say(f"full spectral J + gradient {run_s:.3f} s (compile {full.compile_s:.1f} s)")
-
-    # ---- full histories: the reference (401 times) and the POD snapshots (window, 1001 times)
-    ts_history = scene.ts[::HISTORY_EVERY]
-    count = ts_history.shape[0]
-    history_exe = Compiled(lambda s, x: mj.exact_solve(s, ts_history, x, method="spectral"),
-                           system, x0)
-    history = np.asarray(history_exe(system, x0).displacement)
-    ts_window = window_scene.ts
-    snapshot_exe = Compiled(lambda s, x: mj.exact_solve(s, ts_window, x, method="spectral"),
-                            system, x0)
-    snapshots = snapshot_exe(system, x0).displacement
-    common = (ts_window.shape[0] - 1) // HISTORY_EVERY + 1  # history times inside the window
-    gap = float(np.max(np.abs(np.asarray(snapshots)[::HISTORY_EVERY] - history[:common])))
-    if gap > 1e-9:
-        raise SystemExit(f"n={n}: the window solve differs from the history by {gap:.2e}.")
-    history_norm = float(np.linalg.norm(history))
-    out["history"] = {"compile_s": history_exe.compile_s, "max_abs_x": float(np.max(np.abs(
-        history))), "window_vs_history": gap, "snapshot_compile_s": snapshot_exe.compile_s}
-    say("full histories")
-
-    # ---- full model, Dopri8
-    out["dopri8"] = measure_dopri(n, function, nominal, reference, repeats, check_public, say)
+    large = n >= large_from
+    if large:  # no spectral path: Dopri8 gives the reference, the histories and the snapshots
+        reference, out["full_reference"], out["dopri8"] = measure_reference(function, nominal,
+                                                                            say)
+        out["full_spectral"] = {"run": False, "reason": "memory (see not_run)"}
+        history, (snapshot_exe, ts_window) = large_histories(scene, window_scene, out, say)
+        full = None
+    else:
+        reference, full, history, (snapshot_exe, ts_window) = measure_full(
+            n, scene, window_scene, function, nominal, out, repeats, check_public, say)
+    j_full = reference[0]
 
     # ---- reductions: rank search, offline, online, errors at the nominal design
     projection = Projection(system, x0)
     forcing = krylov_inputs(system, x0)
     cap = min(n, RANK_CAP)
-    pod = mj.reduce(snapshots, ts_window, scene.reduction).pod  # compiles the SVD (warm-up)
-    enriched = mj.enriched_reduce(window_scene, WRT).pod  # compiles and runs once (warm-up)
     modes = np.asarray(mj.modal_basis(system, cap))
     static = static_directions(system)
     moments = np.asarray(mj.static_moments(system, mj.damper_directions(system), 2))
-    krylov = np.asarray(mj.krylov_basis(system, cap, forcing))
+    snapshots = snapshot_exe(system, x0).displacement
+    pod = mj.reduce(snapshots, ts_window, scene.reduction).pod  # compiles the SVD (warm-up)
+    nested = {"modal": modes, "POD": np.asarray(pod.basis(min(cap, pod.numerical_rank())))}
+    if not large:
+        enriched = mj.enriched_reduce(window_scene, WRT).pod  # compiles and runs once (warm-up)
+        nested.update({
+            "enriched POD": np.asarray(enriched.basis(min(cap, enriched.numerical_rank()))),
+            "Krylov": np.asarray(mj.krylov_basis(system, cap, forcing))})
     say("bases for the rank search")
 
     def pod_build(r):
@@ -389,18 +402,19 @@ def measure(n: int, quick: bool, check_public: bool) -> dict:
         "modal + static": lambda r: mj.modal_static_basis(system, r - 2),
         "modal + 2 moments": lambda r: mj.modal_static_basis(system, r - 4, moments=2),
         "Krylov": lambda r: mj.krylov_basis(system, r, forcing),
+        "Craig-Bampton": lambda r: craig_bampton(system, x0, r),
     }
-    nested = {"POD": np.asarray(pod.basis(min(cap, pod.numerical_rank()))),
-              "enriched POD": np.asarray(enriched.basis(min(cap, enriched.numerical_rank()))),
-              "modal": modes, "Krylov": krylov}
     methods, queries = {}, {}
-    for method in METHODS:
+    for method in LARGE_METHODS if large else METHODS:
         row = {"method": method}
         if method in nested:
             big = nested[method]
             matrices = projection(big)
             search_cap = big.shape[1]
             energy_at = lambda r, matrices=matrices: rom_energy(leading(matrices, r))  # noqa: E731
+        elif method == "Craig-Bampton":
+            search_cap = cap
+            energy_at = lambda r: rom_energy(projection(craig_bampton(system, x0, r)))  # noqa: E731
         else:
             search_cap = cap
             extra = moments if method == "modal + 2 moments" else static
@@ -431,8 +445,8 @@ def measure(n: int, quick: bool, check_public: bool) -> dict:
                 break
             r = min(search_cap, math.ceil(1.05 * r))
         matrices = projection(basis)
-        x_rom = rom_history(matrices, basis, count)
-        history_error = float(np.linalg.norm(x_rom - history)) / history_norm
+        history_error = None if history is None else float(np.linalg.norm(
+            rom_history(matrices, basis, history.shape[0]) - history) / np.linalg.norm(history))
         row.update(r=int(basis.shape[1]), reached=errors["J"] <= TOL, bumps=bump,
                    numpy_J=abs(rom_energy(matrices) / float(j_full) - 1),
                    J=errors["J"], gradient=errors["gradient"], history=history_error,
@@ -446,14 +460,106 @@ def measure(n: int, quick: bool, check_public: bool) -> dict:
                                                 (value, jacobian))
         methods[method] = row
         queries[method] = (query, basis)
+        history_text = "-" if history_error is None else f"{history_error:.1e}"
         say(f"{method}: r = {row['r']}, J {errors['J']:.1e}, gradient {errors['gradient']:.1e}, "
-            f"history {history_error:.1e}, offline {offline_s:.2f} s, online {online_s:.3f} s "
+            f"history {history_text}, offline {offline_s:.2f} s, online {online_s:.3f} s "
             f"(compile {query.compile_s:.1f} s)")
     out["methods"] = methods
 
     # ---- random designs: sweep accuracy and per-design cost
-    out["designs"] = measure_designs(n, quick, scene, function, full, queries, forcing, say)
+    out["designs"] = measure_designs(n, quick, large, scene, function, full, queries, forcing,
+                                     say)
     return out
+
+
+def measure_full(n, scene, window_scene, function, nominal, out, repeats, check_public, say):
+    """n < LARGE: the spectral reference (J, gradient; timed), the full histories, the snapshot
+    solve, and Dopri8. (reference, the compiled spectral query, the history, (the compiled
+    snapshot solve, its times))."""
+    system, x0 = scene.system, scene.x0
+    # ---- full model, spectral: the reference J and gradient, timed
+    full = Compiled(full_query, function, nominal)
+    (j_full, g_full), run_s, times = timed(full, function, nominal, repeats=repeats)
+    reference = (j_full, g_full)
+    out["full_spectral"] = {"compile_s": full.compile_s, "run_s": run_s, "run_times_s": times,
+                            "J": float(j_full),
+                            "gradient": {k: float(g_full[k][0]) for k in WRT}}
+    if check_public:  # the compiled query is what sensitivities() computes
+        public = mj.sensitivities(scene, "energy", wrt=WRT)
+        out["full_spectral"]["vs_sensitivities"] = errors_of(public.value, public.jacobian,
+                                                             reference)
+    say(f"full spectral J + gradient {run_s:.3f} s (compile {full.compile_s:.1f} s)")
+
+    # ---- full histories: the reference (401 times) and the POD snapshots (window, 1001 times)
+    ts_history = scene.ts[::HISTORY_EVERY]
+    history_exe = Compiled(lambda s, x: mj.exact_solve(s, ts_history, x, method="spectral"),
+                           system, x0)
+    history = np.asarray(history_exe(system, x0).displacement)
+    ts_window = window_scene.ts
+    snapshot_exe = Compiled(lambda s, x: mj.exact_solve(s, ts_window, x, method="spectral"),
+                            system, x0)
+    snapshots = snapshot_exe(system, x0).displacement
+    common = (ts_window.shape[0] - 1) // HISTORY_EVERY + 1  # history times inside the window
+    gap = float(np.max(np.abs(np.asarray(snapshots)[::HISTORY_EVERY] - history[:common])))
+    if gap > 1e-9:
+        raise SystemExit(f"n={n}: the window solve differs from the history by {gap:.2e}.")
+    out["history"] = {"compile_s": history_exe.compile_s, "max_abs_x": float(np.max(np.abs(
+        history))), "window_vs_history": gap, "snapshot_compile_s": snapshot_exe.compile_s}
+    say("full histories")
+
+    # ---- full model, Dopri8
+    out["dopri8"] = measure_dopri(n, function, nominal, reference, repeats, check_public, say)
+    return reference, full, history, (snapshot_exe, ts_window)
+
+
+def large_histories(scene, window_scene, out, say):
+    """n >= LARGE: the reference history (401 times) and the POD snapshot solve (the window,
+    1001 times) by Dopri8 at rtol LARGE_RTOL (the spectral exact_solve needs ~36 GiB there):
+    (history, (the compiled snapshot solve, its times))."""
+    system, x0 = scene.system, scene.x0
+
+    def solve(ts):
+        return lambda s, x: mj.simulate(s, ts, x, solver="dopri8", rtol=LARGE_RTOL,
+                                        atol=DOPRI_ATOL * LARGE_RTOL, max_steps=DOPRI_MAX_STEPS)
+
+    ts_history, ts_window = scene.ts[::HISTORY_EVERY], window_scene.ts
+    history_exe = Compiled(solve(ts_history), system, x0)
+    history = np.asarray(history_exe(system, x0).displacement)
+    snapshot_exe = Compiled(solve(ts_window), system, x0)
+    snapshots = np.asarray(snapshot_exe(system, x0).displacement)
+    common = (ts_window.shape[0] - 1) // HISTORY_EVERY + 1
+    gap = float(np.max(np.abs(snapshots[::HISTORY_EVERY] - history[:common])))
+    out["history"] = {"method": f"Dopri8, rtol {LARGE_RTOL:g}", "compile_s": history_exe.compile_s,
+                      "max_abs_x": float(np.max(np.abs(history))), "window_vs_history": gap,
+                      "snapshot_compile_s": snapshot_exe.compile_s}
+    say(f"full histories by Dopri8 (window vs history {gap:.1e})")
+    return history, (snapshot_exe, ts_window)
+
+
+def measure_reference(function, nominal, say):
+    """n >= LARGE: J + gradient by Dopri8 at rtol LARGE_RTOL (two jvps), timed once: the
+    reference, and the full path's time (the step is set by stability there, not by rtol: on
+    [0, 0.5] at n = 30000 rtol 1e-8 took 3.4 s, 1e-10 4.0 s); then J alone at rtol 1e-6 (a
+    lower bound on any Dopri8 gradient). (reference, its record, the dopri8 record)."""
+    query = Compiled(dopri_query, function, nominal, LARGE_RTOL)
+    reference, run_s, times = timed(query, function, nominal, LARGE_RTOL, repeats=1)
+    record = {"method": f"Dopri8, rtol {LARGE_RTOL:g}, atol {DOPRI_ATOL:g} rtol, two jax.jvp",
+              "compile_s": query.compile_s, "run_s": run_s, "J": float(reference[0]),
+              "gradient": {k: float(reference[1][k][0]) for k in WRT}}
+    say(f"Dopri8 reference J + gradient at rtol {LARGE_RTOL:g}: {run_s:.1f} s (compile "
+        f"{query.compile_s:.1f} s)")
+    energy = Compiled(dopri_energy, function, nominal, 1e-6)
+    value, alone_s, alone_times = timed(energy, function, nominal, 1e-6, repeats=1)
+    alone = {"rtol": 1e-6, "J": abs(float(value) / float(reference[0]) - 1), "run_s": alone_s,
+             "run_times_s": alone_times}
+    say(f"Dopri8 J alone at rtol 1e-6: {alone_s:.1f} s (J {alone['J']:.1e})")
+    dopri = {"compile_s": energy.compile_s, "J_only": [alone],
+             "equal_accuracy": alone if alone["J"] <= TOL else None,
+             "atol": f"{DOPRI_ATOL:g} rtol",
+             "gradient": {"run": True, "rtol": LARGE_RTOL, "method": "two jax.jvp "
+                          "(ForwardMode): the reference run", "compile_s": query.compile_s,
+                          "run_s": run_s, "run_times_s": times, "J": 0.0, "gradient": 0.0}}
+    return reference, record, dopri
 
 
 def measure_dopri(n, function, nominal, reference, repeats, batched: bool, say) -> dict:
@@ -514,12 +620,12 @@ def evaluate(exe, function, point, reference) -> dict:
     return {"s": seconds, **errors_of(value, jacobian, reference)}
 
 
-def measure_designs(n, quick, scene, function, full, queries, forcing, say) -> dict:
+def measure_designs(n, quick, large, scene, function, full, queries, forcing, say) -> dict:
     """At random designs: the full model and every ROM (nominal basis; rebuilt basis where
     cheap), each timed once per design (the per-design time is their median)."""
     rebuild_exes = {}
     rows = []
-    for position, coefficient in random_designs(n, designs_for(n, quick)):
+    for position, coefficient in random_designs(n, designs_for(n, quick, large)):
         point = design(position, coefficient)
         row = {"position": position, "coefficient": coefficient}
         try:
@@ -540,6 +646,8 @@ def measure_designs(n, quick, scene, function, full, queries, forcing, say) -> d
             if method == "Krylov":
                 inputs = np.column_stack([forcing[:, 0], np.asarray(mj.damper_directions(system))])
                 fresh = jax.block_until_ready(mj.krylov_basis(system, basis.shape[1], inputs))
+            elif method == "Craig-Bampton":
+                fresh = jax.block_until_ready(craig_bampton(system, scene.x0, basis.shape[1]))
             else:
                 fresh = jax.block_until_ready(mj.modal_static_basis(
                     system, basis.shape[1] - STATIC_COLUMNS[method],
@@ -587,15 +695,17 @@ def costs(per_n: list[dict]) -> list[dict]:
     rows = []
     for m in per_n:
         n, designs = m["n"], m["designs"]["summary"]
-        spectral = m["full_spectral"]["run_s"]
+        spectral = m["full_spectral"].get("run_s")  # None: not run (n >= LARGE)
         dopri = m["dopri8"].get("gradient", {})
         dopri_s = dopri.get("run_s")
-        spectral_sweep = SWEEP * designs.get("full", {}).get("median_s", spectral)
+        spectral_sweep = (None if spectral is None
+                          else SWEEP * designs.get("full", {}).get("median_s", spectral))
         full_one = min(s for s in (spectral, dopri_s) if s is not None)
         full_sweep = min(s for s in (spectral_sweep, None if dopri_s is None else SWEEP * dopri_s)
                          if s is not None)
-        rows.append(dict(n=n, path="full spectral", one_query_s=spectral, sweep_s=spectral_sweep,
-                         note="the reference"))
+        if spectral is not None:
+            rows.append(dict(n=n, path="full spectral", one_query_s=spectral,
+                             sweep_s=spectral_sweep, note="the reference"))
         if dopri_s is not None:
             rows.append(dict(n=n, path="full Dopri8", one_query_s=dopri_s, sweep_s=SWEEP * dopri_s,
                              J=dopri["J"], gradient=dopri["gradient"], rtol=dopri["rtol"]))
@@ -627,6 +737,11 @@ def costs(per_n: list[dict]) -> list[dict]:
                                  sweep_worst_gradient=rebuilt["worst_gradient"],
                                  sweep_failed=rebuilt["failed"],
                                  sweep_speedup=full_sweep / total))
+            elif method in REBUILD and not m["designs"]["rows"]:  # no random designs (n >= LARGE):
+                total = SWEEP * one  # build + query at the nominal design, accuracy not measured
+                rows.append(dict(n=n, path=method + " (rebuilt)", r=row["r"], sweep_s=total,
+                                 sweep_speedup=full_sweep / total,
+                                 note="cost at the nominal design; accuracy not measured"))
     return rows
 
 
@@ -646,7 +761,10 @@ def crossover(rows, sizes) -> dict:
             mine = {r["n"]: r.get(key) for r in rows if r["path"] == path}
             if not mine or all(v is None for v in mine.values()):
                 continue
-            ns = [n for n in sizes if n in mine]  # None: no ROM at TOL there (never cheaper)
+            # None: no r <= the cap met TOL there, so no ROM at equal accuracy to time: such an
+            # n is left out of the comparison (and named), not counted as "not cheaper"
+            capped = [n for n in sizes if n in mine and mine[n] is None]
+            ns = [n for n in sizes if n in mine and mine[n] is not None]
             full = {n: best_full(rows, n, key) for n in ns}
             cheaper = [mine[n] is not None and mine[n] < full[n] for n in ns]
             first = None
@@ -671,6 +789,10 @@ def crossover(rows, sizes) -> dict:
                     f"not reached up to n = {ns[-1]}; EXTRAPOLATION (power-law fits over n = "
                     f"{known}): n ~ {predicted:.3g}" if predicted else
                     f"not reached up to n = {ns[-1]}; the power-law fits do not cross beyond it")
+            if capped:
+                result["no_rank_at_tol_n"] = capped
+                result["statement"] += (f" (at n = {capped} no r <= {RANK_CAP} met TOL, so "
+                                        "no ROM at equal accuracy was timed there)")
             if mode == "sweep":
                 worst = [r.get("sweep_worst_J") for r in rows if r["path"] == path]
                 worst = [w for w in worst if w is not None]
@@ -703,15 +825,29 @@ def extrapolate(ns, rom, full) -> dict:
 
 
 def main(argv=None) -> dict:
-    args = parse_args(__doc__, argv, replot=True)
+    args = parse_args(__doc__, argv, replot=True, sizes=dict(
+        type=int, nargs="+", help="these n instead (a check: writes crossover_sizes.json)"),
+        large_from=dict(type=int, default=LARGE, help="the large-n path from this n (a check "
+                        "of it against the spectral one at small n)"),
+        recompute=dict(action="store_true", help="the costs and crossover statements again "
+                       "from the stored measurements (no timing)"))
+    name = NAME if args.sizes is None and args.large_from == LARGE else NAME + "_sizes"
     if args.replot:
-        return print(plot(read_json(NAME, args.quick), args.quick))
-    sizes = QUICK_SIZES if args.quick else SIZES
+        return print(plot(read_json(name, args.quick), args.quick, name))
+    if args.recompute:  # the costs and crossovers again from the stored measurements
+        data = read_json(name, args.quick)
+        data["rows"] = costs(data["per_n"])
+        data["crossover"] = crossover(data["rows"], data["sizes"])
+        print_tables(data["rows"], data["crossover"])
+        path = write_json(name, args.quick, {k: v for k, v in data.items() if k not in (
+            "benchmark", "quick", "metadata")}, data["metadata"])
+        return print(f"rewrote {path} and {plot(read_json(name, args.quick), args.quick, name)}")
+    sizes = args.sizes or (QUICK_SIZES if args.quick else SIZES)
     start = time.perf_counter()
     per_n = []
     for i, n in enumerate(sizes):
         print(f"n = {n}", flush=True)
-        per_n.append(measure(n, args.quick, check_public=i == 0))
+        per_n.append(measure(n, args.quick, check_public=i == 0, large_from=args.large_from))
     rows = costs(per_n)
     cross = crossover(rows, list(sizes))
     print_tables(rows, cross)
@@ -728,8 +864,8 @@ def main(argv=None) -> dict:
                      errors="relative to the full model's spectral path"),
         sizes=list(sizes), not_run=[{"n": n, "reason": why} for n, why in NOT_RUN.items()],
         per_n=per_n, rows=rows, crossover=cross, total_wall_s=elapsed(start))
-    path = write_json(NAME, args.quick, data)
-    png = plot(read_json(NAME, args.quick), args.quick)
+    path = write_json(name, args.quick, data)
+    png = plot(read_json(name, args.quick), args.quick, name)
     print(f"wrote {path} and {png} ({elapsed(start):.0f} s)")
     return data
 
@@ -750,15 +886,17 @@ def print_tables(rows, cross) -> None:
                         ("sweep", f"{SWEEP}-design sweep", "")])
 
 
-COLOURS = {path: f"C{i}" for i, path in enumerate(
-    list(METHODS) + [m + " (rebuilt)" for m in REBUILD])}
+COLOURS = dict(zip(list(METHODS) + [m + " (rebuilt)" for m in REBUILD], (
+    "tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "black",
+    "tab:pink", "tab:olive", "tab:cyan", "dimgrey")))
 STYLES = {"POD": "o-", "enriched POD": "s-", "modal": "^--", "modal + static": "v--",
           "Krylov": "d-.", "modal + static (rebuilt)": "v:", "Krylov (rebuilt)": "d:",
           "modal + 2 moments": "P--", "modal + 2 moments (rebuilt)": "P:",
+          "Craig-Bampton": "h-", "Craig-Bampton (rebuilt)": "h:",
           "full spectral": "*-", "full Dopri8": "x-", "full Dopri8, J alone": "x:"}
 
 
-def plot(data: dict, quick: bool):
+def plot(data: dict, quick: bool, name: str = NAME):
     rows, sweep_size = data["rows"], data["problem"]["sweep"]
     fig, axes = figure(nrows=2, ncols=2, figsize=(12, 9.5), readable=True)
     (one, sweep), (err_one, err_sweep) = axes
@@ -789,11 +927,11 @@ def plot(data: dict, quick: bool):
                 if r.get(key) is not None:
                     ax.loglog(r[cost], max(r[key], 1e-16), marker, color=COLOURS[r["path"]],
                               markersize=3 + 2 * math.log10(r["n"] / 100), alpha=0.8)
-        for r in rows:  # the full spectral path's cost at each n
-            if r["path"] == "full spectral":
-                ax.axvline(r[cost], color="k", lw=0.8, ls=":")
-                ax.annotate(f"full n = {r['n']}", (r[cost], 0.02), rotation=90,
-                            xycoords=ax.get_xaxis_transform(), va="bottom", ha="right")
+        for n in sorted({r["n"] for r in rows}):  # the best full path's cost at each n
+            best = best_full(rows, n, cost)
+            ax.axvline(best, color="k", lw=0.8, ls=":")
+            ax.annotate(f"full n = {n}", (best, 0.02), rotation=90,
+                        xycoords=ax.get_xaxis_transform(), va="bottom", ha="right")
         ax.axhline(TOL, color="grey", lw=0.8, ls="--")
         ax.set_xlabel("wall time (s)" if ax is err_one else "sweep wall time (s)")
         ax.set_title(title)
@@ -802,13 +940,13 @@ def plot(data: dict, quick: bool):
     legend(err_one, "below", handles=sweep.get_legend_handles_labels()[0], ncol=2)
     markers = [err_sweep.plot([], [], m, color="grey", label=label)[0] for m, label in (
         ("o", "J"), ("s", "max(dJ/dp, dJ/dc)"), ("^", "x(t), all DOFs (nominal only)"))]
-    markers.append(err_sweep.plot([], [], "k:", label="full spectral cost")[0])
+    markers.append(err_sweep.plot([], [], "k:", label="best full path's cost")[0])
     markers.append(err_sweep.plot([], [], "--", color="grey", label=f"TOL = {TOL:g}")[0])
     legend(err_sweep, "below", handles=markers, ncol=1, title="marker size grows with n")
     fig.suptitle(f"Error against cost: Mikota chain, damper at DOF 7 (c = 1), J on [0, 20] + "
                  f"gradient;\nROM rank: J within {TOL:g} at the nominal design. "
                  + subtitle(data["metadata"]))
-    return save_figure(fig, NAME, quick)
+    return save_figure(fig, name, quick)
 
 
 if __name__ == "__main__":

@@ -52,11 +52,29 @@ def _check(system, rank: int) -> None:
 
 
 def modal_basis(system: SecondOrderSystem, rank: int) -> Basis:
-    """The r = ``rank`` lowest undamped modes of ``system`` as an (n, r) orthonormal basis."""
+    """The r = ``rank`` lowest undamped modes of ``system`` as an (n, r) orthonormal basis. For
+    a fixed-free chain of n >= 256 (outside ``jit``) O(n r): only those r modes, by bisection
+    and twisted factorisations (``held_chain_modes`` with nothing held), never the n x n ones."""
     _check(system, rank)
-    _, modes = modal_decomposition(system)
-    q, _ = jnp.linalg.qr(modes[:, :rank])
+    chain = _long_chain(system)
+    if chain is not None:
+        modes = jnp.asarray(held_chain_modes(*chain, [], rank)[1])
+    else:
+        modes = modal_decomposition(system)[1][:, :rank]
+    q, _ = jnp.linalg.qr(modes)
     return q
+
+
+def _long_chain(system: SecondOrderSystem):
+    """(masses, springs) of a fixed-free chain of n >= 256 with concrete values, else None."""
+    stiffness, mass = system.stiffness, system.mass
+    if not (isinstance(mass, Diagonal) and isinstance(stiffness, SymmetricTridiagonal)
+            and stiffness.springs is not None and system.size >= CHAIN_MODES_FROM):
+        return None
+    if isinstance(mass.diagonal, jax.core.Tracer) or isinstance(stiffness.springs,
+                                                                jax.core.Tracer):
+        return None
+    return np.asarray(mass.diagonal), np.asarray(stiffness.springs)
 
 
 def damper_directions(system: SecondOrderSystem) -> jnp.ndarray:
@@ -213,11 +231,9 @@ def fixed_interface_modes(system: SecondOrderSystem, interface, rank: int) -> jn
     if isinstance(rank, bool) or not isinstance(rank, int) or not 1 <= rank <= size:
         raise ValueError(MARK + f"rank must be an integer in 1..{size} (n less the "
                          f"interface constraints), got {rank!r}.")
-    springs = (system.stiffness.springs if isinstance(system.stiffness, SymmetricTridiagonal)
-               else None)
-    if (held is not None and isinstance(system.mass, Diagonal) and springs is not None
-            and n >= CHAIN_MODES_FROM):
-        return jnp.asarray(held_chain_modes(system.mass.diagonal, springs, held, rank)[1])
+    chain = _long_chain(system)
+    if held is not None and chain is not None:
+        return jnp.asarray(held_chain_modes(*chain, held, rank)[1])
     stiffness, mass = system.stiffness.as_matrix(), system.mass.as_matrix()
     if held is not None:
         stiffness, mass = stiffness[np.ix_(keep, keep)], mass[np.ix_(keep, keep)]

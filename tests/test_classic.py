@@ -22,6 +22,17 @@ def test_modal_basis_gives_the_exact_free_vibration_of_a_kept_mode():
     assert np.max(np.abs(np.asarray(rom) - exact)) < 1e-10
 
 
+def test_modal_basis_of_a_long_chain_computes_only_the_modes_it_keeps():
+    # n >= 256: the r lowest modes by bisection (no n x n modes); the same span as the full
+    # decomposition's r lowest (Mikota n = 400: the modes of omega = 1..40), orthonormal
+    system = mj.mikota_chain(400)
+    basis = np.asarray(mj.modal_basis(system, 40))
+    _, modes = mj.modal_decomposition(system)
+    reference, _ = np.linalg.qr(np.asarray(modes[:, :40]))
+    assert np.max(np.abs(basis.T @ basis - np.eye(40))) < 1e-12
+    assert np.linalg.norm(basis - reference @ (reference.T @ basis)) < 1e-11
+
+
 def test_modal_static_basis_holds_the_static_response_of_every_damper_direction():
     system = mj.mikota_chain(30, dampers=[mj.GroundedDamper(12.4, 5.0),
                                           mj.RelativeDamper((3, 20), 2.0)])
