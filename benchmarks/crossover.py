@@ -887,8 +887,8 @@ def print_tables(rows, cross) -> None:
 
 
 COLOURS = dict(zip(list(METHODS) + [m + " (rebuilt)" for m in REBUILD], (
-    "tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "black",
-    "tab:pink", "tab:olive", "tab:cyan", "dimgrey")))
+    "tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown",
+    "darkgoldenrod", "tab:pink", "tab:olive", "tab:cyan", "goldenrod")))  # black: full paths
 STYLES = {"POD": "o-", "enriched POD": "s-", "modal": "^--", "modal + static": "v--",
           "Krylov": "d-.", "modal + static (rebuilt)": "v:", "Krylov (rebuilt)": "d:",
           "modal + 2 moments": "P--", "modal + 2 moments (rebuilt)": "P:",
