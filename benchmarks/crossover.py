@@ -367,10 +367,11 @@ def measure(n: int, quick: bool, check_public: bool, large_from: int = LARGE) ->
         reference, out["full_reference"], out["dopri8"] = measure_reference(function, nominal,
                                                                             say)
         out["full_spectral"] = {"run": False, "reason": "memory (see not_run)"}
-        history, (snapshot_exe, ts_window) = large_histories(scene, window_scene, out, say)
+        history, (snapshot_exe, ts_window, snapshots) = large_histories(scene, window_scene,
+                                                                        out, say)
         full = None
     else:
-        reference, full, history, (snapshot_exe, ts_window) = measure_full(
+        reference, full, history, (snapshot_exe, ts_window, snapshots) = measure_full(
             n, scene, window_scene, function, nominal, out, repeats, check_public, say)
     j_full = reference[0]
 
@@ -381,7 +382,6 @@ def measure(n: int, quick: bool, check_public: bool, large_from: int = LARGE) ->
     modes = np.asarray(mj.modal_basis(system, cap))
     static = static_directions(system)
     moments = np.asarray(mj.static_moments(system, mj.damper_directions(system), 2))
-    snapshots = snapshot_exe(system, x0).displacement
     pod = mj.reduce(snapshots, ts_window, scene.reduction).pod  # compiles the SVD (warm-up)
     nested = {"modal": modes, "POD": np.asarray(pod.basis(min(cap, pod.numerical_rank())))}
     if not large:
@@ -475,7 +475,7 @@ def measure(n: int, quick: bool, check_public: bool, large_from: int = LARGE) ->
 def measure_full(n, scene, window_scene, function, nominal, out, repeats, check_public, say):
     """n < LARGE: the spectral reference (J, gradient; timed), the full histories, the snapshot
     solve, and Dopri8. (reference, the compiled spectral query, the history, (the compiled
-    snapshot solve, its times))."""
+    snapshot solve, its times, the snapshots))."""
     system, x0 = scene.system, scene.x0
     # ---- full model, spectral: the reference J and gradient, timed
     full = Compiled(full_query, function, nominal)
@@ -509,13 +509,13 @@ def measure_full(n, scene, window_scene, function, nominal, out, repeats, check_
 
     # ---- full model, Dopri8
     out["dopri8"] = measure_dopri(n, function, nominal, reference, repeats, check_public, say)
-    return reference, full, history, (snapshot_exe, ts_window)
+    return reference, full, history, (snapshot_exe, ts_window, snapshots)
 
 
 def large_histories(scene, window_scene, out, say):
     """n >= LARGE: the reference history (401 times) and the POD snapshot solve (the window,
     1001 times) by Dopri8 at rtol LARGE_RTOL (the spectral exact_solve needs ~36 GiB there):
-    (history, (the compiled snapshot solve, its times))."""
+    (history, (the compiled snapshot solve, its times, the snapshots))."""
     system, x0 = scene.system, scene.x0
 
     def solve(ts):
@@ -533,7 +533,7 @@ def large_histories(scene, window_scene, out, say):
                       "max_abs_x": float(np.max(np.abs(history))), "window_vs_history": gap,
                       "snapshot_compile_s": snapshot_exe.compile_s}
     say(f"full histories by Dopri8 (window vs history {gap:.1e})")
-    return history, (snapshot_exe, ts_window)
+    return history, (snapshot_exe, ts_window, snapshots)
 
 
 def measure_reference(function, nominal, say):
