@@ -200,6 +200,22 @@ def test_certification_enriches_a_poor_basis_until_the_models_agree(capsys):
     assert result.rank > first_rank
 
 
+@pytest.mark.slow  # default-run time (issue: CI under 15 min)
+def test_certification_by_the_estimate_takes_no_full_solve_and_never_under_estimates():
+    p = problem(n=20, energy=0.9, criterion="squared")
+    result = mj.optimise_dampers(p, starts=2, iterations=10, tolerance=1e-6, max_rounds=6,
+                                 certify="estimate")
+    assert result.certified and result.certified_by == "estimate", result.status
+    # full solves: the first snapshots and one per enrichment, none to certify
+    assert result.full_solves == result.rounds
+    truth = full_energy(20, float(result.positions[0]), float(result.coefficients[0]))
+    error = abs(result.objective - truth) / truth  # the objective reported is J_r
+    assert error <= result.rom_error <= 1e-6  # the estimate holds the true error
+    assert np.isnan(result.gradient_error) and result.ranking is not None
+    full = mj.optimise_dampers(p, starts=2, iterations=10, tolerance=1e-6, max_rounds=6)
+    assert float(full.positions[0]) == float(result.positions[0])
+
+
 @pytest.mark.slow  # 28 s in CI
 def test_two_dampers_are_placed_at_dofs():
     system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(3.0, 0.5), mj.GroundedDamper(9.0, 0.5)])
@@ -246,10 +262,13 @@ def test_no_excitation_is_refused():
     (dict(iterations=0), "iterations must be an integer >= 1"),
     (dict(starts=np.array([[0.0]])), "starts must be an int or"),
     (dict(tolerance=-1.0), "tolerance must be > 0"),
+    (dict(certify="half"), "certify must be 'full' or 'estimate'"),
 ])
 def test_bad_optimiser_settings_are_refused(kwargs, match):
     with pytest.raises(ValueError, match=match):
         mj.optimise_dampers(problem(), **kwargs)
+    with pytest.raises(ValueError, match="certify='estimate' needs the 'energy' objective"):
+        mj.optimise_dampers(problem(objective="average_energy", lowest=3), certify="estimate")
 
 
 @pytest.mark.parametrize("kwargs, match", [

@@ -51,19 +51,21 @@ def problem_from_scene(scene: Scene, *, objective: str = "energy", dof: int | No
 def optimise_scene(source, out, *, objective: str = "energy", dof: int | None = None,
                    lowest: int | None = None, energy: float | None = None, starts: int = 8,
                    optimizer: str = "adam", iterations: int = 80, split: bool = False,
-                   tolerance: float = 1e-4, sweep: int = 0, landscape: tuple[int, int] = (60, 12),
-                   progress: bool = True) -> dict:
+                   tolerance: float = 1e-4, certify: str = "full", sweep: int = 0,
+                   landscape: tuple[int, int] = (60, 12), progress: bool = True) -> dict:
     """Optimise a scene's dampers; write ``placement.json`` and ``placement.png`` into ``out``.
 
     ``sweep`` > 0 also runs the brute-force full-model sweep (every DOF x ``sweep``
     log-spaced coefficients, the 3 best DOFs refined) and draws it; otherwise the plot shows
     the reduced model's landscape on a ``landscape`` = (positions, coefficients) grid.
+    ``certify``: as ``optimise_dampers``'s ("full" or "estimate").
     """
     scene = load_scene(source)
     problem = problem_from_scene(scene, objective=objective, dof=dof, lowest=lowest,
                                  energy=energy)
     result = optimise_dampers(problem, starts=starts, optimizer=optimizer, iterations=iterations,
-                              split=split, tolerance=tolerance, progress=progress)
+                              split=split, tolerance=tolerance, certify=certify,
+                              progress=progress)
     report = dict(scene=scene.name, objective=objective, result=result.to_json())
     n = problem.size
     paths_from = [h for h in result.history if h["phase"] in ("search", "polish")]
