@@ -7,18 +7,23 @@ design), x_3(0) = 1, v(0) = 0, J = the energy integrated over [0, T = 20] (``"en
 every 0.01 (2001 times), POD snapshots on [0, 10] (1001 times): the paper's Section 5 scene at
 n = 300. n in {300, 1000, 3000}; ``--quick``: {300, 1000}.
 
-**n = 30000** is not in the default run (``NOT_RUN``: its Dopri8 reference had not finished after 25
-min); ``--sizes 300 1000 3000 30000`` runs it by the large-n path, from ``LARGE`` = 10^4 on
-(``--large-from N`` moves that threshold, which checks the path against the spectral one at a small
-n: at n = 300 it gives the same ranks and errors). There the spectral path needs ~36 GiB (this
-machine has 24), so the reference and the full path are Dopri8 at rtol 1e-10, J + gradient by two
-jvps, timed once (for J alone the step there is set by stability, not by rtol: [0, 0.5] took 3.4 s
-at rtol 1e-8, 4.0 s at 1e-10; a J alone at rtol 1e-6 is timed beside); the reference history and the
-POD snapshots are Dopri8 solves at the same rtol, which the POD's offline cost includes. Bases: POD
-and the snapshot-free ones (modal, modal + static, modal + 2 moments, Craig-Bampton: O(n r) builds
-for a chain); no random designs (each would need its own reference): the rebuilt bases' sweep is
-1000 x (build + query) at the nominal design, its accuracy not measured there. ``NOT_RUN`` in the
-JSON says what is left out and why.
+**n = 30000** is not in the default run; it was measured apart (``results/crossover_30000``)
+and merged into ``results/crossover`` with ``--merge crossover_30000``. From ``LARGE`` = 10^4
+on the large-n path runs (``--large-from N`` moves that threshold, which checks the path against
+the spectral one at a small n: at n = 300 it gives the same ranks and errors). There the spectral
+path needs ~36 GiB (this machine has 24), so the reference is Dopri8 at rtol 1e-10, J + gradient
+by two jvps. At n = 30000 that took > 25 min on 2 CPU cores (stopped) and 192 s on one H100 GPU:
+``--reference-out FILE`` computes only the references (run on the GPU machine:
+``results/crossover_reference_gpu.json``) and ``--reference FILE`` reads them; the full path's
+cost on this machine is then Dopri8's J alone at rtol 1e-6 (timed here), a lower bound on any
+full J + gradient, so a ROM faster than it is faster than the full model. Below ``NO_SNAPSHOTS`` =
+2 x 10^4 the reference history and the POD snapshots are Dopri8 solves at rtol 1e-10, which the
+POD's offline cost includes; from there on they are left out (~10 min each on 2 cores), and POD
+and the history errors with them. Bases: POD (below NO_SNAPSHOTS) and the snapshot-free ones
+(modal, modal + static, modal + 2 moments, Craig-Bampton: O(n r) builds for a chain), ranks up to
+``RANK_CAP_LARGE`` = 1200 from NO_SNAPSHOTS on; no random designs (each would need its own
+reference): the rebuilt bases' sweep is 1000 x (build + query) at the nominal design, its
+accuracy not measured there.
 
 Per n, one process, compile time apart from run time (``Compiled``), run time = median of repeats
 (3 at n <= 1000, 2 beyond and in ``--quick``):
@@ -95,19 +100,24 @@ Per n, one process, compile time apart from run time (``Compiled``), run time = 
   EXTRAPOLATION (None where they do not cross).
 
 Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/crossover.py [--quick] [--replot] [--sizes N ...]
-[--large-from N]`` (~22 min on 2 cores; ``--quick`` ~8 min; ``--sizes``/``--large-from`` write
-``crossover_sizes``). Writes ``results/crossover[_quick].json``
-and ``.png``.
+[--large-from N] [--name NAME]`` (~22 min on 2 cores; ``--quick`` ~8 min; ``--sizes``/
+``--large-from`` write ``crossover_sizes`` unless ``--name``). Writes
+``results/crossover[_quick].json`` and ``.png``. n = 30000: ``--sizes 30000 --reference-out
+FILE`` on a GPU machine (~200 s), then ``--sizes 30000 --reference FILE --name crossover_30000``
+here, then ``--merge crossover_30000`` (rewrites ``crossover.json`` and its figure).
 """
 
 # _common first: it sets OPENBLAS_NUM_THREADS before jax and numpy load.
 from _common import (Compiled, elapsed, figure, fit_exponent, legend,  # noqa: I001
-                     parse_args, print_table, read_json, save_figure, subtitle, timed, write_json)
+                     metadata, parse_args, print_table, read_json, save_figure, subtitle, timed,
+                     write_json)
 
+import json
 import math
 import statistics
 import time
 import warnings
+from pathlib import Path
 
 import diffrax
 import jax
@@ -120,15 +130,14 @@ import scipy.sparse
 import mikota_jax as mj
 
 NAME = "crossover"
-SIZES = (300, 1000, 3000)  # 30000: ``--sizes 300 1000 3000 30000`` (NOT_RUN)
+SIZES = (300, 1000, 3000)  # 30000: apart, see the module docstring
 QUICK_SIZES = (300, 1000)
 LARGE = 10_000  # from here: no spectral path (memory), a Dopri8 reference, snapshot-free bases
 LARGE_RTOL = 1e-10  # the Dopri8 reference's rtol at large n
-NOT_RUN = {30000: "not in the default run: the spectral path needs ~36 GiB there, and the "
-                  "Dopri8 reference that replaces it (rtol 1e-10, J + two forward-mode tangents) "
-                  "had not finished after 25 min on 2 cores (2026-11-26); every basis needs "
-                  "r > 400 (the cap) there, ~850 by r ~ n^0.5 from n = 300-3000. The large-n "
-                  "path (``--large-from``) is checked against the spectral one at n = 300"}
+NOT_RUN = {30000: "not in the default run: measured apart (--sizes 30000 --reference "
+                  "results/crossover_reference_gpu.json --name crossover_30000, the reference "
+                  "J + gradient by Dopri8 on a GPU: > 25 min on 2 CPU cores) and merged "
+                  "(--merge crossover_30000)"}
 HORIZON, STEP, WINDOW = 20.0, 0.01, (0.0, 10.0)
 HISTORY_EVERY = 5  # history errors at t = 0, 0.05, ..., 20 (401 times, all DOFs)
 POSITION, COEFFICIENT, INITIAL_DOF = 7.0, 1.0, 3
@@ -143,6 +152,10 @@ REBUILD = ("modal + static", "modal + 2 moments", "Krylov", "Craig-Bampton")
 STATIC_COLUMNS = {"modal + static": 2, "modal + 2 moments": 4, "Craig-Bampton": 7}
 SWEEP = 1000
 RANK_START, RANK_FACTOR, RANK_CAP = 16, 1.4, 400
+NO_SNAPSHOTS = 20_000  # from here: no Dopri8 histories or snapshots, so no POD, no history error
+NO_SNAPSHOTS_REASON = ("n >= 20000: the Dopri8 history and snapshot solves (rtol 1e-10, ~10 "
+                       "min each on 2 cores) are left out; POD and the history errors with them")
+RANK_CAP_LARGE = 1200  # r ~ n^0.5 from n = 300-3000 puts TOL at r ~ 850 for n = 30000
 RANK_BUMPS = 4  # tries at r * 1.05 when the library's J misses TOL at the searched r
 DOPRI_RTOLS = (1e-5, 1e-6, 1e-8)  # 1e-4: J 1e-3 off at n = 300, 1000
 DOPRI_ATOL = 1e-2  # atol = DOPRI_ATOL * rtol (displacements ~1)
@@ -353,7 +366,8 @@ def krylov_inputs(system, x0) -> np.ndarray:
 # --------------------------------------------------------------------------- one n
 
 
-def measure(n: int, quick: bool, check_public: bool, large_from: int = LARGE) -> dict:
+def measure(n: int, quick: bool, check_public: bool, large_from: int = LARGE,
+            references: dict | None = None) -> dict:
     start = time.perf_counter()
     repeats = repeats_for(n, quick)
     say = lambda text: print(f"  n={n}: {text} ({elapsed(start):.0f} s)", flush=True)  # noqa: E731
@@ -364,11 +378,19 @@ def measure(n: int, quick: bool, check_public: bool, large_from: int = LARGE) ->
     out = {"n": n, "repeats": repeats}
     large = n >= large_from
     if large:  # no spectral path: Dopri8 gives the reference, the histories and the snapshots
-        reference, out["full_reference"], out["dopri8"] = measure_reference(function, nominal,
-                                                                            say)
+        if n in (references or {}):
+            reference, out["full_reference"] = references[n]
+            say(f"the reference from {out['full_reference']['file']}")
+        else:
+            reference, out["full_reference"] = dopri_reference(function, nominal, say)
+        out["dopri8"] = dopri_alone(function, nominal, reference, out["full_reference"], say)
         out["full_spectral"] = {"run": False, "reason": "memory (see not_run)"}
-        history, (snapshot_exe, ts_window, snapshots) = large_histories(scene, window_scene,
-                                                                        out, say)
+        if n >= NO_SNAPSHOTS:
+            history, snapshot_exe, ts_window, snapshots = None, None, None, None
+            out["history"] = {"run": False, "reason": NO_SNAPSHOTS_REASON}
+        else:
+            history, (snapshot_exe, ts_window, snapshots) = large_histories(
+                scene, window_scene, out, say)
         full = None
     else:
         reference, full, history, (snapshot_exe, ts_window, snapshots) = measure_full(
@@ -378,12 +400,14 @@ def measure(n: int, quick: bool, check_public: bool, large_from: int = LARGE) ->
     # ---- reductions: rank search, offline, online, errors at the nominal design
     projection = Projection(system, x0)
     forcing = krylov_inputs(system, x0)
-    cap = min(n, RANK_CAP)
+    cap = min(n, RANK_CAP if n < NO_SNAPSHOTS else RANK_CAP_LARGE)
     modes = np.asarray(mj.modal_basis(system, cap))
     static = static_directions(system)
     moments = np.asarray(mj.static_moments(system, mj.damper_directions(system), 2))
-    pod = mj.reduce(snapshots, ts_window, scene.reduction).pod  # compiles the SVD (warm-up)
-    nested = {"modal": modes, "POD": np.asarray(pod.basis(min(cap, pod.numerical_rank())))}
+    nested = {"modal": modes}
+    if snapshots is not None:
+        pod = mj.reduce(snapshots, ts_window, scene.reduction).pod  # compiles the SVD (warm-up)
+        nested["POD"] = np.asarray(pod.basis(min(cap, pod.numerical_rank())))
     if not large:
         enriched = mj.enriched_reduce(window_scene, WRT).pod  # compiles and runs once (warm-up)
         nested.update({
@@ -405,7 +429,8 @@ def measure(n: int, quick: bool, check_public: bool, large_from: int = LARGE) ->
         "Craig-Bampton": lambda r: craig_bampton(system, x0, r),
     }
     methods, queries = {}, {}
-    for method in LARGE_METHODS if large else METHODS:
+    for method in (METHODS if not large else LARGE_METHODS if snapshots is not None
+                   else LARGE_METHODS[1:]):
         row = {"method": method}
         if method in nested:
             big = nested[method]
@@ -536,30 +561,53 @@ def large_histories(scene, window_scene, out, say):
     return history, (snapshot_exe, ts_window, snapshots)
 
 
-def measure_reference(function, nominal, say):
+def dopri_reference(function, nominal, say):
     """n >= LARGE: J + gradient by Dopri8 at rtol LARGE_RTOL (two jvps), timed once: the
     reference, and the full path's time (the step is set by stability there, not by rtol: on
-    [0, 0.5] at n = 30000 rtol 1e-8 took 3.4 s, 1e-10 4.0 s); then J alone at rtol 1e-6 (a
-    lower bound on any Dopri8 gradient). (reference, its record, the dopri8 record)."""
+    [0, 0.5] at n = 30000 rtol 1e-8 took 3.4 s, 1e-10 4.0 s). (reference, its record)."""
     query = Compiled(dopri_query, function, nominal, LARGE_RTOL)
     reference, run_s, times = timed(query, function, nominal, LARGE_RTOL, repeats=1)
     record = {"method": f"Dopri8, rtol {LARGE_RTOL:g}, atol {DOPRI_ATOL:g} rtol, two jax.jvp",
-              "compile_s": query.compile_s, "run_s": run_s, "J": float(reference[0]),
-              "gradient": {k: float(reference[1][k][0]) for k in WRT}}
+              "compile_s": query.compile_s, "run_s": run_s, "run_times_s": times,
+              "J": float(reference[0]),
+              "gradient": {k: float(reference[1][k][0]) for k in WRT},
+              "device": str(jax.devices()[0])}
     say(f"Dopri8 reference J + gradient at rtol {LARGE_RTOL:g}: {run_s:.1f} s (compile "
         f"{query.compile_s:.1f} s)")
+    return reference, record
+
+
+def dopri_alone(function, nominal, reference, record, say) -> dict:
+    """Dopri8's J alone at rtol 1e-6, timed once: a lower bound on any Dopri8 gradient (which
+    needs at least one more solve); with the reference ``record``'s gradient timing where it was
+    timed here (not where it came from a file: another machine)."""
     energy = Compiled(dopri_energy, function, nominal, 1e-6)
     value, alone_s, alone_times = timed(energy, function, nominal, 1e-6, repeats=1)
     alone = {"rtol": 1e-6, "J": abs(float(value) / float(reference[0]) - 1), "run_s": alone_s,
              "run_times_s": alone_times}
     say(f"Dopri8 J alone at rtol 1e-6: {alone_s:.1f} s (J {alone['J']:.1e})")
-    dopri = {"compile_s": energy.compile_s, "J_only": [alone],
-             "equal_accuracy": alone if alone["J"] <= TOL else None,
-             "atol": f"{DOPRI_ATOL:g} rtol",
-             "gradient": {"run": True, "rtol": LARGE_RTOL, "method": "two jax.jvp "
-                          "(ForwardMode): the reference run", "compile_s": query.compile_s,
-                          "run_s": run_s, "run_times_s": times, "J": 0.0, "gradient": 0.0}}
-    return reference, record, dopri
+    if record.get("file"):
+        gradient = {"run": False, "reason": f"the reference came from {record['file']} "
+                    f"({record['device']}); its time is not this machine's"}
+    else:
+        gradient = {"run": True, "rtol": LARGE_RTOL, "method": "two jax.jvp (ForwardMode): "
+                    "the reference run", "compile_s": record["compile_s"],
+                    "run_s": record["run_s"], "run_times_s": record["run_times_s"], "J": 0.0,
+                    "gradient": 0.0}
+    return {"compile_s": energy.compile_s, "J_only": [alone],
+            "equal_accuracy": alone if alone["J"] <= TOL else None,
+            "atol": f"{DOPRI_ATOL:g} rtol", "gradient": gradient}
+
+
+def load_references(path) -> dict:
+    """{n: (reference, record)} from a ``--reference-out`` file."""
+    data = json.loads(Path(path).read_text())
+    out = {}
+    for key, record in data["references"].items():
+        record = dict(record, file=Path(path).name)
+        out[int(key)] = ((record["J"], {k: np.array([v]) for k, v in
+                                        record["gradient"].items()}), record)
+    return out
 
 
 def measure_dopri(n, function, nominal, reference, repeats, batched: bool, say) -> dict:
@@ -700,19 +748,26 @@ def costs(per_n: list[dict]) -> list[dict]:
         dopri_s = dopri.get("run_s")
         spectral_sweep = (None if spectral is None
                           else SWEEP * designs.get("full", {}).get("median_s", spectral))
-        full_one = min(s for s in (spectral, dopri_s) if s is not None)
-        full_sweep = min(s for s in (spectral_sweep, None if dopri_s is None else SWEEP * dopri_s)
-                         if s is not None)
+        alone = m["dopri8"]["equal_accuracy"]
+        if spectral is None and dopri_s is None:  # the reference came from another machine:
+            full_one = alone["run_s"]  # Dopri8's J alone, a lower bound on J + gradient
+            full_sweep = SWEEP * full_one
+        else:
+            full_one = min(s for s in (spectral, dopri_s) if s is not None)
+            full_sweep = min(s for s in (spectral_sweep,
+                                         None if dopri_s is None else SWEEP * dopri_s)
+                             if s is not None)
         if spectral is not None:
             rows.append(dict(n=n, path="full spectral", one_query_s=spectral,
                              sweep_s=spectral_sweep, note="the reference"))
         if dopri_s is not None:
             rows.append(dict(n=n, path="full Dopri8", one_query_s=dopri_s, sweep_s=SWEEP * dopri_s,
                              J=dopri["J"], gradient=dopri["gradient"], rtol=dopri["rtol"]))
-        alone = m["dopri8"]["equal_accuracy"]
         if alone is not None:
             rows.append(dict(n=n, path="full Dopri8, J alone", one_query_s=alone["run_s"],
-                             sweep_s=SWEEP * alone["run_s"], J=alone["J"], rtol=alone["rtol"]))
+                             sweep_s=SWEEP * alone["run_s"], J=alone["J"], rtol=alone["rtol"],
+                             note=None if spectral is not None or dopri_s is not None else
+                             "the best full path measured here: a lower bound on J + gradient"))
         for method, row in m["methods"].items():
             if row.get("r") is None:
                 rows.append(dict(n=n, path=method, r=None, note=f"TOL not reached up to r = "
@@ -746,8 +801,12 @@ def costs(per_n: list[dict]) -> list[dict]:
 
 
 def best_full(rows, n: int, key: str) -> float:
-    return min(r[key] for r in rows if r["n"] == n and r["path"] in ("full spectral",
-                                                                     "full Dopri8"))
+    """The best full path's cost at n: spectral or Dopri8 J + gradient, or, where neither was
+    timed on this machine (a reference from another), Dopri8's J alone (a lower bound)."""
+    costs = [r[key] for r in rows if r["n"] == n and r["path"] in ("full spectral",
+                                                                   "full Dopri8")]
+    return min(costs) if costs else min(r[key] for r in rows if r["n"] == n and r["path"]
+                                        == "full Dopri8, J alone")
 
 
 def crossover(rows, sizes) -> dict:
@@ -830,12 +889,29 @@ def main(argv=None) -> dict:
         large_from=dict(type=int, default=LARGE, help="the large-n path from this n (a check "
                         "of it against the spectral one at small n)"),
         recompute=dict(action="store_true", help="the costs and crossover statements again "
-                       "from the stored measurements (no timing)"))
-    name = NAME if args.sizes is None and args.large_from == LARGE else NAME + "_sizes"
+                       "from the stored measurements (no timing)"),
+        reference_out=dict(default=None, metavar="FILE", help="only the Dopri8 reference (J + "
+                           "gradient) of each n, written to FILE (e.g. on a GPU machine)"),
+        reference=dict(default=None, metavar="FILE", help="the large-n references from FILE "
+                       "(--reference-out) instead of computing them"),
+        name=dict(default=None, help="the results' name (default crossover, or crossover_sizes "
+                  "with --sizes / --large-from)"),
+        merge=dict(default=None, metavar="NAME", help="add results/NAME.json's sizes to "
+                   "results/crossover.json and recompute its costs and crossovers (no timing)"))
+    name = args.name or (NAME if args.sizes is None and args.large_from == LARGE
+                         else NAME + "_sizes")
     if args.replot:
         return print(plot(read_json(name, args.quick), args.quick, name))
-    if args.recompute:  # the costs and crossovers again from the stored measurements
+    if args.recompute or args.merge:  # costs and crossovers again from stored measurements
         data = read_json(name, args.quick)
+        if args.merge:
+            extra = read_json(args.merge, False)
+            data["per_n"] = [m for m in data["per_n"] if m["n"] not in extra["sizes"]] + extra[
+                "per_n"]
+            data["sizes"] = sorted(set(data["sizes"]) | set(extra["sizes"]))
+            data["merged"] = {str(n): f"{args.merge}.json ({extra['metadata']['date']})"
+                              for n in extra["sizes"]}
+            data["not_run"] = [x for x in data["not_run"] if x["n"] not in extra["sizes"]]
         data["rows"] = costs(data["per_n"])
         data["crossover"] = crossover(data["rows"], data["sizes"])
         print_tables(data["rows"], data["crossover"])
@@ -844,10 +920,22 @@ def main(argv=None) -> dict:
         return print(f"rewrote {path} and {plot(read_json(name, args.quick), args.quick, name)}")
     sizes = args.sizes or (QUICK_SIZES if args.quick else SIZES)
     start = time.perf_counter()
+    if args.reference_out:
+        references = {}
+        for n in sizes:
+            say = lambda text, n=n: print(f"  n={n}: {text} ({elapsed(start):.0f} s)",  # noqa: E731
+                                          flush=True)
+            function = mj.SceneFunction(scene_for(n), "energy")
+            references[str(n)] = dopri_reference(function, design(POSITION, COEFFICIENT), say)[1]
+            Path(args.reference_out).write_text(json.dumps(
+                {"references": references, "metadata": metadata()}, indent=1))
+        return print(f"wrote {args.reference_out}")
+    references = load_references(args.reference) if args.reference else None
     per_n = []
     for i, n in enumerate(sizes):
         print(f"n = {n}", flush=True)
-        per_n.append(measure(n, args.quick, check_public=i == 0, large_from=args.large_from))
+        per_n.append(measure(n, args.quick, check_public=i == 0, large_from=args.large_from,
+                             references=references))
     rows = costs(per_n)
     cross = crossover(rows, list(sizes))
     print_tables(rows, cross)
