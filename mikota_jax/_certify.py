@@ -286,6 +286,10 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
                                            None if split else polished)
             full_value, full_gc, gradient_error = rom_value, rom_gc, float("nan")
             certified = rom_error <= tolerance
+            errors = f"estimated ROM error {rom_error:.2e} (J only, no full solve)"
+            ranked = ("" if ranking is None else "; the winner beats the other polished designs "
+                      "by more than their estimates" if ranking else "; the polished designs' "
+                      "estimates overlap the winner's (ranking not certified)")
             say(f"round {round_ + 1}: reduced objective {float(rom_value):.10g}, estimated "
                 f"error {rom_error:.1e}")
         else:
@@ -307,17 +311,10 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
                     rom_gp - full_gp)) * (n - 1) / scale])
             gradient_error = float(np.max(sensitivities))
             certified = rom_error <= tolerance and gradient_error <= tolerance
+            errors = f"ROM error {rom_error:.2e}, log-sensitivity error {gradient_error:.2e}"
+            ranked = ""
             say(f"round {round_ + 1}: full objective {float(full_value):.10g}, ROM error "
                 f"{rom_error:.1e}, log-sensitivity error {gradient_error:.1e}")
-        if certify == "estimate":
-            errors = f"estimated ROM error {rom_error:.2e} (J only, no full solve)"
-            ranked = ("" if ranking is None else "; the winner beats the other polished designs "
-                      "by more than their estimates" if ranking else "; the polished designs' "
-                      "estimates overlap the winner's (ranking not certified)")
-        else:
-            errors = (f"ROM error {rom_error:.2e}, log-sensitivity error "
-                      f"{gradient_error:.2e}")
-            ranked = ""
         if certified:
             status = (f"certified in round {round_ + 1} by the "
                       + (f"estimate: {errors}" if certify == "estimate" else
