@@ -2,16 +2,17 @@
 
 Part A: ``optimise_dampers`` on the paper's Section 5 scene (one grounded damper, the energy on
 [0, 20] of the free vibration from x_3(0) = 1), ``certify="full"`` (the full model's J and dJ/dc
-at the optimum, one solve per round) against ``certify="estimate"`` (the hierarchical estimate of
-|J - J_r|, no full solve). Each is run twice in this process, cold then warm; the design, J, the
-estimate against the true error (the full run's J), the full solves and the warm seconds.
+at the optimum, one solve per round) against ``certify="estimate"`` (the hierarchical estimates
+of |J - J_r| and of the log-sensitivity's error c |dJ/dc - dJ_r/dc| / J, no full solve). Each is
+run twice in this process, cold then warm; the design, J, the estimates against the true errors
+(the full run's J and dJ/dc), the full solves and the warm seconds.
 
 Part B: the certification step alone at n = 300 / 1000 / 3000 (Mikota chains, the same scene
 scaled: x_3(0) = 1, horizon 20, a damper at DOF 4 with c = 70; the basis: Craig-Bampton + x0
 of the crossover's ranks): the full model's J and dJ/dc (``placement_objective`` under
 ``jax.value_and_grad``, what ``certify="full"`` runs) against building the estimator and
-estimating (what ``certify="estimate"`` runs). Compile apart (first call), then the median of
-repeats.
+estimating J and its gradient (``HierarchicalEstimator.gradient``, what ``certify="estimate"``
+runs). Compile apart (first call), then the median of repeats.
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/certify_estimate.py [--quick] [--replot]
 """
@@ -51,14 +52,18 @@ def optimiser_runs(quick: bool) -> dict:
                 gradient_error=None if np.isnan(result.gradient_error)
                 else result.gradient_error, full_solves=result.full_solves,
                 seconds_full=result.seconds_full, rank=result.rank, status=result.status,
+                gradient=float(result.gradient[0]),
                 ranking=result.ranking, certified=result.certified)
             print(f"{certify:8s} {label}: {seconds:6.1f} s, DOF {result.positions[0]:g}, "
                   f"c = {result.coefficients[0]:.6g}, J = {result.objective:.10g}, "
                   f"{result.full_solves} full solves; {result.status}", flush=True)
     full, est = runs["full_warm"], runs["estimate_warm"]
     true = abs(est["objective"] - full["objective"]) / full["objective"]
+    true_gradient = (est["coefficient"] * abs(est["gradient"] - full["gradient"])
+                     / full["objective"])
     return dict(runs=runs, true_error=true, estimate=est["rom_error"],
                 effectivity=est["rom_error"] / true if true > 0 else None,
+                true_gradient_error=true_gradient, gradient_estimate=est["gradient_error"],
                 same_design=full["position"] == est["position"]
                 and abs(full["coefficient"] - est["coefficient"]) <= 1e-9 * full["coefficient"])
 
@@ -81,20 +86,25 @@ def certification_step(n: int, r: int, repeats: int) -> dict:
     full = jax.jit(jax.value_and_grad(mj.placement_objective(problem), argnums=(0, 1)))
 
     def estimate():
-        return mj.HierarchicalEstimator(system, basis)(system, HORIZON, x0)
+        return mj.HierarchicalEstimator(system, basis).gradient(system, HORIZON, x0)
 
-    full_cold, (value, _) = median_seconds(lambda: full(positions, coefficients), 1)
+    full_cold, (value, (_, slope)) = median_seconds(lambda: full(positions, coefficients), 1)
     full_warm, _ = median_seconds(lambda: full(positions, coefficients), repeats)
     estimate_cold, _ = median_seconds(estimate, 1)
     estimate_warm, e = median_seconds(estimate, repeats)
     true = abs(float(e.value) - float(value)) / float(value)
+    c = float(coefficients[0])
+    true_gradient = c * abs(float(e.gradient["coefficients"][0]) - float(slope[0])) / float(value)
     row = dict(n=n, rank=int(basis.shape[1]), objective=float(value), true_error=true,
-               estimate=float(e.relative), full_cold_s=full_cold, full_warm_s=full_warm,
+               estimate=float(e.relative), true_gradient_error=true_gradient,
+               gradient_estimate=float(e.log_sensitivity_error),
+               full_cold_s=full_cold, full_warm_s=full_warm,
                estimate_cold_s=estimate_cold, estimate_warm_s=estimate_warm,
                speedup=full_warm / estimate_warm)
     print(f"n = {n:5d}, r = {row['rank']}: full J + dJ {full_warm:.3f} s (cold {full_cold:.1f}), "
           f"estimate {estimate_warm:.3f} s (cold {estimate_cold:.1f}): {row['speedup']:.1f}x; "
-          f"true error {true:.1e}, estimate {row['estimate']:.1e}", flush=True)
+          f"true error {true:.1e}, estimate {row['estimate']:.1e}; log-sensitivity true "
+          f"{true_gradient:.1e}, estimate {row['gradient_estimate']:.1e}", flush=True)
     return row
 
 
@@ -105,7 +115,7 @@ def plot(data: dict, quick: bool):
     left.loglog(n, [r["full_warm_s"] for r in rows], "o-", color="black",
                 label="full model: J + dJ/dc (certify='full')")
     left.loglog(n, [r["estimate_warm_s"] for r in rows], "s-", color="tab:blue",
-                label="estimate: build + one call (certify='estimate')")
+                label="estimate of J and dJ: build + one call (certify='estimate')")
     for r in rows:
         left.annotate(f"{r['speedup']:.1f}x", (r["n"], r["estimate_warm_s"]),
                       textcoords="offset points", xytext=(8, -4))
@@ -114,8 +124,13 @@ def plot(data: dict, quick: bool):
     legend(left, "below")
     right.loglog(n, [r["true_error"] for r in rows], "o-", color="black",
                  label="true |J - J_r| / J")
-    right.loglog(n, [r["estimate"] for r in rows], "s--", color="tab:blue", label="estimate")
-    right.set(xlabel="n (DOFs)", ylabel="relative error in J",
+    right.loglog(n, [r["estimate"] for r in rows], "s--", color="tab:blue", label="its estimate")
+    if all("true_gradient_error" in r for r in rows):
+        right.loglog(n, np.maximum([r["true_gradient_error"] for r in rows], 1e-16), "o-",
+                     color="tab:gray", label="true c |dJ/dc - dJ_r/dc| / J")
+        right.loglog(n, [r["gradient_estimate"] for r in rows], "s--", color="tab:orange",
+                     label="its estimate")
+    right.set(xlabel="n (DOFs)", ylabel="relative error",
               title="(b) the estimate against the true error\n(below 1e-9: the rounding floor)")
     legend(right, "below")
     for ax in (left, right):
@@ -137,7 +152,9 @@ def main(argv=None):
     start = time.perf_counter()
     optimiser = optimiser_runs(args.quick)
     print(f"Section 5: estimate {optimiser['estimate']:.2e} against the true error "
-          f"{optimiser['true_error']:.2e}; same design: {optimiser['same_design']}", flush=True)
+          f"{optimiser['true_error']:.2e}; log-sensitivity estimate "
+          f"{optimiser['gradient_estimate']:.2e} against {optimiser['true_gradient_error']:.2e}; "
+          f"same design: {optimiser['same_design']}", flush=True)
     sizes = SIZES[:1] if args.quick else SIZES
     steps = [certification_step(n, r, 1 if n >= 3000 else 3) for n, r in sizes]
     data = dict(benchmark=NAME, quick=args.quick, optimiser=optimiser, steps=steps,

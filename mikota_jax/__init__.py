@@ -40,6 +40,7 @@ from ._enrichment import sensitivity_snapshots as sensitivity_snapshots
 from ._estimator import ErrorBound as ErrorBound
 from ._estimator import HierarchicalEstimate as HierarchicalEstimate
 from ._estimator import HierarchicalEstimator as HierarchicalEstimator
+from ._estimator import HierarchicalGradient as HierarchicalGradient
 from ._estimator import error_bound as error_bound
 from ._exact import exact_solve as exact_solve
 from ._excitation import LoadFunction as LoadFunction

@@ -20,12 +20,13 @@ fixed (no derivative through the SVD), and the optimum is certified on the full 
    with the reduced model's. If they disagree beyond ``tolerance``, the basis is enriched with
    POD modes of a full simulation at that design (trust-region reduced-basis style) and the
    screening (of the 4 ``keep`` best DOFs) and polish run again. With ``certify="estimate"``
-   the hierarchical a posteriori estimate of |J - J_r| (``HierarchicalEstimator``: J_r against
-   a Galerkin model on the basis + low modes + the design's damper moments; Hain, Ohlberger,
-   Radic & Urban, Adv. Comput. Math. 45 (2019)) decides instead, with no full solve: the basis
-   is enriched (by one full simulation) only where the estimate exceeds ``tolerance``. The
-   estimate bounds J, not its gradient, and rests on a saturation assumption (checked on 1000
-   designs in ``benchmarks/hierarchical.py``), not on a proof. The ``keep`` polished designs
+   the hierarchical a posteriori estimates of |J - J_r| and of the log-sensitivities' error
+   (``HierarchicalEstimator`` and its ``gradient``: J_r and dJ_r against a Galerkin model on
+   the basis + low modes + the design's damper moments; Hain, Ohlberger, Radic & Urban, Adv.
+   Comput. Math. 45 (2019)) decide instead, with no full solve: the basis is enriched (by one
+   full simulation) only where an estimate exceeds ``tolerance``. The estimates rest on a
+   saturation assumption (checked on 1000 designs in ``benchmarks/hierarchical.py`` and
+   ``benchmarks/hierarchical_gradient.py``), not on a proof. The ``keep`` polished designs
    are estimated too, so the result says whether the winner beats them by more than the
    estimates (the ranking certified, not only the value).
 
@@ -113,8 +114,9 @@ class PlacementResult:
     ``certified_by``: "full model" or "estimate" (``certify``). Certified by the estimate, no
     full solve was taken there: ``objective`` is the reduced model's J_r, ``rom_error`` the
     estimate of |J - J_r| / J, ``gradient`` the reduced model's dJ/dc and ``gradient_error``
-    NaN (not checked); ``ranking`` then says whether the winner's J_r + estimate lies below
-    J_r - estimate of every other polished design (None where it was not checked).
+    the estimate of the log-sensitivity error; ``ranking`` then says whether the winner's
+    J_r + estimate lies below J_r - estimate of every other polished design (None where it was
+    not checked).
     """
 
     positions: np.ndarray
@@ -166,8 +168,9 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
     ``tolerance``: the largest relative ROM error (objective and log-sensitivities) accepted at
     the optimum; beyond it the basis is enriched and the search goes on, up to ``max_rounds``.
     ``certify``: "full" (the full model's J and dJ/dc at the optimum, one solve per round) or
-    "estimate" (the hierarchical estimate of the reduced J's error, no full solve; the energy
-    objective of free vibration only, the objective the estimator bounds).
+    "estimate" (the hierarchical estimates of the reduced J's and log-sensitivities' errors,
+    no full solve; the energy objective of free vibration only, the objective the estimator
+    bounds).
     """
     check_x64()
     if not isinstance(problem, DamperProblem):
@@ -282,16 +285,17 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
                 f"{np.asarray(positions).tolist()} (no full solve) ...")
             rom_value, rom_gp, rom_gc, _ = value_and_gradient(problem, basis, positions,
                                                                coefficients)
-            rom_error, ranking = _estimate(problem, basis, positions, coefficients,
-                                           None if split else polished)
-            full_value, full_gc, gradient_error = rom_value, rom_gc, float("nan")
-            certified = rom_error <= tolerance
-            errors = f"estimated ROM error {rom_error:.2e} (J only, no full solve)"
+            rom_error, gradient_error, ranking = _estimate(
+                problem, basis, positions, coefficients, None if split else polished, split)
+            full_value, full_gc = rom_value, rom_gc
+            certified = rom_error <= tolerance and gradient_error <= tolerance
+            errors = (f"estimated ROM error {rom_error:.2e}, log-sensitivity error "
+                      f"{gradient_error:.2e} (no full solve)")
             ranked = ("" if ranking is None else "; the winner beats the other polished designs "
                       "by more than their estimates" if ranking else "; the polished designs' "
                       "estimates overlap the winner's (ranking not certified)")
             say(f"round {round_ + 1}: reduced objective {float(rom_value):.10g}, estimated "
-                f"error {rom_error:.1e}")
+                f"error {rom_error:.1e}, log-sensitivity error {gradient_error:.1e}")
         else:
             say(f"round {round_ + 1}: certifying positions {np.asarray(positions).tolist()} on "
                 "the full model ...")
@@ -346,19 +350,26 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
         ranking=ranking, basis=np.asarray(basis))
 
 
-def _estimate(problem, basis, positions, coefficients, polished):
-    """(estimate of |J - J_r| / J at the design, ranking) by the hierarchical estimator of
-    ``basis`` (its fine space: basis + 2 r low modes + 3 damper moments), no full solve.
-    ``ranking``: whether J_r + estimate at the design lies below J_r - estimate of every other
-    polished design (``polished``: their (positions, coefficients, values); None: not
+def _estimate(problem, basis, positions, coefficients, polished, split):
+    """(estimate of |J - J_r| / J at the design, of the log-sensitivity error, ranking) by the
+    hierarchical estimator of ``basis`` (its fine space: basis + 2 r low modes + 3 damper
+    moments), no full solve. The log-sensitivity error: max c |dJ/dc - dJ_r/dc| / J, and for
+    ``split`` designs also (n - 1) |dJ/dp - dJ_r/dp| / J, as the full certification measures
+    it. ``ranking``: whether J_r + estimate at the design lies below J_r - estimate of every
+    other polished design (``polished``: their (positions, coefficients, values); None: not
     checked)."""
     horizon = problem.ts[-1] - problem.ts[0]
     system = problem.system(positions, coefficients)
     estimator = HierarchicalEstimator(system, basis)  # M and K: the same at every design
-    own = estimator(system, horizon, problem.x0, problem.v0)
+    own = estimator.gradient(system, horizon, problem.x0, problem.v0)
     relative = float(own.relative)
+    gradient_error = float(own.log_sensitivity_error)
+    if split:
+        floor = float(own.value - own.energy)
+        worst = (problem.size - 1) * float(jnp.max(own.error["positions"]))
+        gradient_error = max(gradient_error, worst / floor if floor > 0 else float("inf"))
     if polished is None or len(polished[0]) < 2:
-        return relative, None
+        return relative, gradient_error, None
     high = float(own.value + own.energy)
     for p, c in zip(np.asarray(polished[0]), np.asarray(polished[1]), strict=True):
         if np.array_equal(p, np.asarray(positions)) and np.array_equal(c, np.asarray(
@@ -367,6 +378,6 @@ def _estimate(problem, basis, positions, coefficients, polished):
         other = estimator(problem.system(jnp.asarray(p), jnp.asarray(c)), horizon,
                           problem.x0, problem.v0)
         if not float(other.value - other.energy) > high:
-            return relative, False
-    return relative, True
+            return relative, gradient_error, False
+    return relative, gradient_error, True
 

@@ -48,7 +48,7 @@ from ._galerkin import check_basis
 from ._modal import generalized_modes, scaled_modal, state_matrix
 from ._objectives import finite_gramian
 from ._operators import Diagonal
-from ._spectral import DEFECTIVE_SEPARATION, modal_damped_modes
+from ._spectral import DEFECTIVE_SEPARATION, differentiable_roots, modal_damped_modes
 from ._spectral_objectives import energy_from_modes
 from ._system import SecondOrderSystem
 
@@ -196,18 +196,28 @@ def _spectral_reduced_energy(system, basis, horizon, x0, v0):
     own modes: (K_r, M_r) -> (Omega_r, U_r) by one symmetric eigenproblem (O(r^3)), the
     projected dampers F = U_r^T Phi^T B stay low rank, so the damped roots and J are O(k r^2)
     (``modal_damped_modes``, ``energy_from_modes``; Veselic's low-rank structure, as the full
-    model's spectral path). No derivatives (the roots are not differentiated); where ``ok`` is
-    False (no convergence, nearly coincident roots) the value must not be used."""
+    model's spectral path). The roots are found without derivatives, then carry the implicit
+    derivative of the secular equation (``differentiable_roots``, as ``live_modes``), so J_r is
+    differentiable in the dampers with ``basis`` held fixed; where ``ok`` is False (no
+    convergence, nearly coincident roots) the value must not be used."""
     rom = system.project(basis)
     omega2, modes = generalized_modes(rom)
     not_definite = jnp.any(omega2 <= 0)
     omega = jnp.sqrt(jnp.where(omega2 > 0, omega2, 1.0))
-    roots = modal_damped_modes(omega, modes.T @ rom.damping.factor, rom.damping.weights)
+    factor, weights = modes.T @ rom.damping.factor, rom.damping.weights
+    frozen = modal_damped_modes(*jax.lax.stop_gradient((omega, factor, weights)))
+    roots = differentiable_roots(eqx.tree_at(lambda m: (m.omega, m.factor, m.weights), frozen,
+                                             (omega, factor, weights)))
     mass_r = rom.mass.as_matrix()
     value = energy_from_modes(roots, modes.T @ (mass_r @ (basis.T @ x0)),
                               modes.T @ (mass_r @ (basis.T @ v0)), horizon)
-    ok = roots.converged & (roots.separation > DEFECTIVE_SEPARATION) & jnp.isfinite(value)
+    ok = frozen.converged & (frozen.separation > DEFECTIVE_SEPARATION) & jnp.isfinite(value)
     return value, ok & ~not_definite, not_definite
+
+
+def _checked_horizon(horizon):
+    return eqx.error_if(horizon, ~(jnp.isfinite(horizon) & (horizon > 0)),
+                        MARK + "horizon must be finite and > 0.")
 
 
 def _estimator_energy(system, basis, horizon, x0, v0):
@@ -236,6 +246,42 @@ class HierarchicalEstimate(eqx.Module):
         ``ErrorBound.relative``)."""
         floor = self.value - self.energy
         return jnp.where(floor > 0, self.energy / jnp.where(floor > 0, floor, 1.0), jnp.inf)
+
+
+class HierarchicalGradient(eqx.Module):
+    """What ``HierarchicalEstimator.gradient`` returns: ``HierarchicalEstimate``'s ``value``,
+    ``fine`` and ``energy``, and per grounded damper (dicts with keys "positions" and
+    "coefficients", (g,) each, as ``SceneFunction``'s parameters) ``gradient`` dJ_r, the
+    reduced model's derivative with its basis held fixed, ``fine_gradient`` dJ_f, and ``error``
+    the estimate of |dJ - dJ_r|: ``safety`` |dJ_f - dJ_r| + ``ROUNDING`` (|dJ_r| + |J_r| / h),
+    h the parameter's scale (c for a coefficient, n - 1 for a position: the floor of c dJ/dc /
+    J and of (n - 1) dJ/dp / J is ``ROUNDING``, also at an optimum where dJ_r ~ 0; inf where
+    either model is not definite or a derivative is not finite); ``design`` the positions and
+    coefficients they are taken at. A position's derivative is the one within its interval
+    between DOFs (from the right at a DOF)."""
+
+    value: Float[Array, ""]
+    fine: Float[Array, ""]
+    energy: Float[Array, ""]
+    gradient: dict
+    fine_gradient: dict
+    error: dict
+    design: dict
+
+    @property
+    def relative(self) -> Float[Array, ""]:
+        """The estimate of |J - J_r| / J (as ``HierarchicalEstimate.relative``)."""
+        return HierarchicalEstimate(self.value, self.fine, self.energy).relative
+
+    @property
+    def log_sensitivity_error(self) -> Float[Array, ""]:
+        """The estimate of the largest error of the logarithmic coefficient sensitivities,
+        max_i c_i |dJ/dc_i - dJ_r/dc_i| / J (what ``optimise_dampers`` certifies; J >= J_r -
+        energy), inf where that floor is not positive; 0 without grounded dampers."""
+        floor = self.value - self.energy
+        coefficients = self.error["coefficients"] * jnp.abs(self.design["coefficients"])
+        worst = jnp.max(coefficients, initial=0.0)
+        return jnp.where(floor > 0, worst / jnp.where(floor > 0, floor, 1.0), jnp.inf)
 
 
 class HierarchicalEstimator(eqx.Module):
@@ -275,8 +321,9 @@ class HierarchicalEstimator(eqx.Module):
     (r = 113) and the damper's two moments (4 columns) is certified to 1e-4 on 755 training
     designs, 1.6e-5 off at worst at 1000 random ones.
     Call it with a design's system (same M and K), the horizon and the initial state:
-    jit- and vmap-compatible in the system's values (``mj.sweep``); not differentiable (the fine
-    space's QR at dependent columns).
+    jit- and vmap-compatible in the system's values (``mj.sweep``). Not to be differentiated
+    directly (the fine space's QR at dependent columns); ``gradient`` gives dJ_r and dJ_f with
+    respect to the dampers, the bases held fixed, and the estimate of dJ_r's error.
     """
 
     basis: jax.Array
@@ -330,8 +377,7 @@ class HierarchicalEstimator(eqx.Module):
         model; r_f <= n)."""
         return self._with_moments(system, self.fixed, self.moments)
 
-    def __call__(self, system: SecondOrderSystem, horizon, x0=None, v0=None
-                 ) -> HierarchicalEstimate:
+    def _arguments(self, system, horizon, x0, v0):
         n = system.size
         if system.size != self.basis.shape[0]:
             raise ValueError(MARK + f"system has {system.size} DOFs, the estimator's basis "
@@ -342,12 +388,70 @@ class HierarchicalEstimator(eqx.Module):
             if x.shape != (n,):
                 raise ValueError(MARK + f"{name} must have shape ({n},), got {x.shape}.")
         # an array, so that a new horizon is a new value, not a new compilation
-        return self._estimate(system, jnp.asarray(horizon, dtype=jnp.float64), x0, v0)
+        return system, jnp.asarray(horizon, dtype=jnp.float64), x0, v0
+
+    def __call__(self, system: SecondOrderSystem, horizon, x0=None, v0=None
+                 ) -> HierarchicalEstimate:
+        return self._estimate(*self._arguments(system, horizon, x0, v0))
+
+    def gradient(self, system: SecondOrderSystem, horizon, x0=None, v0=None
+                 ) -> HierarchicalGradient:
+        """The estimate of J's error (as calling the estimator) and of its derivatives'
+        error, with respect to the grounded dampers' positions and coefficients: a
+        ``HierarchicalGradient``.
+
+        The same hierarchy applied to the derivatives: |dJ - dJ_r| ~ ``safety`` |dJ_f - dJ_r|,
+        both derivatives with their bases held fixed (exact for a damper: its directions
+        e_j, e_j+1, and so the design's moments, do not change with its coefficient, nor with
+        its position between two DOFs). Saturation of the derivatives (dJ_f closer to dJ than
+        dJ_r) is a separate assumption from J's: ``benchmarks/hierarchical_gradient.py``
+        checks it on the Section 5 box. Reverse mode through both reduced models' spectral
+        J (implicit differentiation of their secular equations, ``differentiable_roots``):
+        about 2x the cost of the estimate of J, still no full solve. Jit- and vmap-compatible.
+        """
+        if not isinstance(system.damping, Dampers):
+            raise ValueError(MARK + "system must have dampers (GroundedDamper) for the "
+                             "gradient's estimate; it has "
+                             + ("none." if system.damping is None else
+                                f"{type(system.damping).__name__}."))
+        return self._gradient(*self._arguments(system, horizon, x0, v0))
+
+    @eqx.filter_jit
+    def _gradient(self, system, horizon, x0, v0) -> HierarchicalGradient:
+        horizon = _checked_horizon(horizon)
+        design = {"positions": system.damping.positions,
+                  "coefficients": system.damping.coefficients}
+
+        def with_gradient(basis):
+            basis = jax.lax.stop_gradient(basis)
+
+            def energy(values):
+                at = eqx.tree_at(lambda s: (s.damping.positions, s.damping.coefficients),
+                                 system, (values["positions"], values["coefficients"]))
+                return _estimator_energy(at, basis, horizon, x0, v0)
+
+            return jax.value_and_grad(energy, has_aux=True)(design)
+
+        (value, bad), gradient = with_gradient(self.reduced_basis(system))
+        (fine, bad_fine), fine_gradient = with_gradient(self.fine_basis(system))
+        energy = self.safety * jnp.abs(fine - value) + ROUNDING * jnp.abs(value)
+        # rounding: relative to dJ_r and to J_r over the parameter's scale (c; n - 1 DOFs for
+        # a position), so that at an optimum (dJ_r/dc ~ 0) the floor is ROUNDING in c dJ/dc / J
+        c = jnp.abs(design["coefficients"])
+        scale = {"positions": jnp.full_like(c, max(system.size - 1, 1)),
+                 "coefficients": jnp.where(c > 0, c, 1.0)}
+        error = jax.tree.map(lambda f, r, h: self.safety * jnp.abs(f - r)
+                             + ROUNDING * (jnp.abs(r) + jnp.abs(value) / h),
+                             fine_gradient, gradient, scale)
+        finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(e)) for e in jax.tree.leaves(error)]))
+        bad = bad | bad_fine | ~jnp.isfinite(energy)
+        error = jax.tree.map(lambda e: jnp.where(bad | ~finite, jnp.inf, e), error)
+        return HierarchicalGradient(value, fine, jnp.where(bad, jnp.inf, energy), gradient,
+                                    fine_gradient, error, design)
 
     @eqx.filter_jit
     def _estimate(self, system, horizon, x0, v0) -> HierarchicalEstimate:
-        horizon = eqx.error_if(horizon, ~(jnp.isfinite(horizon) & (horizon > 0)),
-                               MARK + "horizon must be finite and > 0.")
+        horizon = _checked_horizon(horizon)
         value, bad = _estimator_energy(system, self.reduced_basis(system), horizon, x0, v0)
         fine, bad_fine = _estimator_energy(system, self.fine_basis(system), horizon, x0, v0)
         energy = self.safety * jnp.abs(fine - value) + ROUNDING * jnp.abs(value)

@@ -120,6 +120,59 @@ def test_the_estimate_runs_under_jit_and_vmap_over_designs(case):
                        rtol=1e-10)
 
 
+# basis_moments 0 is slow (~40 s with its compile): default-run time, CI under 15 min
+@pytest.mark.parametrize("basis_moments", [pytest.param(0, marks=pytest.mark.slow), 2])
+def test_the_gradients_estimate_is_above_the_true_error_and_within_safety_times_it(
+        smooth, basis_moments):
+    # the true derivatives: reverse mode through the dense J of the full model and of the
+    # Galerkin model on the estimator's reduced basis (measured effectivities 1.67-2.32)
+    x0, nominal, basis = smooth
+    estimator = mj.HierarchicalEstimator(nominal, basis, modes=24, moments=3,
+                                         basis_moments=basis_moments)
+    for position, coefficient in DESIGNS:
+        system = chain(position, coefficient)
+        reduced = estimator.reduced_basis(system)
+
+        def energy(design, rom, reduced=reduced):
+            s = chain(design[0], design[1])
+            return mj.integrated_energy(mj.galerkin(s, reduced) if rom else s, T, x0,
+                                        method="dense")
+
+        design = jnp.array([position, coefficient])
+        j = float(energy(design, False))
+        true_gradient = np.asarray(jax.grad(energy)(design, False))
+        rom_gradient = np.asarray(jax.grad(energy)(design, True))
+        e = estimator.gradient(system, T, x0)
+        keys = ("positions", "coefficients")
+        gradient = np.array([float(e.gradient[key][0]) for key in keys])
+        error = np.array([float(e.error[key][0]) for key in keys])
+        np.testing.assert_allclose(gradient, rom_gradient, rtol=1e-8)  # the ROM's own
+        true = np.abs(true_gradient - rom_gradient)
+        assert np.all(true > 1e-7 * np.abs(true_gradient))  # not vacuous
+        assert np.all(error >= true) and np.all(error <= 2.5 * true)
+        log_true = coefficient * true[1] / j
+        assert log_true <= float(e.log_sensitivity_error) <= 2.5 * log_true * j / float(
+            e.value - e.energy)
+        # the estimate of J is the one a call gives
+        plain = estimator(system, T, x0)
+        assert float(e.value) == pytest.approx(float(plain.value), rel=1e-12)
+        assert float(e.energy) == pytest.approx(float(plain.energy), rel=1e-9)
+
+
+@pytest.mark.slow  # ~20 s of compile: default-run time, CI under 15 min
+def test_the_gradients_estimate_runs_under_vmap(smooth):
+    x0, nominal, basis = smooth
+    estimator = mj.HierarchicalEstimator(nominal, basis, modes=24)
+
+    def error(c):
+        system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(25.0, c)])
+        return estimator.gradient(system, T, x0).error["coefficients"][0]
+
+    batched = jax.jit(jax.vmap(error))(jnp.array([1.0, 300.0]))
+    np.testing.assert_allclose(np.asarray(batched), [float(error(1.0)), float(error(300.0))],
+                               rtol=1e-9)
+
+
 def test_static_moments_follow_the_krylov_recurrence_and_nest():
     system = chain(25.0, 300.0)
     forces = mj.damper_directions(system)
@@ -153,6 +206,8 @@ def test_bad_input_fails_in_one_line(case):
         estimator(nominal, T, jnp.zeros(3))
     with pytest.raises(Exception, match="horizon must be finite and > 0"):
         estimator(nominal, -1.0, jnp.zeros(N))
+    with pytest.raises(ValueError, match="system must have dampers"):
+        estimator.gradient(mj.mikota_chain(N), T, jnp.zeros(N))
 
 
 def small_scene(x0, position=7.0, coefficient=1.0):

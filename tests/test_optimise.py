@@ -208,10 +208,17 @@ def test_certification_by_the_estimate_takes_no_full_solve_and_never_under_estim
     assert result.certified and result.certified_by == "estimate", result.status
     # full solves: the first snapshots and one per enrichment, none to certify
     assert result.full_solves == result.rounds
-    truth = full_energy(20, float(result.positions[0]), float(result.coefficients[0]))
+    position, coefficient = float(result.positions[0]), float(result.coefficients[0])
+    truth = full_energy(20, position, coefficient)
     error = abs(result.objective - truth) / truth  # the objective reported is J_r
     assert error <= result.rom_error <= 1e-6  # the estimate holds the true error
-    assert np.isnan(result.gradient_error) and result.ranking is not None
+    # and the log-sensitivity's (the full dJ/dc by reverse mode through the exact J)
+    slope = jax.grad(lambda c: mj.integrated_energy(
+        mj.mikota_chain(20, dampers=[mj.GroundedDamper(position, c)]), HORIZON,
+        jnp.zeros(20).at[2].set(1.0)))(coefficient)
+    true_gradient_error = coefficient * abs(float(result.gradient[0]) - float(slope)) / truth
+    assert true_gradient_error <= result.gradient_error <= 1e-6
+    assert result.ranking is not None
     full = mj.optimise_dampers(p, starts=2, iterations=10, tolerance=1e-6, max_rounds=6)
     assert float(full.positions[0]) == float(result.positions[0])
 

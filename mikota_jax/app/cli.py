@@ -75,7 +75,7 @@ def _parser() -> argparse.ArgumentParser:
                      help="largest ROM error accepted at the optimum (default 1e-4)")
     opt.add_argument("--certify", default="full", choices=["full", "estimate"],
                      help="certify the optimum on the full model (J and dJ/dc, default) or by "
-                     "the error estimate of J (no full solve; energy objective)")
+                     "the error estimates of J and dJ/dc (no full solve; energy objective)")
     opt.add_argument("--split", action="store_true",
                      help="allow dampers between DOFs (split over the neighbours)")
     opt.add_argument("--sweep", type=int, default=0, metavar="C",
