@@ -395,6 +395,14 @@ def chain_mode_data(masses: Vector, springs: Vector, rows, vectors: Float[Array,
     return _mode_data(masses, springs, rows, vectors, size)
 
 
+def unchecked_chain_mode_data(masses: Vector, springs: Vector, rows, vectors, chunk=None):
+    """``chain_mode_data`` without its checks, for a system whose masses and springs were
+    checked when it was built (no host callback in a compiled caller); ``rows`` traced ints."""
+    n = masses.shape[0]
+    chunk = max(64, 2**24 // n) if chunk is None else chunk
+    return _mode_data(masses, springs, rows, vectors, jnp.zeros((min(chunk, n), 0)))
+
+
 @eqx.filter_jit
 def _lowest_of_pieces(q, e, t, lower, upper, count: int):
     """Per piece (rows of the (pieces, N) qd data, padded): the ``count`` lowest eigenvalues

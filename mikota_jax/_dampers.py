@@ -132,14 +132,26 @@ class Dampers(AbstractOperator):
     def as_matrix(self) -> Matrix:
         return jax.vmap(self.mv, in_axes=1, out_axes=1)(jnp.eye(self.size))
 
-    def project(self, basis: Basis) -> LowRank:
-        """``basis^T D basis`` as B diag(w) B^T, B = the basis rows the dampers touch."""
-        left, right, c_left, c_right = self._grounded_weights()
-        columns, weights = [basis[left], basis[right]], [c_left, c_right]
-        if self.pair_count:
-            columns.append(basis[self.pairs[:, 0]] - basis[self.pairs[:, 1]])
+    def touched(self) -> Array:
+        """The 0-based DOFs whose basis rows ``project`` reads, in its order: each grounded
+        damper's left and right neighbour, then each relative damper's two DOFs."""
+        left, right, _, _ = self._grounded_weights()
+        return jnp.concatenate([left, right, self.pairs[:, 0], self.pairs[:, 1]])
+
+    def project_rows(self, rows) -> LowRank:
+        """``project`` from the basis rows ``basis[self.touched()]`` alone (no n x r basis:
+        a chain's modes at those rows come from ``chain_mode_data``)."""
+        g, p = self.positions.shape[0], self.pair_count
+        _, _, c_left, c_right = self._grounded_weights()
+        columns, weights = [rows[:g], rows[g:2 * g]], [c_left, c_right]
+        if p:
+            columns.append(rows[2 * g:2 * g + p] - rows[2 * g + p:])
             weights.append(self.pair_coefficients)
         return LowRank(jnp.concatenate(columns).T, jnp.concatenate(weights))
+
+    def project(self, basis: Basis) -> LowRank:
+        """``basis^T D basis`` as B diag(w) B^T, B = the basis rows the dampers touch."""
+        return self.project_rows(basis[self.touched()])
 
     def abs_row_sums(self) -> Vector:
         """sum_j |D_ij| per row: the grounded diagonal, plus 2 c at both DOFs of each pair."""

@@ -26,8 +26,8 @@ import jax.numpy as jnp
 
 from ._custom_types import Array
 from ._modal import modal_projection
-from ._spectral import DampedModes, complex_arithmetic
-from ._spectral_system import live_modes
+from ._spectral import DampedModes, _resolvent, by_rows, complex_arithmetic, row_block
+from ._spectral_system import live_modes, live_rows, uses_rows
 
 # --- the energy kernels: Gram matrix of the damped modes, pair sums, time integrals ----------
 
@@ -100,11 +100,84 @@ def growth(s, horizon):
 
 
 
+def _vector_rows(modes: DampedModes, anchor, offset, null, active):
+    """Rows of ``DampedModes.vectors().T`` for the roots given: (roots, n)."""
+    n = modes.omega.shape[0]
+    poles = modes.poles
+    r, _ = _resolvent(poles, anchor, offset, modes.active)
+    y = r * ((null * modes.weights[None, :]) @ modes.factor.T)
+    own = jnp.arange(n)[None, :] == (anchor % n)[:, None]
+    y = jnp.where(own, (-1 / (poles[anchor] + offset))[:, None], y)
+    return jnp.where(active[:, None], y, own.astype(y.dtype))
+
+
+def _blocked_energy(modes: DampedModes, q0, p0, horizon, block):
+    """``energy_from_modes`` for dampers alone, ``block`` roots at a time: O(k n^2) work and
+    O(n block) memory, no (2n, n) or (2n, 2n) array (n = 30000: 29 GB each). Two passes: the
+    coefficients a_j (and each root's conjugate-pair term of G) from its eigenvector row, then
+    a_j sum_k G_jk (e^{s_jk T} - 1) / s_jk a_k row by row."""
+    n = modes.omega.shape[0]
+    batch = q0.shape[1:]
+    q0, p0 = q0.reshape(n, -1), p0.reshape(n, -1)
+    poles, anchor, offset, c = modes.poles, modes.anchor, modes.offset, modes.null
+    active = modes.root_active
+    base = poles[anchor]
+    index = jnp.arange(2 * n)
+    weights = modes.weights[None, :]
+    omega2 = modes.omega**2
+
+    def first(a_rows, o_rows, c_rows, act):
+        lam = poles[a_rows] + o_rows
+        y = _vector_rows(modes, a_rows, o_rows, c_rows, act)
+        yf = y @ modes.factor
+        norm = (jnp.sum((2 * lam[:, None] + modes.gamma[None, :]) * y * y, axis=1)
+                + jnp.sum(yf * weights * yf, axis=1))
+        coefficient = (y @ p0 - (y @ (omega2[:, None] * q0)) / lam[:, None]) / norm[:, None]
+        # the conjugate partner: summed directly (lambda_j + lambda_k below rounding)
+        gap = jnp.abs((base[None, :] - jnp.conj(poles[a_rows])[:, None])
+                      + (offset[None, :] - jnp.conj(o_rows)[:, None]))
+        partner = jnp.argmin(jnp.where(act[:, None] & active[None, :], gap, jnp.inf), axis=1)
+        y_partner = _vector_rows(modes, anchor[partner], offset[partner], c[partner],
+                                 active[partner])
+        lam_partner = poles[anchor[partner]] + offset[partner]
+        direct = jnp.sum((omega2[None, :] + (lam * lam_partner)[:, None]) * y * y_partner,
+                         axis=1)
+        return coefficient, partner, direct
+
+    a, partner, direct = by_rows(first, block, anchor, offset, c, active)
+
+    def second(a_rows, o_rows, c_rows, act, j_partner, j_direct, coefficient):
+        s = (poles[a_rows][:, None] + base[None, :]) + (o_rows[:, None] + offset[None, :])
+        pair = act[:, None] & active[None, :]
+        gram = -2 * ((c_rows * weights) @ c.T) / jnp.where(pair & (s != 0), s, 1.0)
+        gram = jnp.where(index[None, :] == j_partner[:, None], j_direct[:, None], gram)
+        kernel = jnp.where(pair, gram * growth(jnp.where(pair, s, -1.0), horizon), 0.0)
+        return jnp.real(coefficient * (kernel @ a))  # (roots, batch)
+
+    rows = by_rows(second, block, anchor, offset, c, active, partner, direct, a)
+    value = (jnp.sum(rows, axis=0) / 2).reshape(batch)
+    q0, p0 = q0.reshape((n,) + batch), p0.reshape((n,) + batch)
+    return value + _idle_energy(modes, q0, p0, horizon)
+
+
+def _idle_energy(modes: DampedModes, q0, p0, horizon):
+    """The energy of the modes no damper touches (dampers alone): T E_l(0), inf for T = inf."""
+    idle = jnp.where(modes.active[:, None] if q0.ndim > 1 else modes.active, 0.0,
+                     (modes.omega.reshape((-1,) + (1,) * (q0.ndim - 1)) * q0) ** 2 + p0**2)
+    if horizon is None:  # an undamped mode's energy never decays
+        return jnp.where(jnp.any(idle > 0, axis=0), jnp.inf, 0.0)
+    return horizon * jnp.sum(idle, axis=0) / 2
+
+
 @complex_arithmetic
-def energy_from_modes(modes: DampedModes, q0, p0, horizon):
+def energy_from_modes(modes: DampedModes, q0, p0, horizon, block: int | None = None):
     """J from the modes and the modal initial state (eta0, eta0'), O(n^2 k) (O(n^3) with
     internal damping, see ``modal_gram``); q0, p0 may carry a trailing batch axis (then one J
-    per column); ``horizon`` None: T = inf."""
+    per column); ``horizon`` None: T = inf. ``block``: roots at a time for dampers alone
+    (``row_block``: automatic, O(n) memory above n = 512)."""
+    block = row_block(modes.omega.shape[0], block)
+    if block is not None and not modes.internal:
+        return _blocked_energy(modes, q0, p0, horizon, block)
     y = modes.vectors().T  # (2n, n)
     s, pair = pair_sums(modes)
     if not modes.internal:  # a mode no damper touches keeps its energy: T E_l(0), exactly
@@ -115,11 +188,7 @@ def energy_from_modes(modes: DampedModes, q0, p0, horizon):
     value = jnp.real(jnp.einsum("j...,jk,k...->...", a, kernel, a)) / 2
     if modes.internal:
         return value
-    idle = jnp.where(modes.active[:, None] if q0.ndim > 1 else modes.active, 0.0,
-                     (modes.omega.reshape((-1,) + (1,) * (q0.ndim - 1)) * q0) ** 2 + p0**2)
-    if horizon is None:  # an undamped mode's energy never decays
-        return value + jnp.where(jnp.any(idle > 0, axis=0), jnp.inf, 0.0)
-    return value + horizon * jnp.sum(idle, axis=0) / 2
+    return value + _idle_energy(modes, q0, p0, horizon)
 
 
 @eqx.filter_jit
@@ -128,9 +197,14 @@ def spectral_energy_with_result(system, horizon, x0, v0):
     holds; where not ok, J must not be used. Differentiable in everything the system carries
     (damper positions and coefficients, internal damping, M and K through the modes) and x0, v0,
     by implicit differentiation of the secular equation at the roots."""
-    modes, modes_u, ok = live_modes(system)
-    project = modal_projection(system, modes_u)
-    value = energy_from_modes(modes, project(x0), project(v0), horizon)
+    if uses_rows(system):  # a large chain: O(n) memory (no U, the roots a block at a time)
+        modes, projected, ok = live_rows(system, jnp.stack([x0, v0], axis=1))
+        q0, p0 = projected[:, 0], projected[:, 1]
+    else:
+        modes, modes_u, ok = live_modes(system)
+        project = modal_projection(system, modes_u)
+        q0, p0 = project(x0), project(v0)
+    value = energy_from_modes(modes, q0, p0, horizon)
     return value, ok & jnp.isfinite(value)
 
 

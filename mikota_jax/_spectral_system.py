@@ -6,7 +6,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ._chain_modes import unchecked_chain_modes
+from ._chain_modes import unchecked_chain_mode_data, unchecked_chain_modes
 from ._dampers import Dampers
 from ._errors import MARK, RESULTS, check, check_x64
 from ._modal import generalized_modes
@@ -28,15 +28,44 @@ def spectral_applies(system) -> str | None:
     return None
 
 
+def _chain_springs(system):
+    """The springs of a fixed-free chain with a diagonal mass (O(n^2) modes), else None."""
+    stiffness = system.stiffness
+    if (isinstance(system.mass, Diagonal) and isinstance(stiffness, SymmetricTridiagonal)
+            and not stiffness.links):
+        return stiffness.springs
+    return None
+
+
+ROWS_ABOVE = 4096  # chains above this size: the energy without U (128 MiB at 4096)
+
+
+def uses_rows(system) -> bool:
+    """Whether the energy takes the O(n)-memory path (``modal_rows``, the roots a block at a
+    time): a fixed-free chain with dampers alone, larger than ``ROWS_ABOVE``."""
+    return (system.size > ROWS_ABOVE and system.internal is None
+            and _chain_springs(system) is not None)
+
+
+def modal_rows(system, vectors):
+    """(omega, F, d, U^T M vectors) of a chain (``uses_rows``) without U: its modes a chunk at
+    a time (``chain_mode_data``), keeping the rows the dampers touch (``Dampers.touched``) and
+    the projections of ``vectors`` (n, p). O(n^2) time, O(n (p + dampers)) memory (U at
+    n = 30000 is 7.2 GB)."""
+    masses = system.mass.diagonal
+    omega2, rows, projected = unchecked_chain_mode_data(
+        masses, _chain_springs(system), system.damping.touched(), masses[:, None] * vectors)
+    low_rank = system.damping.project_rows(rows)
+    return jnp.sqrt(omega2), low_rank.factor, low_rank.weights, projected
+
+
 def modal_data(system):
     """(omega, U, F, d, gamma or None) of a ``SecondOrderSystem`` the spectral path takes."""
     why = spectral_applies(system)
     if why is not None:
         raise ValueError(MARK + f"system: {why}.")
-    stiffness = system.stiffness
-    springs = (stiffness.springs if isinstance(stiffness, SymmetricTridiagonal)
-               and not stiffness.links else None)
-    if isinstance(system.mass, Diagonal) and springs is not None:
+    springs = _chain_springs(system)
+    if springs is not None:
         # a fixed-free chain: O(n^2) modes, no dense decomposition (``_chain_modes``); masses
         # and springs were checked when the system was built, and omega^2 > 0 for any such
         # chain, so no check here (none in the optimiser's compiled certification)
@@ -70,9 +99,26 @@ def live_modes(system):
     carrying the implicit derivative of the secular equation; ok: converged and no two
     interacting roots nearly coincide."""
     omega, modes_u, factor, weights, gamma = modal_data(system)
-    frozen = modal_damped_modes(*jax.lax.stop_gradient((omega, factor, weights, gamma)))
+    modes, ok = _live(omega, factor, weights, gamma)
+    return modes, modes_u, ok
+
+
+def live_rows(system, vectors, block: int | None = None):
+    """(differentiable ``DampedModes``, U^T M vectors, ok) of a chain that ``uses_rows``:
+    ``live_modes`` in O(n) memory (``block``: as ``modal_damped_modes``)."""
+    why = spectral_applies(system)
+    if why is not None:
+        raise ValueError(MARK + f"system: {why}.")
+    omega, factor, weights, projected = modal_rows(system, vectors)
+    modes, ok = _live(omega, factor, weights, None, block)
+    return modes, projected, ok
+
+
+def _live(omega, factor, weights, gamma, block=None):
+    frozen = modal_damped_modes(*jax.lax.stop_gradient((omega, factor, weights, gamma)),
+                                block=block)
     live = frozen if gamma is None else eqx.tree_at(lambda m: m.gamma, frozen, gamma)
     modes = differentiable_roots(eqx.tree_at(lambda m: (m.omega, m.factor, m.weights), live,
-                                              (omega, factor, weights)))
+                                              (omega, factor, weights)), block)
     ok = frozen.converged & (frozen.separation > DEFECTIVE_SEPARATION)
-    return modes, modes_u, ok
+    return modes, ok

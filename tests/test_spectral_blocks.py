@@ -1,0 +1,80 @@
+"""The large-chain spectral energy (the roots a block at a time, the modes' rows without U: O(n)
+memory, used above n = 4096) at a small chain, against the same engine all at once with U and
+against the dense Van Loan energy; its gradient against central differences."""
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import mikota_jax as mj
+from mikota_jax._spectral import BLOCK_ABOVE, row_block
+from mikota_jax._spectral_objectives import energy_from_modes
+from mikota_jax._spectral_system import live_modes, live_rows
+
+N, T = 40, 20.0
+X0 = np.eye(N)[2]
+
+
+def chain(position, coefficient):
+    # a split damper (between two DOFs), a grounded one and a relative one: the rows of U that
+    # ``Dampers.touched`` lists, in ``project``'s order
+    return mj.mikota_chain(N, dampers=[mj.GroundedDamper(position, coefficient),
+                                       mj.GroundedDamper(31.0, 3.0),
+                                       mj.RelativeDamper((5, 20), 2.0)])
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def energy(design, block):
+    """(J, roots): ``block`` 0: all at once, from U (``live_modes``); else the large-chain path
+    (``live_rows``: the modes' rows and projections, ``block`` roots at a time)."""
+    system = chain(design[0], design[1])
+    if block:
+        vectors = jnp.stack([jnp.asarray(X0), jnp.zeros(N)], axis=1)
+        modes, projected, _ = live_rows(system, vectors, block)
+        q0, p0 = projected[:, 0], projected[:, 1]
+    else:
+        modes, u, _ = live_modes(system)
+        q0, p0 = u.T @ (system.mass.diagonal * X0), jnp.zeros(N)
+    return energy_from_modes(modes, q0, p0, T, block), jax.lax.stop_gradient(modes)
+
+
+def test_the_large_chain_path_equals_the_whole_one_and_the_dense_energy():
+    design = jnp.array([12.4, 40.0])
+    grad = jax.jit(jax.value_and_grad(energy, has_aux=True), static_argnums=1)
+    (whole, modes), grad_whole = grad(design, 0)
+    (blocked, blocked_modes), grad_blocked = grad(design, 7)
+    assert bool(modes.converged) and bool(blocked_modes.converged)
+    # the same roots (7 does not divide 2n = 80: the last block is padded)
+    lam, lam_b = np.asarray(modes.eigenvalues), np.asarray(blocked_modes.eigenvalues)
+    distance = np.abs(lam_b[:, None] - lam[None, :]) / np.abs(lam)[None, :]
+    assert np.max(np.min(distance, axis=1)) <= 1e-12 and np.max(np.min(distance, axis=0)) <= 1e-12
+    np.testing.assert_allclose(float(blocked_modes.separation), float(modes.separation),
+                               rtol=1e-9)
+    # J against the dense (Van Loan) energy, an independent path
+    dense = mj.integrated_energy(chain(12.4, 40.0), T, X0, method="dense")
+    np.testing.assert_allclose(float(blocked), float(dense), rtol=1e-10)
+    np.testing.assert_allclose(float(blocked), float(whole), rtol=1e-12)
+    # the gradient (reverse mode through the checkpointed blocks and the modes' rows) against
+    # the whole path's and central differences
+    np.testing.assert_allclose(np.asarray(grad_blocked), np.asarray(grad_whole), rtol=1e-9)
+    for i, h in ((0, 1e-4), (1, 1e-3)):
+        step = jnp.zeros(2).at[i].set(h)
+        fd = (energy(design + step, 7)[0] - energy(design - step, 7)[0]) / (2 * h)
+        np.testing.assert_allclose(float(grad_blocked[i]), float(fd), rtol=1e-6)
+    # a batch of starts (a trailing axis) gives one J per column, blocked or not
+    omega = blocked_modes.omega
+    q0 = jnp.stack([omega, 1 / omega], axis=1)
+    np.testing.assert_allclose(
+        np.asarray(energy_from_modes(blocked_modes, q0, jnp.zeros((N, 2)), T, 7)),
+        np.asarray(energy_from_modes(blocked_modes, q0, jnp.zeros((N, 2)), T, 0)), rtol=1e-12)
+
+
+def test_the_block_rule():
+    assert row_block(BLOCK_ABOVE) is None  # all at once up to n = 512
+    assert row_block(1000) == 262 and row_block(30000) == 16  # 2^18 / n, at least 16
+    assert row_block(300, 16) == 16 and row_block(300, 0) is None
+    with pytest.raises(ValueError, match="block must be an int >= 0"):
+        row_block(300, -1)
