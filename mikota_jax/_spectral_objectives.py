@@ -192,19 +192,23 @@ def energy_from_modes(modes: DampedModes, q0, p0, horizon, block: int | None = N
 
 
 @eqx.filter_jit
-def spectral_energy_with_result(system, horizon, x0, v0):
+def spectral_energy_with_result(system, horizon, x0, v0, *, block: int | None = None):
     """(J, ok): the integrated energy of free vibration from (x0, v0) on [0, T] and whether it
     holds; where not ok, J must not be used. Differentiable in everything the system carries
     (damper positions and coefficients, internal damping, M and K through the modes) and x0, v0,
-    by implicit differentiation of the secular equation at the roots."""
-    if uses_rows(system):  # a large chain: O(n) memory (no U, the roots a block at a time)
-        modes, projected, ok = live_rows(system, jnp.stack([x0, v0], axis=1))
+    by implicit differentiation of the secular equation at the roots.
+
+    ``block``: roots per block of the O(n^2) work (``row_block``). None (the library's
+    choice): blocks above n = 512, and a chain above n = 4096 (``uses_rows``) without U, O(n)
+    memory; 0: all at once from U (the benchmarks' comparison)."""
+    if block != 0 and uses_rows(system):  # a large chain: no U, the roots a block at a time
+        modes, projected, ok = live_rows(system, jnp.stack([x0, v0], axis=1), block)
         q0, p0 = projected[:, 0], projected[:, 1]
     else:
-        modes, modes_u, ok = live_modes(system)
+        modes, modes_u, ok = live_modes(system, block)
         project = modal_projection(system, modes_u)
         q0, p0 = project(x0), project(v0)
-    value = energy_from_modes(modes, q0, p0, horizon)
+    value = energy_from_modes(modes, q0, p0, horizon, block)
     return value, ok & jnp.isfinite(value)
 
 

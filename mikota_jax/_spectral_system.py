@@ -94,12 +94,12 @@ def damped_modes(system) -> DampedModes:
     return modal_damped_modes(omega, factor, weights, gamma)
 
 
-def live_modes(system):
+def live_modes(system, block: int | None = None):
     """(differentiable ``DampedModes``, U, ok): the roots found without derivatives, then
     carrying the implicit derivative of the secular equation; ok: converged and no two
-    interacting roots nearly coincide."""
+    interacting roots nearly coincide. ``block``: as ``modal_damped_modes``."""
     omega, modes_u, factor, weights, gamma = modal_data(system)
-    modes, ok = _live(omega, factor, weights, gamma)
+    modes, ok = _live(omega, factor, weights, gamma, block)
     return modes, modes_u, ok
 
 

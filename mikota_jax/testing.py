@@ -10,7 +10,10 @@ the private modules:
   to hand ``system`` an explicit form (e.g. a dense mass operator) instead of letting it choose
   the structure of an array;
 * ``criterion_function(system, criterion, lowest, horizon, x0, v0)``: d -> (f, df/dd), the
-  compiled criterion ``optimise_viscosities`` minimises over the coefficient vector d.
+  compiled criterion ``optimise_viscosities`` minimises over the coefficient vector d;
+* ``spectral_energy_with_result(system, horizon, x0, v0, block=None)``: (J, ok) of
+  ``integrated_energy(method="spectral")``; ``block=0`` forms the O(n^2) work all at once from
+  U (the layout before the blocks, for the benchmarks' comparison), None is the library's choice.
 """
 
 from ._chain_modes import chain_mode_data as chain_mode_data
@@ -21,10 +24,11 @@ from ._operators import Dense as Dense
 from ._operators import Diagonal as Diagonal
 from ._operators import Sparse as Sparse
 from ._solver_choice import stiffness_rate as stiffness_rate
+from ._spectral_objectives import spectral_energy_with_result as spectral_energy_with_result
 from ._spectral_solve import spectral_solve_with_result as spectral_solve_with_result
 from ._spectral_system import damped_modes as damped_modes
 from ._viscosity import criterion_function as criterion_function
 
 __all__ = ["Dense", "Diagonal", "Sparse", "chain_mode_data", "chain_modes", "damped_modes",
            "dense_solve_with_result", "generalized_modes", "spectral_solve_with_result",
-           "stiffness_rate", "criterion_function"]
+           "spectral_energy_with_result", "stiffness_rate", "criterion_function"]
