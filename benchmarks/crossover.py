@@ -11,7 +11,9 @@ n = 300. n in {300, 1000, 3000}; ``--quick``: {300, 1000}.
 and merged into ``results/crossover`` with ``--merge crossover_30000``. From ``LARGE`` = 10^4
 on the large-n path runs (``--large-from N`` moves that threshold, which checks the path against
 the spectral one at a small n: at n = 300 it gives the same ranks and errors). There the spectral
-path needs ~36 GiB (this machine has 24), so the reference is Dopri8 at rtol 1e-10, J + gradient
+path needed ~36 GiB (this machine has 24; since 2026-11-27 its J + gradient runs in O(n) memory,
+403 s at n = 30000: ``spectral_energy_large.py``, but ``measure_full``'s histories still need the
+n x 2n mode vectors), so the reference is Dopri8 at rtol 1e-10, J + gradient
 by two jvps. At n = 30000 that took > 25 min on 2 CPU cores (stopped) and 192 s on one H100 GPU:
 ``--reference-out FILE`` computes only the references (run on the GPU machine:
 ``results/crossover_reference_gpu.json``) and ``--reference FILE`` reads them; the full path's
@@ -199,10 +201,14 @@ def random_designs(n: int, count: int) -> list[tuple[float, float]]:
 def full_query(function, parameters):
     """(J, dJ/d parameters) of the full model by the spectral path (``sensitivities``' "full"
     computation without its dense fallback)."""
+    # J rides along as jacfwd's aux: one forward pass (J computed beside jacfwd found the roots
+    # twice, 1.7x the time at n = 5000; the committed results before 2026-11-27 did that)
     def energy(p):
-        return mj.integrated_energy(function.system(p), HORIZON, function.scene.x0,
-                                    method="spectral")
-    return energy(parameters), jax.jacfwd(energy)(parameters)
+        value = mj.integrated_energy(function.system(p), HORIZON, function.scene.x0,
+                                     method="spectral")
+        return value, value
+    jacobian, value = jax.jacfwd(energy, has_aux=True)(parameters)
+    return value, jacobian
 
 
 def rom_query(function, parameters):

@@ -15,9 +15,10 @@ J and dJ/d(p, c) by ``jax.jacfwd`` of ``integrated_energy(method="spectral")`` (
   engine all at once from U (``mikota_jax.testing.spectral_energy_with_result(..., block=0)``,
   the layout before the blocks); compile apart, median of 3 runs; J and gradient compared.
 * Part B (each n in its own process, for its peak memory: n = 10^4 and 3 x 10^4): the library's
-  choice; compile apart (ahead of time), then 2 runs at 10^4 and 1 at 3 x 10^4; peak resident
-  memory of the process (``ru_maxrss``); Dopri8's J alone at rtol 1e-6 (atol 1e-8, as
-  ``crossover.py``) timed in the same process at 10^4 (at 3 x 10^4 with ``--dopri``: ~14 min).
+  choice; compile apart (ahead of time), then 2 runs at 10^4 and 1 at 3 x 10^4; the process's
+  peak resident memory (VmHWM) after them; Dopri8's J alone at rtol 1e-6 (atol 1e-8,
+  max_steps 10^6, as ``crossover.py``) timed after it in the same process at 10^4 (at 3 x 10^4
+  with ``--dopri``: ~7 min).
   At 3 x 10^4 J and gradient are compared with the Dopri8 reference at rtol 1e-10 (J + two
   forward-mode tangents, run on an H100 GPU: ``results/crossover_reference_gpu.json``), an
   independent path.
@@ -61,9 +62,13 @@ def query(n, block):
         return spectral_energy_with_result(system, HORIZON, start(n), jnp.zeros(n),
                                            block=block)
 
-    def value_and_gradient(design):
+    def with_aux(design):
         value, ok = energy(design)
-        return value, jax.jacfwd(lambda d: energy(d)[0])(design), ok
+        return value, (value, ok)
+
+    def value_and_gradient(design):  # one forward pass: J and ok ride along as aux
+        jacobian, (value, ok) = jax.jacfwd(with_aux, has_aux=True)(design)
+        return value, jacobian, ok
 
     return value_and_gradient
 
@@ -93,6 +98,20 @@ def part_a(sizes):
     return rows
 
 
+def peak_gib():
+    """This process's peak resident memory so far, GiB: VmHWM of /proc/self/status (Linux; it
+    belongs to the address space that exec made), else ``ru_maxrss``, which Linux carries over
+    from the parent through fork and exec (the parent's Part A at n = 3000 all at once made
+    every child report 11.4 GiB)."""
+    try:
+        for line in open("/proc/self/status"):
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 2**20  # kB
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+
+
 def one_size(n, dopri):
     """Part B at one n (run in a child process): the library's choice, and Dopri8's J alone."""
     begin = time.perf_counter()
@@ -101,22 +120,25 @@ def one_size(n, dopri):
     (value, jacobian, ok), run_s, times = timed(fn, jnp.array(DESIGN), repeats=repeats)
     row = dict(n=n, compile_s=fn.compile_s, run_s=run_s, run_times_s=times, ok=bool(ok),
                J=float(value), gradient=np.asarray(jacobian).tolist())
+    row["peak_memory_gib"] = peak_gib()  # before Dopri8, whose own peak is recorded apart
     print(f"  n = {n}: J + gradient compile {fn.compile_s:.1f} s, run {run_s:.1f} s, "
-          f"J = {float(value):.12g}, dJ/d(p, c) = {np.asarray(jacobian)}", flush=True)
+          f"J = {float(value):.12g}, dJ/d(p, c) = {np.asarray(jacobian)}, peak memory "
+          f"{row['peak_memory_gib']:.2f} GiB", flush=True)
     if dopri:
         system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(*DESIGN)])
 
         def dopri8(x0):
             return mj.integrated_energy(system, HORIZON, x0, method="ode", rtol=1e-6,
-                                        atol=1e-8, max_steps=10**7)
+                                        atol=1e-8, max_steps=10**6)
 
         exe = Compiled(dopri8, start(n))
         dopri_value, dopri_s, _ = timed(exe, start(n), repeats=1)
         row.update(dopri8_J_alone_s=dopri_s, dopri8_compile_s=exe.compile_s,
                    dopri8_J_difference=abs(float(dopri_value) / float(value) - 1))
+        row["peak_memory_with_dopri8_gib"] = peak_gib()
         print(f"  n = {n}: Dopri8 J alone (rtol 1e-6) {dopri_s:.1f} s, differs from the "
-              f"spectral J by {row['dopri8_J_difference']:.1e}", flush=True)
-    row["peak_memory_gib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+              f"spectral J by {row['dopri8_J_difference']:.1e}; the process's peak memory "
+              f"then {row['peak_memory_with_dopri8_gib']:.2f} GiB", flush=True)
     row["wall_s"] = time.perf_counter() - begin
     return row
 
@@ -154,21 +176,25 @@ def plot(data):
                 label="blocks of roots (the library)")
     dopri = [(r["n"], r["dopri8_J_alone_s"]) for r in b if "dopri8_J_alone_s" in r]
     if dopri:
-        left.loglog(*zip(*dopri), "^", label="Dopri8, J alone, rtol 1e-6")
+        left.loglog(*zip(*dopri), "^", ms=9, mfc="none", label="Dopri8, J alone, rtol 1e-6")
     for r in b:
-        left.annotate(f"{r['run_s']:.0f} s", (r["n"], r["run_s"]), xytext=(-6, 6),
-                      textcoords="offset points", ha="right")
+        text = f"{r['run_s']:.0f} s" + (f"\n(Dopri8 J: {r['dopri8_J_alone_s']:.0f} s)"
+                                         if "dopri8_J_alone_s" in r else "")
+        left.annotate(text, (r["n"], r["run_s"]), xytext=(-10, 0), textcoords="offset points",
+                      ha="right", va="center")
+    left.set_ylim(top=3 * max(r["run_s"] for r in b))
     left.set_xlabel("n (DOFs)")
     left.set_ylabel("J + dJ/d(p, c): run time [s]")
-    left.legend(loc="upper left")
+    left.legend(loc="lower right")
     right.loglog([r["n"] for r in b], [r["peak_memory_gib"] for r in b], "s-",
-                 label="peak memory of the process")
+                 label="peak memory of the process (blocks)")
     ns = np.array([r["n"] for r in b], dtype=float)
     right.loglog(ns, 2 * ns**2 * 16 / 2**30, "--", color="gray",
                  label="one (2n, n) complex array")
     right.set_xlabel("n (DOFs)")
     right.set_ylabel("GiB")
     right.legend(loc="upper left")
+    right.set_ylim(1, 100)
     fig.suptitle(f"Spectral J + gradient at large n, O(n) memory\n{subtitle(data['metadata'])}")
     save_figure(fig, "spectral_energy_large", data["quick"])
 

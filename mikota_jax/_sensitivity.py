@@ -271,8 +271,17 @@ def _snapshot_mask(scene: Scene) -> np.ndarray:
 
 @eqx.filter_jit
 def _jacobian(function: SceneFunction, parameters: dict):
+    """(value, jacobian) in one pass: the value rides along as the jacobian's aux (computed
+    beside it, the solve ran twice: 1.7x the time of the full spectral J + gradient at
+    n = 5000)."""
     jac = jax.jacfwd if function.forward else jax.jacrev
-    return function(parameters), jac(function)(parameters)
+
+    def with_value(p):
+        value = function(p)
+        return value, value
+
+    jacobian, value = jac(with_value, has_aux=True)(parameters)
+    return value, jacobian
 
 
 @dataclass(frozen=True)
