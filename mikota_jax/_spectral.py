@@ -29,8 +29,9 @@ Memory: every step is per root (a row of (2n, n) or (2n, 2n) work), so above n =
 the rows are formed a block of roots at a time (``by_rows``: a ``lax.map`` of checkpointed
 blocks): O(n) memory where the arrays at once need 29 GB each at n = 30000, and 2.0x / 2.8x
 faster for J + gradient at n = 1000 / 3000 (the blocks stay in cache;
-``benchmarks/spectral_energy_large.py``: 404 s and 1.7 GiB at n = 30000 on 2 CPU cores). Not yet: a structured treatment of
-near-defective pairs (the callers fall back to the dense paths there).
+``benchmarks/spectral_energy_large.py``: 404 s and 1.7 GiB at n = 30000 on 2 CPU cores).
+Not yet: a structured treatment of near-defective pairs (the callers fall back to the dense
+paths there).
 """
 
 import functools
