@@ -26,7 +26,8 @@ import jax.numpy as jnp
 
 from ._custom_types import Array
 from ._modal import modal_projection
-from ._spectral import DampedModes, _resolvent, by_rows, complex_arithmetic, row_block
+from ._spectral import DampedModes, _resolvent, complex_arithmetic
+from ._spectral_rows import by_rows, row_block
 from ._spectral_system import live_modes, live_rows, uses_rows
 
 # --- the energy kernels: Gram matrix of the damped modes, pair sums, time integrals ----------

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
-from mikota_jax._spectral import BLOCK_ABOVE, row_block
 from mikota_jax._spectral_objectives import energy_from_modes
+from mikota_jax._spectral_rows import BLOCK_ABOVE, row_block
 from mikota_jax._spectral_system import live_modes, live_rows
 
 N, T = 40, 20.0
