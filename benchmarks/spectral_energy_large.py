@@ -22,6 +22,11 @@ J and dJ/d(p, c) by ``jax.jacfwd`` of ``integrated_energy(method="spectral")`` (
   At 3 x 10^4 J and gradient are compared with the Dopri8 reference at rtol 1e-10 (J + two
   forward-mode tangents, run on an H100 GPU: ``results/crossover_reference_gpu.json``), an
   independent path.
+* Part C (in the n = 3 x 10^4 process, after the spectral query): one query through the best
+  reduced model of ``crossover.py`` there, Craig-Bampton + x0 at its rank r = 840 (J within 1e-4
+  at this design the day before): basis build (warm) + J + gradient, compile apart, its J and
+  gradient against the spectral ones; so the ROM's speed-up over the full path is measured in
+  one process.
 
 Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/spectral_energy_large.py [--quick] [--dopri]``
 (``--quick``: n = 600 and 1000 in Part A, 5000 in Part B). Writes
@@ -42,12 +47,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+import crossover
 import mikota_jax as mj
 from mikota_jax.testing import spectral_energy_with_result
 
 HORIZON = 20.0
 DESIGN = (7.0, 1.0)  # crossover's nominal design: p, c
 REFERENCE = RESULTS / "crossover_reference_gpu.json"
+ROM_RANKS = {30_000: 840, 5000: 360}  # Part C: crossover_30000's Craig-Bampton + x0 rank (J
+# within 1e-4 there); 5000 for --quick (r ~ n^0.5 between crossover's ranks)
 
 
 def start(n):
@@ -112,8 +120,37 @@ def peak_gib():
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
 
 
-def one_size(n, dopri):
-    """Part B at one n (run in a child process): the library's choice, and Dopri8's J alone."""
+def rom_query_at(n, rank, j_full, gradient_full):
+    """Part C in the same process: one query through crossover's best reduced model at n,
+    Craig-Bampton + x0 at ``rank`` (crossover's ``craig_bampton_basis(system, r - 7,
+    states=x0)``): the basis build, then J + gradient (``SceneFunction(model="reduced",
+    forward=True)`` under ``jacfwd``), compile apart; errors against the spectral J, gradient."""
+    scene = crossover.scene_for(n)
+    nominal = crossover.design(*DESIGN)
+    build = lambda: jax.block_until_ready(  # noqa: E731
+        crossover.craig_bampton(scene.system, scene.x0, rank))
+    build()  # warm-up, as crossover.py (compiles the shapes of r)
+    start = time.perf_counter()
+    basis = build()
+    build_s = time.perf_counter() - start
+    rom = mj.SceneFunction(scene, "energy", model="reduced", basis=basis, forward=True)
+    query = Compiled(crossover.rom_query, rom, nominal)
+    (value, jacobian), online_s, _ = timed(query, rom, nominal, repeats=1)
+    rom_gradient = np.array([float(jacobian["positions"][0]), float(jacobian["coefficients"][0])])
+    out = dict(method="Craig-Bampton + x0", r=int(basis.shape[1]), build_s=build_s,
+               compile_s=query.compile_s, online_s=online_s, query_s=build_s + online_s,
+               J_error=abs(float(value) / j_full - 1),
+               gradient_error=float(np.max(np.abs(rom_gradient / gradient_full - 1))))
+    print(f"  n = {n}: ROM (Craig-Bampton + x0, r = {out['r']}): build {build_s:.1f} s, "
+          f"J + gradient {online_s:.1f} s (compile {query.compile_s:.1f} s); J "
+          f"{out['J_error']:.1e}, gradient {out['gradient_error']:.1e} off the spectral ones",
+          flush=True)
+    return out
+
+
+def one_size(n, dopri, rom_rank=None):
+    """Part B at one n (run in a child process): the library's choice, then a ROM query
+    (``rom_rank``: Part C) and Dopri8's J alone."""
     begin = time.perf_counter()
     fn = compiled_query(n, None)
     repeats = 2 if n <= 10_000 else 1
@@ -124,6 +161,8 @@ def one_size(n, dopri):
     print(f"  n = {n}: J + gradient compile {fn.compile_s:.1f} s, run {run_s:.1f} s, "
           f"J = {float(value):.12g}, dJ/d(p, c) = {np.asarray(jacobian)}, peak memory "
           f"{row['peak_memory_gib']:.2f} GiB", flush=True)
+    if rom_rank:
+        row["rom"] = rom_query_at(n, rom_rank, float(value), np.asarray(jacobian))
     if dopri:
         system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(*DESIGN)])
 
@@ -177,6 +216,10 @@ def plot(data):
     dopri = [(r["n"], r["dopri8_J_alone_s"]) for r in b if "dopri8_J_alone_s" in r]
     if dopri:
         left.loglog(*zip(*dopri), "^", ms=9, mfc="none", label="Dopri8, J alone, rtol 1e-6")
+    roms = [(r["n"], r["rom"]["query_s"]) for r in b if "rom" in r]
+    if roms:
+        left.loglog(*zip(*roms), "D", ms=8, mfc="none", color="tab:purple",
+                    label="ROM query (Craig-Bampton + x0, build + J + gradient)")
     for r in b:
         text = f"{r['run_s']:.0f} s" + (f"\n(Dopri8 J: {r['dopri8_J_alone_s']:.0f} s)"
                                          if "dopri8_J_alone_s" in r else "")
@@ -205,7 +248,7 @@ def main(argv=None):
                       dopri=dict(action="store_true",
                                  help="Dopri8's J alone at every Part B size (~14 min at 3e4)"))
     if args.one:
-        print(json.dumps(one_size(args.one, args.dopri)))
+        print(json.dumps(one_size(args.one, args.dopri, ROM_RANKS.get(args.one))))
         return
     if args.replot:
         return plot(read_json("spectral_energy_large", args.quick))
@@ -223,6 +266,15 @@ def main(argv=None):
                     ("dopri8_J_alone_s", "Dopri8 J alone s", ".1f"),
                     ("reference_J_difference", "J vs reference", ".1e"),
                     ("reference_gradient_difference", "grad vs reference", ".1e")])
+    for r in b:
+        if "rom" in r:
+            rom = r["rom"]
+            rom["speedup"] = r["run_s"] / rom["query_s"]
+            print(f"n = {r['n']}: one query through the ROM ({rom['method']}, r = {rom['r']}) "
+                  f"{rom['query_s']:.1f} s (build {rom['build_s']:.1f} s + J + gradient "
+                  f"{rom['online_s']:.1f} s) against the full spectral {r['run_s']:.1f} s: "
+                  f"{rom['speedup']:.1f}x, J {rom['J_error']:.1e} and gradient "
+                  f"{rom['gradient_error']:.1e} off the full model's")
     path = write_json("spectral_energy_large", args.quick, dict(
         problem=dict(chain="Mikota, m = k = 1", design=dict(position=DESIGN[0],
                      coefficient=DESIGN[1]), x0="x_3(0) = 1, v0 = 0", J="energy on [0, 20]",
