@@ -34,8 +34,8 @@ Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/spectral_energy_large.py [--quic
 """
 
 # _common first: it sets OPENBLAS_NUM_THREADS before jax and numpy load.
-from _common import (RESULTS, Compiled, figure, parse_args, print_table,  # noqa: I001
-                     read_json, save_figure, subtitle, timed, write_json)
+from _common import (RESULTS, Compiled, figure, legend, parse_args,  # noqa: I001
+                     print_table, read_json, save_figure, subtitle, timed, write_json)
 
 import json
 import resource
@@ -207,7 +207,7 @@ def part_b(sizes, dopri_all):
 
 
 def plot(data):
-    fig, (left, right) = figure(ncols=2, figsize=(11, 4.4), readable=True)
+    fig, (left, right) = figure(ncols=2, figsize=(11, 5.4), readable=True)
     a, b = data["part_a"], data["part_b"]
     left.loglog([r["n"] for r in a], [r["whole_s"] for r in a], "o-", label="all at once (U)")
     sizes = [r["n"] for r in a] + [r["n"] for r in b]
@@ -228,7 +228,7 @@ def plot(data):
     left.set_ylim(top=3 * max(r["run_s"] for r in b))
     left.set_xlabel("n (DOFs)")
     left.set_ylabel("J + dJ/d(p, c): run time [s]")
-    left.legend(loc="lower right")
+    legend(left, "below")
     right.loglog([r["n"] for r in b], [r["peak_memory_gib"] for r in b], "s-",
                  label="peak memory of the process (blocks)")
     ns = np.array([r["n"] for r in b], dtype=float)
@@ -236,7 +236,7 @@ def plot(data):
                  label="one (2n, n) complex array")
     right.set_xlabel("n (DOFs)")
     right.set_ylabel("GiB")
-    right.legend(loc="upper left")
+    legend(right, "below")
     right.set_ylim(1, 100)
     fig.suptitle(f"Spectral J + gradient at large n, O(n) memory\n{subtitle(data['metadata'])}")
     save_figure(fig, "spectral_energy_large", data["quick"])
