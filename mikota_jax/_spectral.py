@@ -117,30 +117,37 @@ class DampedModes(eqx.Module):
         return jnp.concatenate([self.active, self.active])
 
     @complex_arithmetic
+    def vector_rows(self, roots) -> Array:
+        """Modal eigenvectors of the roots ``roots`` (int indices), as rows: (roots, n) complex.
+        Damped roots are scaled so that y_J = -1 / lambda; the others are unit vectors."""
+        n = self.omega.shape[0]
+        anchor, offset = self.anchor[roots], self.offset[roots]
+        r, _ = _resolvent(self.poles, anchor, offset, self.active)
+        y = r * ((self.null[roots] * self.weights[None, :]) @ self.factor.T)
+        own = jnp.arange(n)[None, :] == (anchor % n)[:, None]
+        y = jnp.where(own, (-1 / (self.poles[anchor] + offset))[:, None], y)
+        return jnp.where(self.root_active[roots][:, None], y, own.astype(y.dtype))
+
+    @complex_arithmetic
+    def normaliser_rows(self, roots, y) -> Array:
+        """N_j of the roots ``roots`` from their ``vector_rows`` y: (roots,) complex."""
+        lam = self.poles[self.anchor[roots]] + self.offset[roots]
+        yfw = y @ self.factor
+        return (jnp.sum((2 * lam[:, None] + self.gamma[None, :]) * y * y, axis=1)
+                + jnp.sum(yfw * self.weights[None, :] * yfw, axis=1))
+
     def vectors(self) -> Array:
         """Modal eigenvectors y: (n, 2n) complex, (lambda^2 + lambda D_m + Omega^2) y = 0.
 
         Damped roots are scaled so that y_J = -1 / lambda; the others are unit vectors.
         """
-        n = self.omega.shape[0]
-        r, _ = _resolvent(self.poles, self.anchor, self.offset, self.active)
-        lam = self.eigenvalues
-        y = r * ((self.factor * self.weights[None, :]) @ self.null.T).T  # (2n, n)
-        own = jnp.arange(n)[None, :] == self.modes[:, None]
-        y = jnp.where(own, (-1 / lam)[:, None], y)
-        unit = jnp.eye(n)[self.modes]
-        return jnp.where(self.root_active[:, None], y, unit).T
+        return self.vector_rows(jnp.arange(self.anchor.shape[0])).T
 
-    @complex_arithmetic
     def normalisers(self) -> Array:
         """N_j = y_j^T (2 lambda_j I + D_m) y_j: (2n,) complex, the bi-orthogonality scale of
         ``vectors`` (y_k^T ((lambda_j + lambda_k) I + D_m) y_j = 0 for j != k). Zero at a
         defective pair (critical damping)."""
-        lam = self.eigenvalues
-        y = self.vectors().T  # (2n, n)
-        yfw = y @ self.factor
-        return (jnp.sum((2 * lam[:, None] + self.gamma[None, :]) * y * y, axis=1)
-                + jnp.sum(yfw * self.weights[None, :] * yfw, axis=1))
+        return self.normaliser_rows(jnp.arange(self.anchor.shape[0]), self.vectors().T)
 
     @complex_arithmetic
     def coefficients(self, q0: Float[Array, "n ..."], p0: Float[Array, "n ..."]) -> Array:

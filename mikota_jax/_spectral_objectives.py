@@ -26,7 +26,7 @@ import jax.numpy as jnp
 
 from ._custom_types import Array
 from ._modal import modal_projection
-from ._spectral import DampedModes, _resolvent, complex_arithmetic
+from ._spectral import DampedModes, complex_arithmetic
 from ._spectral_rows import by_rows, row_block
 from ._spectral_system import live_modes, live_rows, uses_rows
 
@@ -101,17 +101,6 @@ def growth(s, horizon):
 
 
 
-def _vector_rows(modes: DampedModes, anchor, offset, null, active):
-    """Rows of ``DampedModes.vectors().T`` for the roots given: (roots, n)."""
-    n = modes.omega.shape[0]
-    poles = modes.poles
-    r, _ = _resolvent(poles, anchor, offset, modes.active)
-    y = r * ((null * modes.weights[None, :]) @ modes.factor.T)
-    own = jnp.arange(n)[None, :] == (anchor % n)[:, None]
-    y = jnp.where(own, (-1 / (poles[anchor] + offset))[:, None], y)
-    return jnp.where(active[:, None], y, own.astype(y.dtype))
-
-
 def _blocked_energy(modes: DampedModes, q0, p0, horizon, block):
     """``energy_from_modes`` for dampers alone, ``block`` roots at a time: O(k n^2) work and
     O(n block) memory, no (2n, n) or (2n, 2n) array (n = 30000: 29 GB each). Two passes: the
@@ -127,35 +116,32 @@ def _blocked_energy(modes: DampedModes, q0, p0, horizon, block):
     weights = modes.weights[None, :]
     omega2 = modes.omega**2
 
-    def first(a_rows, o_rows, c_rows, act):
-        lam = poles[a_rows] + o_rows
-        y = _vector_rows(modes, a_rows, o_rows, c_rows, act)
-        yf = y @ modes.factor
-        norm = (jnp.sum((2 * lam[:, None] + modes.gamma[None, :]) * y * y, axis=1)
-                + jnp.sum(yf * weights * yf, axis=1))
+    def first(j):
+        lam = poles[anchor[j]] + offset[j]
+        act = active[j]
+        y = modes.vector_rows(j)
+        norm = modes.normaliser_rows(j, y)
         coefficient = (y @ p0 - (y @ (omega2[:, None] * q0)) / lam[:, None]) / norm[:, None]
         # the conjugate partner: summed directly (lambda_j + lambda_k below rounding)
-        gap = jnp.abs((base[None, :] - jnp.conj(poles[a_rows])[:, None])
-                      + (offset[None, :] - jnp.conj(o_rows)[:, None]))
+        gap = jnp.abs((base[None, :] - jnp.conj(base[j])[:, None])
+                      + (offset[None, :] - jnp.conj(offset[j])[:, None]))
         partner = jnp.argmin(jnp.where(act[:, None] & active[None, :], gap, jnp.inf), axis=1)
-        y_partner = _vector_rows(modes, anchor[partner], offset[partner], c[partner],
-                                 active[partner])
         lam_partner = poles[anchor[partner]] + offset[partner]
-        direct = jnp.sum((omega2[None, :] + (lam * lam_partner)[:, None]) * y * y_partner,
-                         axis=1)
+        direct = jnp.sum((omega2[None, :] + (lam * lam_partner)[:, None]) * y
+                         * modes.vector_rows(partner), axis=1)
         return coefficient, partner, direct
 
-    a, partner, direct = by_rows(first, block, anchor, offset, c, active)
+    a, partner, direct = by_rows(first, block, index)
 
-    def second(a_rows, o_rows, c_rows, act, j_partner, j_direct, coefficient):
-        s = (poles[a_rows][:, None] + base[None, :]) + (o_rows[:, None] + offset[None, :])
-        pair = act[:, None] & active[None, :]
-        gram = -2 * ((c_rows * weights) @ c.T) / jnp.where(pair & (s != 0), s, 1.0)
+    def second(j, j_partner, j_direct, coefficient):
+        s = (base[j][:, None] + base[None, :]) + (offset[j][:, None] + offset[None, :])
+        pair = active[j][:, None] & active[None, :]
+        gram = -2 * ((c[j] * weights) @ c.T) / jnp.where(pair & (s != 0), s, 1.0)
         gram = jnp.where(index[None, :] == j_partner[:, None], j_direct[:, None], gram)
         kernel = jnp.where(pair, gram * growth(jnp.where(pair, s, -1.0), horizon), 0.0)
         return jnp.real(coefficient * (kernel @ a))  # (roots, batch)
 
-    rows = by_rows(second, block, anchor, offset, c, active, partner, direct, a)
+    rows = by_rows(second, block, index, partner, direct, a)
     value = (jnp.sum(rows, axis=0) / 2).reshape(batch)
     q0, p0 = q0.reshape((n,) + batch), p0.reshape((n,) + batch)
     return value + _idle_energy(modes, q0, p0, horizon)

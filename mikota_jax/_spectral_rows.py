@@ -48,14 +48,11 @@ def by_rows(fn, block, *rows):
     return jax.tree.map(lambda o: o.reshape((count * block,) + o.shape[2:])[:m], out)
 
 
-def roots_difference(poles, anchor, offset, rows_anchor=None, rows_offset=None):
-    """lambda_j - lambda_k: (rows, 2n), exact for roots on the same pole (rows: all roots, or
-    those of ``rows_anchor``, ``rows_offset``)."""
-    base = poles[anchor]
-    if rows_anchor is None:
-        rows_anchor, rows_offset = anchor, offset
-    return (poles[rows_anchor][:, None] - base[None, :]) + (rows_offset[:, None]
-                                                             - offset[None, :])
+def roots_difference(poles, anchor, offset, rows_anchor, rows_offset):
+    """lambda_j - lambda_k: (rows, 2n) for the roots of ``rows_anchor``, ``rows_offset`` against
+    all, exact for roots on the same pole."""
+    return (poles[rows_anchor][:, None] - poles[anchor][None, :]) + (rows_offset[:, None]
+                                                                      - offset[None, :])
 
 
 def repulsion(poles, anchor, offset, root_active, block):
