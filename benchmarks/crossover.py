@@ -7,25 +7,21 @@ design), x_3(0) = 1, v(0) = 0, J = the energy integrated over [0, T = 20] (``"en
 every 0.01 (2001 times), POD snapshots on [0, 10] (1001 times): the paper's Section 5 scene at
 n = 300. n in {300, 1000, 3000}; ``--quick``: {300, 1000}.
 
-**n = 30000** is not in the default run; it was measured apart (``results/crossover_30000``)
-and merged into ``results/crossover`` with ``--merge crossover_30000``. From ``LARGE`` = 10^4
-on the large-n path runs (``--large-from N`` moves that threshold, which checks the path against
-the spectral one at a small n: at n = 300 it gives the same ranks and errors). There the spectral
-path needed ~36 GiB (this machine has 24; since 2026-11-27 its J + gradient runs in O(n) memory,
-403 s at n = 30000: ``spectral_energy_large.py``, but ``measure_full``'s histories still need the
-n x 2n mode vectors), so the reference is Dopri8 at rtol 1e-10, J + gradient
-by two jvps. At n = 30000 that took > 25 min on 2 CPU cores (stopped) and 192 s on one H100 GPU:
-``--reference-out FILE`` computes only the references (run on the GPU machine:
-``results/crossover_reference_gpu.json``) and ``--reference FILE`` reads them; the full path's
-cost on this machine is then Dopri8's J alone at rtol 1e-6 (timed here), a lower bound on any
-full J + gradient, so a ROM faster than it is faster than the full model. Below ``NO_SNAPSHOTS`` =
-2 x 10^4 the reference history and the POD snapshots are Dopri8 solves at rtol 1e-10, which the
-POD's offline cost includes; from there on they are left out (~10 min each on 2 cores), and POD
-and the history errors with them. Bases: POD (below NO_SNAPSHOTS) and the snapshot-free ones
-(modal, modal + static, modal + 2 moments, Craig-Bampton: O(n r) builds for a chain), ranks up to
-``RANK_CAP_LARGE`` = 1200 from NO_SNAPSHOTS on; no random designs (each would need its own
-reference): the rebuilt bases' sweep is 1000 x (build + query) at the nominal design, its
-accuracy not measured there.
+**n = 30000** is not in the default run; it is measured apart (``--sizes 30000 --rank-hint
+crossover_30000 --name crossover_30000``, ~80 min) and merged into ``results/crossover`` with
+``--merge crossover_30000``. From ``LARGE`` = 10^4 on (``--large-from N`` moves that threshold,
+a check of the path at small n) the same spectral paths run in O(n) memory (since 2026-11-27:
+the roots a block at a time and, above n = 4096, no U: ``spectral_energy_large.py``): the
+reference J + gradient timed once, the histories and the POD snapshots by the spectral
+``exact_solve``. Dopri8 there is its J alone at rtol 1e-6 (a lower bound on its J + gradient,
+which took > 25 min on 2 cores); the spectral reference is checked against Dopri8 J + gradient
+at rtol 1e-10 from ``results/crossover_reference_gpu.json`` (``--reference-out FILE`` computes
+it, on a GPU machine: 192 s on one H100). Bases there: POD and the snapshot-free ones (modal,
+modal + static, modal + 2 moments, Craig-Bampton: O(n r) builds for a chain), ranks up to
+``RANK_CAP_LARGE`` = 1200; 2 random designs. Left out there: Krylov (no r <= 400 met TOL at
+n = 3000) and the enriched POD (0.2x at n = 3000, its offline cost 5x POD's).
+``--rank-hint NAME`` starts each rank search at the r of an earlier run's results (within 1 %;
+the numpy J costs ~30 s a rank there; POD starts at the modal basis' r).
 
 Per n, one process, compile time apart from run time (``Compiled``), run time = median of repeats
 (3 at n <= 1000, 2 beyond and in ``--quick``):
@@ -134,12 +130,11 @@ import mikota_jax as mj
 NAME = "crossover"
 SIZES = (300, 1000, 3000)  # 30000: apart, see the module docstring
 QUICK_SIZES = (300, 1000)
-LARGE = 10_000  # from here: no spectral path (memory), a Dopri8 reference, snapshot-free bases
-LARGE_RTOL = 1e-10  # the Dopri8 reference's rtol at large n
-NOT_RUN = {30000: "not in the default run: measured apart (--sizes 30000 --reference "
-                  "results/crossover_reference_gpu.json --name crossover_30000, the reference "
-                  "J + gradient by Dopri8 on a GPU: > 25 min on 2 CPU cores) and merged "
-                  "(--merge crossover_30000)"}
+LARGE = 10_000  # from here: the spectral reference timed once, Dopri8's J alone, 2 designs
+LARGE_RTOL = 1e-10  # the GPU's Dopri8 reference (--reference-out): an independent check
+REFERENCE_FILE = Path(__file__).parent / "results" / "crossover_reference_gpu.json"
+NOT_RUN = {30000: "not in the default run: measured apart (--sizes 30000 --rank-hint "
+                  "crossover_30000 --name crossover_30000) and merged (--merge crossover_30000)"}
 HORIZON, STEP, WINDOW = 20.0, 0.01, (0.0, 10.0)
 HISTORY_EVERY = 5  # history errors at t = 0, 0.05, ..., 20 (401 times, all DOFs)
 POSITION, COEFFICIENT, INITIAL_DOF = 7.0, 1.0, 3
@@ -154,9 +149,7 @@ REBUILD = ("modal + static", "modal + 2 moments", "Krylov", "Craig-Bampton")
 STATIC_COLUMNS = {"modal + static": 2, "modal + 2 moments": 4, "Craig-Bampton": 7}
 SWEEP = 1000
 RANK_START, RANK_FACTOR, RANK_CAP = 16, 1.4, 400
-NO_SNAPSHOTS = 20_000  # from here: no Dopri8 histories or snapshots, so no POD, no history error
-NO_SNAPSHOTS_REASON = ("n >= 20000: the Dopri8 history and snapshot solves (rtol 1e-10, ~10 "
-                       "min each on 2 cores) are left out; POD and the history errors with them")
+HINT_FACTOR = 1.04  # the ladder's step from a --rank-hint
 RANK_CAP_LARGE = 1200  # r ~ n^0.5 from n = 300-3000 puts TOL at r ~ 850 for n = 30000
 RANK_BUMPS = 4  # tries at r * 1.05 when the library's J misses TOL at the searched r
 DOPRI_RTOLS = (1e-5, 1e-6, 1e-8)  # 1e-4: J 1e-3 off at n = 300, 1000
@@ -172,7 +165,7 @@ def repeats_for(n: int, quick: bool) -> int:
 def designs_for(n: int, quick: bool, large: bool) -> int:
     """Random designs per n: each costs one full query (2 x the nominal one: a damper between
     two DOFs has two columns) and one query per ROM, so fewer at larger n."""
-    return 0 if large else 2 if quick else 10 if n <= 300 else 4 if n <= 1000 else 2
+    return 2 if quick or large else 10 if n <= 300 else 4 if n <= 1000 else 2
 
 
 def scene_for(n: int, end: float = HORIZON):
@@ -311,8 +304,10 @@ def rom_history(matrices, basis, count: int) -> np.ndarray:
     return (states / omega) @ (np.asarray(basis) @ u).T
 
 
-def rank_search(energy_at, cap: int, j_full: float):
-    """(smallest r with |J_r / J - 1| <= TOL or None, {r: error}): a ladder, then bisection."""
+def rank_search(energy_at, cap: int, j_full: float, hint: int | None = None):
+    """(smallest r with |J_r / J - 1| <= TOL or None, {r: error}): a ladder, then bisection.
+    ``hint`` (an earlier run's r): the ladder starts there and steps by HINT_FACTOR down or up,
+    and the bisection stops within 1 % (each numpy J at r ~ 850 costs ~30 s)."""
     errors = {}
 
     def error(r):
@@ -320,13 +315,25 @@ def rank_search(energy_at, cap: int, j_full: float):
             errors[r] = abs(energy_at(r) / j_full - 1)
         return errors[r]
 
-    low, r = 0, min(RANK_START, cap)
-    while error(r) > TOL:
-        if r == cap:
-            return None, errors
-        low, r = r, min(cap, math.ceil(r * RANK_FACTOR))
-    high = r
-    while high - low > 1:
+    if hint is not None:
+        high = min(cap, hint)
+        while error(high) > TOL:
+            if high == cap:
+                return None, errors
+            high = min(cap, math.ceil(high * HINT_FACTOR))
+        low = high
+        while low > 1 and error(low) <= TOL:
+            high, low = low, max(1, math.floor(low / HINT_FACTOR))
+        if error(low) <= TOL:
+            return low, errors
+    else:
+        low, r = 0, min(RANK_START, cap)
+        while error(r) > TOL:
+            if r == cap:
+                return None, errors
+            low, r = r, min(cap, math.ceil(r * RANK_FACTOR))
+        high = r
+    while high - low > (1 if hint is None else max(1, high // 100)):
         middle = (low + high) // 2
         if error(middle) <= TOL:
             high = middle
@@ -373,7 +380,7 @@ def krylov_inputs(system, x0) -> np.ndarray:
 
 
 def measure(n: int, quick: bool, check_public: bool, large_from: int = LARGE,
-            references: dict | None = None) -> dict:
+            hints: dict | None = None) -> dict:
     start = time.perf_counter()
     repeats = repeats_for(n, quick)
     say = lambda text: print(f"  n={n}: {text} ({elapsed(start):.0f} s)", flush=True)  # noqa: E731
@@ -381,39 +388,23 @@ def measure(n: int, quick: bool, check_public: bool, large_from: int = LARGE,
     system, x0 = scene.system, scene.x0
     nominal = design(POSITION, COEFFICIENT)
     function = mj.SceneFunction(scene, "energy")
-    out = {"n": n, "repeats": repeats}
     large = n >= large_from
-    if large:  # no spectral path: Dopri8 gives the reference, the histories and the snapshots
-        if n in (references or {}):
-            reference, out["full_reference"] = references[n]
-            say(f"the reference from {out['full_reference']['file']}")
-        else:
-            reference, out["full_reference"] = dopri_reference(function, nominal, say)
-        out["dopri8"] = dopri_alone(function, nominal, reference, out["full_reference"], say)
-        out["full_spectral"] = {"run": False, "reason": "memory (see not_run)"}
-        if n >= NO_SNAPSHOTS:
-            history, snapshot_exe, ts_window, snapshots = None, None, None, None
-            out["history"] = {"run": False, "reason": NO_SNAPSHOTS_REASON}
-        else:
-            history, (snapshot_exe, ts_window, snapshots) = large_histories(
-                scene, window_scene, out, say)
-        full = None
-    else:
-        reference, full, history, (snapshot_exe, ts_window, snapshots) = measure_full(
-            n, scene, window_scene, function, nominal, out, repeats, check_public, say)
+    out = {"n": n, "repeats": repeats, "large": large}
+    reference, full, history, (snapshot_exe, ts_window, snapshots) = measure_full(
+        n, scene, window_scene, function, nominal, out, 1 if large else repeats, check_public,
+        large, say)
     j_full = reference[0]
 
     # ---- reductions: rank search, offline, online, errors at the nominal design
     projection = Projection(system, x0)
     forcing = krylov_inputs(system, x0)
-    cap = min(n, RANK_CAP if n < NO_SNAPSHOTS else RANK_CAP_LARGE)
+    cap = min(n, RANK_CAP_LARGE if large else RANK_CAP)
     modes = np.asarray(mj.modal_basis(system, cap))
     static = static_directions(system)
     moments = np.asarray(mj.static_moments(system, mj.damper_directions(system), 2))
     nested = {"modal": modes}
-    if snapshots is not None:
-        pod = mj.reduce(snapshots, ts_window, scene.reduction).pod  # compiles the SVD (warm-up)
-        nested["POD"] = np.asarray(pod.basis(min(cap, pod.numerical_rank())))
+    pod = mj.reduce(snapshots, ts_window, scene.reduction).pod  # compiles the SVD (warm-up)
+    nested["POD"] = np.asarray(pod.basis(min(cap, pod.numerical_rank())))
     if not large:
         enriched = mj.enriched_reduce(window_scene, WRT).pod  # compiles and runs once (warm-up)
         nested.update({
@@ -435,8 +426,7 @@ def measure(n: int, quick: bool, check_public: bool, large_from: int = LARGE,
         "Craig-Bampton": lambda r: craig_bampton(system, x0, r),
     }
     methods, queries = {}, {}
-    for method in (METHODS if not large else LARGE_METHODS if snapshots is not None
-                   else LARGE_METHODS[1:]):
+    for method in LARGE_METHODS if large else METHODS:
         row = {"method": method}
         if method in nested:
             big = nested[method]
@@ -452,7 +442,8 @@ def measure(n: int, quick: bool, check_public: bool, large_from: int = LARGE,
             energy_at = lambda r, extra=extra: rom_energy(projection(  # noqa: E731
                 modal_static_columns(modes, extra, r)))
         t0 = time.perf_counter()
-        r, searched = rank_search(energy_at, search_cap, float(j_full))
+        hint = (hints or {}).get(method, (hints or {}).get("modal"))  # POD: modal's r
+        r, searched = rank_search(energy_at, search_cap, float(j_full), hint)
         row.update(search_cap=search_cap, search_s=elapsed(t0),
                    search={str(k): v for k, v in sorted(searched.items())})
         if r is None:
@@ -476,8 +467,8 @@ def measure(n: int, quick: bool, check_public: bool, large_from: int = LARGE,
                 break
             r = min(search_cap, math.ceil(1.05 * r))
         matrices = projection(basis)
-        history_error = None if history is None else float(np.linalg.norm(
-            rom_history(matrices, basis, history.shape[0]) - history) / np.linalg.norm(history))
+        history_error = float(np.linalg.norm(rom_history(matrices, basis, history.shape[0])
+                                             - history) / np.linalg.norm(history))
         row.update(r=int(basis.shape[1]), reached=errors["J"] <= TOL, bumps=bump,
                    numpy_J=abs(rom_energy(matrices) / float(j_full) - 1),
                    J=errors["J"], gradient=errors["gradient"], history=history_error,
@@ -491,9 +482,8 @@ def measure(n: int, quick: bool, check_public: bool, large_from: int = LARGE,
                                                 (value, jacobian))
         methods[method] = row
         queries[method] = (query, basis)
-        history_text = "-" if history_error is None else f"{history_error:.1e}"
         say(f"{method}: r = {row['r']}, J {errors['J']:.1e}, gradient {errors['gradient']:.1e}, "
-            f"history {history_text}, offline {offline_s:.2f} s, online {online_s:.3f} s "
+            f"history {history_error:.1e}, offline {offline_s:.2f} s, online {online_s:.3f} s "
             f"(compile {query.compile_s:.1f} s)")
     out["methods"] = methods
 
@@ -503,10 +493,12 @@ def measure(n: int, quick: bool, check_public: bool, large_from: int = LARGE,
     return out
 
 
-def measure_full(n, scene, window_scene, function, nominal, out, repeats, check_public, say):
-    """n < LARGE: the spectral reference (J, gradient; timed), the full histories, the snapshot
-    solve, and Dopri8. (reference, the compiled spectral query, the history, (the compiled
-    snapshot solve, its times, the snapshots))."""
+def measure_full(n, scene, window_scene, function, nominal, out, repeats, check_public, large,
+                 say):
+    """The spectral reference (J, gradient; timed), the full histories, the snapshot solve, and
+    Dopri8 (``large``: its J alone at rtol 1e-6, and the spectral reference checked against the
+    GPU's Dopri8 one where ``REFERENCE_FILE`` has this n). (reference, the compiled spectral
+    query, the history, (the compiled snapshot solve, its times, the snapshots))."""
     system, x0 = scene.system, scene.x0
     # ---- full model, spectral: the reference J and gradient, timed
     full = Compiled(full_query, function, nominal)
@@ -539,38 +531,23 @@ def measure_full(n, scene, window_scene, function, nominal, out, repeats, check_
     say("full histories")
 
     # ---- full model, Dopri8
-    out["dopri8"] = measure_dopri(n, function, nominal, reference, repeats, check_public, say)
+    if large:
+        out["dopri8"] = dopri_alone(function, nominal, reference, say)
+        gpu = load_references(REFERENCE_FILE).get(n) if REFERENCE_FILE.exists() else None
+        if gpu is not None:
+            out["full_spectral"]["vs_gpu_dopri8"] = dict(
+                errors_of(*gpu[0], reference), file=REFERENCE_FILE.name,
+                method=gpu[1]["method"], device=gpu[1]["device"])
+            say(f"spectral vs the GPU's Dopri8 reference: {out['full_spectral']['vs_gpu_dopri8']}")
+    else:
+        out["dopri8"] = measure_dopri(n, function, nominal, reference, repeats, check_public, say)
     return reference, full, history, (snapshot_exe, ts_window, snapshots)
 
 
-def large_histories(scene, window_scene, out, say):
-    """n >= LARGE: the reference history (401 times) and the POD snapshot solve (the window,
-    1001 times) by Dopri8 at rtol LARGE_RTOL (the spectral exact_solve needs ~36 GiB there):
-    (history, (the compiled snapshot solve, its times, the snapshots))."""
-    system, x0 = scene.system, scene.x0
-
-    def solve(ts):
-        return lambda s, x: mj.simulate(s, ts, x, solver="dopri8", rtol=LARGE_RTOL,
-                                        atol=DOPRI_ATOL * LARGE_RTOL, max_steps=DOPRI_MAX_STEPS)
-
-    ts_history, ts_window = scene.ts[::HISTORY_EVERY], window_scene.ts
-    history_exe = Compiled(solve(ts_history), system, x0)
-    history = np.asarray(history_exe(system, x0).displacement)
-    snapshot_exe = Compiled(solve(ts_window), system, x0)
-    snapshots = np.asarray(snapshot_exe(system, x0).displacement)
-    common = (ts_window.shape[0] - 1) // HISTORY_EVERY + 1
-    gap = float(np.max(np.abs(snapshots[::HISTORY_EVERY] - history[:common])))
-    out["history"] = {"method": f"Dopri8, rtol {LARGE_RTOL:g}", "compile_s": history_exe.compile_s,
-                      "max_abs_x": float(np.max(np.abs(history))), "window_vs_history": gap,
-                      "snapshot_compile_s": snapshot_exe.compile_s}
-    say(f"full histories by Dopri8 (window vs history {gap:.1e})")
-    return history, (snapshot_exe, ts_window, snapshots)
-
-
 def dopri_reference(function, nominal, say):
-    """n >= LARGE: J + gradient by Dopri8 at rtol LARGE_RTOL (two jvps), timed once: the
-    reference, and the full path's time (the step is set by stability there, not by rtol: on
-    [0, 0.5] at n = 30000 rtol 1e-8 took 3.4 s, 1e-10 4.0 s). (reference, its record)."""
+    """J + gradient by Dopri8 at rtol LARGE_RTOL (two jvps), timed once (``--reference-out``,
+    run on a GPU machine: > 25 min on 2 CPU cores at n = 30000): an independent check of the
+    spectral reference at large n. (reference, its record)."""
     query = Compiled(dopri_query, function, nominal, LARGE_RTOL)
     reference, run_s, times = timed(query, function, nominal, LARGE_RTOL, repeats=1)
     record = {"method": f"Dopri8, rtol {LARGE_RTOL:g}, atol {DOPRI_ATOL:g} rtol, two jax.jvp",
@@ -583,23 +560,16 @@ def dopri_reference(function, nominal, say):
     return reference, record
 
 
-def dopri_alone(function, nominal, reference, record, say) -> dict:
-    """Dopri8's J alone at rtol 1e-6, timed once: a lower bound on any Dopri8 gradient (which
-    needs at least one more solve); with the reference ``record``'s gradient timing where it was
-    timed here (not where it came from a file: another machine)."""
+def dopri_alone(function, nominal, reference, say) -> dict:
+    """n >= LARGE: Dopri8's J alone at rtol 1e-6, timed once: a lower bound on any Dopri8
+    gradient (which needs at least one more solve)."""
     energy = Compiled(dopri_energy, function, nominal, 1e-6)
     value, alone_s, alone_times = timed(energy, function, nominal, 1e-6, repeats=1)
     alone = {"rtol": 1e-6, "J": abs(float(value) / float(reference[0]) - 1), "run_s": alone_s,
              "run_times_s": alone_times}
     say(f"Dopri8 J alone at rtol 1e-6: {alone_s:.1f} s (J {alone['J']:.1e})")
-    if record.get("file"):
-        gradient = {"run": False, "reason": f"the reference came from {record['file']} "
-                    f"({record['device']}); its time is not this machine's"}
-    else:
-        gradient = {"run": True, "rtol": LARGE_RTOL, "method": "two jax.jvp (ForwardMode): "
-                    "the reference run", "compile_s": record["compile_s"],
-                    "run_s": record["run_s"], "run_times_s": record["run_times_s"], "J": 0.0,
-                    "gradient": 0.0}
+    gradient = {"run": False, "reason": "n >= LARGE: Dopri8 J + gradient (two jvps) took > 25 "
+                "min on 2 CPU cores at n = 30000 (stopped); J alone is its lower bound"}
     return {"compile_s": energy.compile_s, "J_only": [alone],
             "equal_accuracy": alone if alone["J"] <= TOL else None,
             "atol": f"{DOPRI_ATOL:g} rtol", "gradient": gradient}
@@ -898,8 +868,8 @@ def main(argv=None) -> dict:
                        "from the stored measurements (no timing)"),
         reference_out=dict(default=None, metavar="FILE", help="only the Dopri8 reference (J + "
                            "gradient) of each n, written to FILE (e.g. on a GPU machine)"),
-        reference=dict(default=None, metavar="FILE", help="the large-n references from FILE "
-                       "(--reference-out) instead of computing them"),
+        rank_hint=dict(default=None, metavar="NAME", help="start each rank search at the r "
+                       "results/NAME.json found (same n; the search within 1 %%)"),
         name=dict(default=None, help="the results' name (default crossover, or crossover_sizes "
                   "with --sizes / --large-from)"),
         merge=dict(default=None, metavar="NAME", help="add results/NAME.json's sizes to "
@@ -936,12 +906,15 @@ def main(argv=None) -> dict:
             Path(args.reference_out).write_text(json.dumps(
                 {"references": references, "metadata": metadata()}, indent=1))
         return print(f"wrote {args.reference_out}")
-    references = load_references(args.reference) if args.reference else None
+    hints = {}
+    if args.rank_hint:
+        for m in read_json(args.rank_hint, False)["per_n"]:
+            hints[m["n"]] = {k: v["r"] for k, v in m["methods"].items() if v.get("r")}
     per_n = []
     for i, n in enumerate(sizes):
         print(f"n = {n}", flush=True)
         per_n.append(measure(n, args.quick, check_public=i == 0, large_from=args.large_from,
-                             references=references))
+                             hints=hints.get(n)))
     rows = costs(per_n)
     cross = crossover(rows, list(sizes))
     print_tables(rows, cross)

@@ -48,6 +48,7 @@ from ._integrate import (
 )
 from ._modal import modal_projection, scaled_modal, state_matrix
 from ._spectral_solve import spectral_applies, spectral_solve_with_result
+from ._spectral_system import uses_rows
 
 _PULSE_ERROR = 1e-6
 _UNIFORM = 1e-9  # relative spread of the steps within which one propagator serves them all
@@ -206,7 +207,10 @@ def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = 
     matrix exponential serves every step); one eigendecomposition and O(n^2) per time step.
     Dense memory limits n on
     both paths (``simulate`` is O(n)): some 32 n x n float64 arrays on the dense one, 12 on the
-    spectral one.
+    spectral one, except for a fixed-free chain with dampers alone above n = 4096: its spectral
+    path holds neither U nor the (n, 2n) vectors (O(n (N + 2^24 / n)) memory: the (N, n) modal
+    history, then x = U eta a chunk of modes at a time; 2001 times at n = 30000 in ~N s on 2
+    cores, ``benchmarks/spectral_response_large.py``).
     """
     check_x64()
     if method not in METHODS:
@@ -231,8 +235,9 @@ def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = 
                    "for other grids.")
     x0, v0, load = check_problem(model, x0, v0, load)
     damped = system.damped
-    check_dense_memory(system.size, (SPECTRAL_MATRICES if spectral else 32) if damped else 6,
-                       "exact_solve")
+    if not (spectral and uses_rows(system)):  # a large chain's spectral path: O(n (N + block))
+        check_dense_memory(system.size, (SPECTRAL_MATRICES if spectral else 32) if damped else 6,
+                           "exact_solve")
     options = dict(dofs=check_dofs(dofs, model.size), displacement=displacement,
                    velocity=velocity)
     # the outputs and the (N, n) complex coefficient tables of the modal sums

@@ -285,6 +285,7 @@ def _spectral_if_it_holds(model, ts, x0, v0, load, dofs, displacement, velocity)
     it does not apply (a reduced model, a user's damping matrix, an undamped system, a general
     load), would not fit in memory, the values are traced, or its modes do not hold."""
     from ._spectral_solve import spectral_applies, spectral_solve_with_result  # (imports this)
+    from ._spectral_system import uses_rows
 
     if load is not None and not isinstance(load, Pulse):
         return None
@@ -292,7 +293,7 @@ def _spectral_if_it_holds(model, ts, x0, v0, load, dofs, displacement, velocity)
         return None
     if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((model, ts, x0, v0))):
         return None
-    if not fits_in_memory(model.size, SPECTRAL_MATRICES):
+    if not (uses_rows(model) or fits_in_memory(model.size, SPECTRAL_MATRICES)):
         return None
     trajectory, ok = spectral_solve_with_result(
         model, ts, x0, v0, load, dofs=check_dofs(dofs, model.size), displacement=displacement,

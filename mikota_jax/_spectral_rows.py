@@ -48,6 +48,29 @@ def by_rows(fn, block, *rows):
     return jax.tree.map(lambda o: o.reshape((count * block,) + o.shape[2:])[:m], out)
 
 
+def sum_by_rows(fn, block, *rows):
+    """sum over the roots of ``fn(*rows, weight)``, ``block`` roots at a time in a ``lax.scan``
+    (one accumulator, not one output per block); ``weight`` (block,) is 1 for a root and 0 for
+    the padding (copies of the last root), which ``fn`` must scale its terms by. Each block is a
+    ``jax.checkpoint``."""
+    m = rows[0].shape[0]
+    block = min(block, m)
+    count = -(-m // block)
+    weight = (jnp.arange(count * block) < m).astype(float)
+
+    def split(a):
+        pad = jnp.repeat(a[-1:], count * block - m, axis=0)
+        return jnp.concatenate([a, pad]).reshape((count, block) + a.shape[1:])
+
+    blocks = tuple(split(a) for a in rows) + (weight.reshape(count, block),)
+    part = jax.checkpoint(lambda args: fn(*args))
+    zero = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype),
+                        jax.eval_shape(part, tuple(b[0] for b in blocks)))
+    total, _ = jax.lax.scan(lambda total, args: (jax.tree.map(jnp.add, total, part(args)), None),
+                            zero, blocks)
+    return total
+
+
 def roots_difference(poles, anchor, offset, rows_anchor, rows_offset):
     """lambda_j - lambda_k: (rows, 2n) for the roots of ``rows_anchor``, ``rows_offset`` against
     all, exact for roots on the same pole."""

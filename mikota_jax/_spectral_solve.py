@@ -30,10 +30,12 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from ._chain_combine import chain_mode_combination
 from ._integrate import Trajectory
 from ._modal import modal_projection
 from ._spectral import complex_arithmetic
-from ._spectral_system import live_modes
+from ._spectral_rows import by_rows, sum_by_rows
+from ._spectral_system import live_modes, live_rows, uses_rows
 from ._spectral_system import spectral_applies as system_applies
 from ._system import SecondOrderSystem
 
@@ -96,7 +98,7 @@ def _modal_tables(lam, a, b, ts, load, displacement: bool, velocity: bool):
 
 
 @complex_arithmetic
-def _conjugate_slots(lam):
+def _conjugate_slots(lam, block=None):
     """n slots for the 2n roots, so that the real sum needs n terms, not 2n.
 
     Each root's partner is the root nearest its conjugate (itself for a root on the real axis),
@@ -104,13 +106,14 @@ def _conjugate_slots(lam):
     root, counted twice: Re(c w) of the pair is 2 Re(c_1 w_1)); two real roots share one, packed
     as c = Re c_1 + i Re c_2, w = Re w_1 - i Re w_2 (Re(c w) = Re(c_1 w_1) + Re(c_2 w_2)). The
     number of real roots is even when the partners pair up; ``consistent`` says they do.
-    Returns (first, second, real, consistent): (n,) indices, (n,) bool, a bool.
+    Returns (first, second, real, consistent): (n,) indices, (n,) bool, a bool. ``block``: the
+    partners ``block`` roots at a time (``by_rows``), O(n block) memory.
     """
     size = lam.shape[0]
     n = size // 2
     index = jnp.arange(size)
-    gap = jnp.abs(lam[None, :] - jnp.conj(lam)[:, None])  # |lambda_k - conj(lambda_j)|
-    partner = jnp.argmin(gap, axis=1)
+    partner = by_rows(  # argmin_k |lambda_k - conj(lambda_j)|
+        lambda z: jnp.argmin(jnp.abs(lam[None, :] - jnp.conj(z)[:, None]), axis=1), block, lam)
     consistent = jnp.all(partner[partner] == index)
     self_conjugate = partner == index
     key = jnp.where(self_conjugate, 1, jnp.where(index < partner, 0, 2))
@@ -132,7 +135,8 @@ def _real_product(c, w):
 
 
 @eqx.filter_jit
-def spectral_solve_with_result(system, ts, x0, v0, load, *, dofs, displacement, velocity):
+def spectral_solve_with_result(system, ts, x0, v0, load, *, dofs, displacement, velocity,
+                               block=None):
     """(``Trajectory``, ok): the response from the damped modes on any increasing grid ``ts``.
 
     ``system``: a ``SecondOrderSystem`` with dampers only (``spectral_applies``); ``ts`` (N,);
@@ -141,7 +145,13 @@ def spectral_solve_with_result(system, ts, x0, v0, load, *, dofs, displacement, 
     separation below ``DEFECTIVE_SEPARATION``) or an output is not finite: then the
     trajectory must not be used. Differentiable in the system's values and the initial state,
     through one Newton step on the secular equation at the roots (``differentiable_roots``).
+
+    A chain that ``uses_rows`` (n > 4096, dampers only) takes ``rows_response``: no U and no
+    (n, 2n) vectors (``block`` 0: all at once from U, as below).
     """
+    if block != 0 and uses_rows(system):
+        return rows_response(system, ts, x0, v0, load, dofs=dofs, displacement=displacement,
+                             velocity=velocity, block=block)
     modes, modes_u, modes_ok = live_modes(system)
     project = modal_projection(system, modes_u)
     a = modes.coefficients(project(x0), project(v0))
@@ -170,3 +180,66 @@ def spectral_solve_with_result(system, ts, x0, v0, load, *, dofs, displacement, 
     finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(y)) for y in (x, v) if y is not None]))
     ok = modes_ok & consistent & finite
     return Trajectory(ts, x, v, dofs, None), ok
+
+
+def response_block(n: int, block: int | None = None) -> int:
+    """Roots per block of ``rows_response``: ``block``, or ~2^24 / n (a (block, n) complex work
+    array of ~256 MB; each block is a rank-2 block update of the (N, n) modal history, so larger
+    blocks than the roots' ``row_block`` keep the matrix product efficient)."""
+    return block if block else max(16, 2**24 // n)
+
+
+@complex_arithmetic
+def rows_response(system, ts, x0, v0, load, *, dofs, displacement, velocity, block=None):
+    """(``Trajectory``, ok) of a chain that ``uses_rows``, in O(n (N + block)) memory.
+
+    The same sums as ``spectral_solve_with_result`` in the other order: the modal history
+    eta(t_k) = Re sum_j C_kj y_j (N, n) first, a block of conjugate slots at a time
+    (``sum_by_rows``; each block's eigenvector rows, normalisers and coefficients a_j, b_j made
+    there), then x = U eta for the requested DOFs by ``chain_mode_combination`` (U a chunk at a
+    time). O(N n^2) flops either way; the (n, 2n) vectors, the (2n, 2n) partner search and U
+    are never held. ``block``: roots per block (``response_block``; the secular equation's own
+    blocks are ``row_block``'s).
+    """
+    n = system.size
+    masses = system.mass.diagonal
+    columns = [x0, v0] + ([] if load is None else [load.direction / masses])  # U^T M (f / m)
+    modes, projected, modes_ok = live_rows(system, jnp.stack(columns, axis=1))
+    q0, p0 = projected[:, 0], projected[:, 1]
+    g = None if load is None else projected[:, 2]
+    lam = modes.eigenvalues
+    size = response_block(n, block)
+    first, second, real, consistent = _conjugate_slots(jax.lax.stop_gradient(lam), size)
+    stiff = modes.omega**2 * q0
+
+    def coefficients(roots):
+        y = modes.vector_rows(roots)
+        norm = modes.normaliser_rows(roots, y)
+        a = (y @ p0 - (y @ stiff) / lam[roots]) / norm
+        return y, a, None if g is None else (y @ g) / norm
+
+    def slots(one, two, is_real, weight):
+        y1, a1, b1 = coefficients(one)
+        y2, a2, b2 = coefficients(two)
+        cx, cv = _modal_tables(lam[one], a1, b1, ts, load, displacement, velocity)
+        rx, rv = _modal_tables(jnp.real(lam[two]), jnp.real(a2),
+                               None if b2 is None else jnp.real(b2), ts, load, displacement,
+                               velocity)
+        w = jnp.where(is_real[:, None], jax.lax.complex(jnp.real(y1), -jnp.real(y2)), y1)
+        w = (weight[:, None] * w).T  # (n, block); padded slots add nothing
+
+        def history(c, r):
+            packed = jnp.where(is_real[None, :], jax.lax.complex(jnp.real(c), r), 2 * c)
+            return _real_product(packed, w)  # (N, n)
+
+        return tuple(history(c, r) for c, r in ((cx, rx), (cv, rv)) if c is not None)
+
+    etas = sum_by_rows(slots, size, first, second, real)
+    index = jnp.asarray(dofs) - 1
+    outputs = chain_mode_combination(masses, system.stiffness.springs, index,
+                                     jnp.concatenate([e.T for e in etas], axis=1))
+    outputs = jnp.split(outputs.T, len(etas))  # (N, d) each
+    x = outputs[0] if displacement else None
+    v = outputs[-1] if velocity else None
+    finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(y)) for y in (x, v) if y is not None]))
+    return Trajectory(ts, x, v, dofs, None), modes_ok & consistent & finite
