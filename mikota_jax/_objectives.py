@@ -50,6 +50,7 @@ from ._integrate import (
 from ._modal import modal_projection, scaled_modal, state_matrix
 from ._spectral_objectives import spectral_energy_with_result, spectral_trace_with_result
 from ._spectral_solve import spectral_applies
+from ._spectral_system import uses_rows
 
 DOUBLINGS_FINITE = 16  # first step at most T / 2^16: Van Loan's exponential stays well scaled
 _DOUBLINGS_MAX = 60  # ... and at least T / 2^60: ||A h|| <= 8 up to rates of 1e17 / T
@@ -232,7 +233,11 @@ def integrated_energy(model, horizon: float, x0: Vector | None = None,
     to a full system with discrete dampers and internal damping diagonal in modal coordinates
     (Rayleigh, modal; then O(n^3) in one matrix product), not to a reduced model, a user's
     damping matrix or an undamped system; where a root does not converge or two roots nearly
-    coincide (a mode at critical damping) ``"exact"`` falls back to ``"dense"``. ``"dense"``: a
+    coincide (a mode at critical damping) ``"exact"`` falls back to ``"dense"``, except for a
+    fixed-free chain with dampers alone above n = 4096: its spectral path runs in O(n) memory
+    (404 s for J + gradient at n = 30000 on 2 cores, ``benchmarks/spectral_energy_large.py``)
+    where the dense one could not, so ``"exact"`` is ``"spectral"`` there and a failure is
+    raised. ``"dense"``: a
     matrix-exponential integral (Van Loan, doubling), O(n^3) -- the choice for a reduced model.
     ``method="ode"``: the integral is one more state of an adaptive Dopri8 solve (``rtol``/
     ``atol``, ``max_steps``, ``adjoint`` as in ``simulate``; use ``diffrax.ForwardMode()`` under
@@ -250,8 +255,14 @@ def integrated_energy(model, horizon: float, x0: Vector | None = None,
             raise ValueError(MARK + f"method={method!r} integrates free vibration only; for a "
                              "load use method='ode'.")
         _check_spectral(model, method)
-        check_dense_memory(_modal_size(model), 100 if not takes_spectral(model) else 12,
-                           "integrated_energy(method='exact')")
+        # a chain above n = 4096 with dampers alone: the spectral path in O(n) memory, and no
+        # dense fallback (it could not run there either: a failure is reported, not hidden)
+        large = method != "dense" and takes_spectral(model) and uses_rows(model)
+        if large:
+            method = "spectral"
+        else:
+            check_dense_memory(_modal_size(model), 100 if not takes_spectral(model) else 12,
+                               "integrated_energy(method='exact')")
         value, result = integrated_energy_exact_with_result(model, horizon, x0, v0, method)
         return raise_result(value, result)
     rtol, atol, adjoint = check_solve_options(rtol, atol, max_steps, adjoint)

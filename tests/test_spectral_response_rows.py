@@ -90,7 +90,7 @@ def test_the_chunked_combination_is_u_times_c():
     np.testing.assert_allclose(np.asarray(mine), np.asarray(truth), atol=1e-11)
 
 
-def test_exact_solve_takes_the_large_chain_path_above_the_threshold(monkeypatch):
+def test_exact_solve_and_the_energy_take_the_large_chain_path_above_the_threshold(monkeypatch):
     # an unusual size and grid, so no other test's compiled solve is reused or left behind
     n, ts = 37, jnp.linspace(0.0, 3.0, 23)
     system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(7.0, 2.0)])
@@ -101,3 +101,7 @@ def test_exact_solve_takes_the_large_chain_path_above_the_threshold(monkeypatch)
     mine = mj.exact_solve(system, ts, x0, dofs=(1, 3, 37), method="spectral")
     np.testing.assert_allclose(np.asarray(mine.displacement), np.asarray(dense.displacement),
                                atol=1e-11)
+    # the energy's default method takes the same O(n)-memory path there (no dense fallback)
+    np.testing.assert_allclose(float(mj.integrated_energy(system, 20.0, x0)),
+                               float(mj.integrated_energy(system, 20.0, x0, method="dense")),
+                               rtol=1e-10)
