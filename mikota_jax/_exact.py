@@ -247,6 +247,9 @@ def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = 
         trajectory, result = _exact(model, ts, x0, v0, load, **options)
         return raise_result(trajectory, result)
     trajectory, ok = spectral_solve_with_result(model, ts, x0, v0, load, **options)
+    if uses_rows(system):  # no dense fallback (not even compiled under jit): it could not run
+        return raise_result(trajectory, RESULTS.where(ok, RESULTS.successful,
+                                                      RESULTS.spectral_failed))
     uniform = _is_uniform(ts)
     try:
         holds = bool(ok)  # concrete eagerly and under jax.grad: no dense path compiled

@@ -101,6 +101,10 @@ def test_exact_solve_and_the_energy_take_the_large_chain_path_above_the_threshol
     mine = mj.exact_solve(system, ts, x0, dofs=(1, 3, 37), method="spectral")
     np.testing.assert_allclose(np.asarray(mine.displacement), np.asarray(dense.displacement),
                                atol=1e-11)
+    # under jit too, with no dense fallback compiled (it could not run at such a size)
+    jitted = jax.jit(lambda x: mj.exact_solve(system, ts, x, dofs=(1, 3, 37)).displacement)
+    np.testing.assert_allclose(np.asarray(jitted(x0)), np.asarray(dense.displacement),
+                               atol=1e-11)
     # the energy's default method takes the same O(n)-memory path there (no dense fallback)
     np.testing.assert_allclose(float(mj.integrated_energy(system, 20.0, x0)),
                                float(mj.integrated_energy(system, 20.0, x0, method="dense")),
