@@ -206,6 +206,17 @@ def part_b(sizes, dopri_all):
     return rows
 
 
+def memory_panel(ax, rows, path, array):
+    """Peak memory of each Part B process against one (2n, n) complex array (``array``)."""
+    ax.loglog([r["n"] for r in rows], [r["peak_memory_gib"] for r in rows], "s-",
+              label=f"peak memory of the process ({path})")
+    ns = np.array([r["n"] for r in rows], dtype=float)
+    ax.loglog(ns, 2 * ns**2 * 16 / 2**30, "--", color="gray", label=array)
+    ax.set_xlabel("n (DOFs)")
+    ax.set_ylabel("GiB")
+    legend(ax, "below")
+
+
 def plot(data):
     fig, (left, right) = figure(ncols=2, figsize=(11, 5.4), readable=True)
     a, b = data["part_a"], data["part_b"]
@@ -229,14 +240,7 @@ def plot(data):
     left.set_xlabel("n (DOFs)")
     left.set_ylabel("J + dJ/d(p, c): run time [s]")
     legend(left, "below")
-    right.loglog([r["n"] for r in b], [r["peak_memory_gib"] for r in b], "s-",
-                 label="peak memory of the process (blocks)")
-    ns = np.array([r["n"] for r in b], dtype=float)
-    right.loglog(ns, 2 * ns**2 * 16 / 2**30, "--", color="gray",
-                 label="one (2n, n) complex array")
-    right.set_xlabel("n (DOFs)")
-    right.set_ylabel("GiB")
-    legend(right, "below")
+    memory_panel(right, b, "blocks", "one (2n, n) complex array")
     right.set_ylim(1, 100)
     fig.suptitle(f"Spectral J + gradient at large n, O(n) memory\n{subtitle(data['metadata'])}")
     save_figure(fig, "spectral_energy_large", data["quick"])

@@ -43,7 +43,7 @@ import numpy as np
 
 import mikota_jax as mj
 from mikota_jax.testing import spectral_solve_with_result
-from spectral_energy_large import peak_gib, start
+from spectral_energy_large import memory_panel, peak_gib, start
 
 NAME = "spectral_response_large"
 DESIGN = (7.0, 1.0)  # crossover's nominal design: p, c
@@ -147,14 +147,7 @@ def plot(data, name):
     left.set_xlabel("n (DOFs)")
     left.set_ylabel("exact_solve, 401 times x all DOFs: run time [s]")
     legend(left, "below")
-    right.loglog([r["n"] for r in b], [r["peak_memory_gib"] for r in b], "s-",
-                 label="peak memory of the process (rows)")
-    ns = np.array([r["n"] for r in b], dtype=float)
-    right.loglog(ns, 2 * ns**2 * 16 / 2**30, "--", color="gray",
-                 label="the (n, 2n) complex vectors alone")
-    right.set_xlabel("n (DOFs)")
-    right.set_ylabel("GiB")
-    legend(right, "below")
+    memory_panel(right, b, "rows", "the (n, 2n) complex vectors alone")
     fig.suptitle(f"Spectral response at large n, O(n (N + block)) memory\n"
                  f"{subtitle(data['metadata'])}")
     return save_figure(fig, name, data["quick"])
