@@ -110,10 +110,11 @@ def branched_chain(masses: Sequence[Vector], springs: Sequence[Vector], hub_mass
 
     Branch j has ``masses[j]`` of shape ``(L_j,)``, from its grounded end to the hub, and
     ``springs[j]`` of shape ``(L_j + 1,)``: ``springs[j][0]`` ties its first mass to the ground,
-    ``springs[j][i]`` masses i - 1 and i (0-based), ``springs[j][L_j]`` its last mass to the hub. ``hub_mass`` and ``hub_spring`` (to the
-    ground) are scalars. All values finite and > 0. DOFs (1-based): branch 1 is 1..L_1, then
-    branch 2, ..., the hub is DOF n = sum L_j + 1. The multi-chain oscillators of the damping-
-    optimisation literature (e.g. three rows of d masses) are this system.
+    ``springs[j][i]`` masses i - 1 and i (0-based), ``springs[j][L_j]`` its last mass to the hub.
+    ``hub_mass`` and ``hub_spring`` (to the ground) are scalars. All values finite and > 0. DOFs
+    (1-based): branch 1 is 1..L_1, then branch 2, ..., the hub is DOF n = sum L_j + 1. The
+    multi-chain oscillators of the damping-optimisation literature (e.g. three rows of d masses)
+    are this system.
 
     Structure: a diagonal mass and a tridiagonal stiffness plus one off-band spring ("link") per
     branch but the last, so applying K costs O(n) and the stiff solver's stage solve stays O(n)

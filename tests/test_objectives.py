@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import scipy.integrate as si
 import scipy.linalg as sl
+from _helpers import mp_eigen_energy
 
 import mikota_jax as mj
-from _helpers import mp_eigen_energy
 
 N, T = 8, 5.0
 X0 = np.zeros(N)
