@@ -5,6 +5,11 @@ float64 (importing the package turns on ``jax_enable_x64``; turning it off again
 trajectories are (N, d) with rows at times and columns at the requested DOFs.
 """
 
+from . import _interrupt
+
+if _interrupt.is_command_line():  # Ctrl-C while JAX loads: one line, not a traceback
+    _interrupt.exit_on_interrupt()
+
 import jax as _jax
 
 _jax.config.update("jax_enable_x64", True)

@@ -4,6 +4,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -155,6 +156,65 @@ def test_ctrl_c_stops_a_long_run_within_seconds_and_writes_nothing(tmp_path):
     assert time.monotonic() - start < 5, err
     assert proc.returncode == 130 and "interrupted" in err and "Traceback" not in err, err
     assert not (tmp_path / "out" / "results.json").exists()
+
+
+
+def test_the_console_script_and_python_m_share_one_interrupt_handler_installed_first(
+        tmp_path, capsys, monkeypatch):
+    import builtins
+    import tomllib
+
+    import mikota_jax.__main__ as as_module
+    from mikota_jax.app import cli
+
+    root = Path(mj.__file__).parent.parent
+    scripts = tomllib.loads((root / "pyproject.toml").read_text())["project"]["scripts"]
+    assert scripts == {"mikota-jax": "mikota_jax.app.cli:main"}
+    assert as_module.main is cli.main  # python -m runs the console script's function
+    events = []
+    monkeypatch.setattr(cli, "exit_on_interrupt", lambda: events.append("handler"))
+    real_import = builtins.__import__
+
+    def interrupted_import(name, *args, **kwargs):  # Ctrl-C while main imports the heavy part
+        if name == "reproduction":
+            events.append("import")
+            raise KeyboardInterrupt
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", interrupted_import)
+    monkeypatch.setattr(sys, "argv", ["mikota-jax", "reproduce", "--out", str(tmp_path)])
+    assert main() == 130
+    assert events == ["handler", "import"]  # installed before the import
+    assert capsys.readouterr().err == "interrupted: stopped, nothing more written\n"
+    assert main(["reproduce", "--out", str(tmp_path)]) == 130  # in-process: no handler, one line
+    assert events == ["handler", "import", "import"]
+
+
+@pytest.mark.parametrize("command", ["python -m", "console script"])
+def test_ctrl_c_while_the_command_line_imports_jax_is_one_line(tmp_path, command):
+    import signal
+
+    if command == "python -m":
+        argv = [sys.executable, "-m", "mikota_jax"]
+    else:
+        argv = [str(Path(sys.executable).parent / "mikota-jax")]
+        if not Path(argv[0]).exists():
+            pytest.skip("the console script is not installed (pip install -e .)")
+    # Python reports each import on stderr as it ends: once a jax module has been reported,
+    # jax itself is still importing (the package imports it before anything else runs)
+    env = dict(os.environ, MIKOTA_JAX_CACHE="0", OPENBLAS_NUM_THREADS="1",
+               PYTHONPROFILEIMPORTTIME="1")
+    proc = subprocess.Popen([*argv, "run", "section5_damped", "--out", str(tmp_path / "out")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    for line in proc.stderr:
+        if line.split("|")[-1].strip() == "jax._src.config":
+            break
+    else:
+        raise AssertionError("jax was never imported")
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    lines = [line for line in err.splitlines() if not line.startswith("import time:")]
+    assert proc.returncode == 130 and lines == ["interrupted: stopped, nothing more written"], err
 
 
 FULL_ORDER_SCENE = """

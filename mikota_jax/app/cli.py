@@ -16,6 +16,8 @@ import os
 import sys
 from pathlib import Path
 
+from .._interrupt import MESSAGE, exit_on_interrupt
+
 
 def _parser() -> argparse.ArgumentParser:
     # the docstring is reST; --help shows it as plain text (no ``literal`` markers)
@@ -180,6 +182,21 @@ def _compile_level(args) -> None:
 
 
 def main(argv=None) -> int:
+    """The command line on ``argv`` (default ``sys.argv[1:]``); returns the exit code.
+
+    Without ``argv`` (the ``mikota-jax`` console script, ``python -m mikota_jax``) it is the
+    process's own command line: Ctrl-C then ends the process with one line and exit code 130
+    (``mikota_jax._interrupt``, installed before the package imported JAX, again here)."""
+    if argv is None:
+        exit_on_interrupt()
+    try:
+        return _command(argv)
+    except KeyboardInterrupt:  # the handler not installed (called in-process, or off the main
+        print(MESSAGE, file=sys.stderr)  # thread): the same line, no traceback
+        return 130
+
+
+def _command(argv) -> int:
     args = _parser().parse_args(argv)
     _compile_level(args)
     say = (lambda *_: None) if args.quiet else print  # --quiet: errors only
