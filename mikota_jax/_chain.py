@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._custom_types import ScalarLike, Vector
-from ._dampers import GroundedDamper, RelativeDamper
+from ._dampers import DamperArgument
 from ._errors import MARK, array_module, as_float, check, check_chain_size, positive_scalar
 from ._internal_damping import ModalDamping, Rayleigh, as_internal
 from ._operators import Diagonal, SymmetricTridiagonal
@@ -34,13 +34,14 @@ def chain_stiffness(springs: Vector) -> SymmetricTridiagonal:
 
 
 def chain(masses: Sequence[float] | Vector, springs: Sequence[float] | Vector,
-          dampers: Sequence[GroundedDamper | RelativeDamper] = (), *,
+          dampers: DamperArgument = (), *,
           internal_damping: Rayleigh | ModalDamping | tuple | None = None) -> SecondOrderSystem:
     """A fixed-free chain (eq. 2.2) from masses m_1..m_n and springs k_1..k_n, each (n,).
 
     Spring k_i ties DOF i to DOF i - 1 (1-based; k_1 ties DOF 1 to the fixed support), DOF n is
     free; all values finite and > 0 (masses, stiffnesses in force per length; consistent units).
-    ``dampers``: ``GroundedDamper``/``RelativeDamper`` instances, or none (then ``damping=None``).
+    ``dampers``: ``GroundedDamper``/``RelativeDamper`` instances (a list, or one alone), or none
+    (then ``damping=None``).
     ``internal_damping``: ``Rayleigh(alpha, beta)``, ``ModalDamping(zeta)``, both, or None.
     """
     masses = as_float(masses, "masses")
@@ -64,7 +65,7 @@ def chain(masses: Sequence[float] | Vector, springs: Sequence[float] | Vector,
 
 
 def mikota_chain(n: int, m: ScalarLike = 1.0, k: ScalarLike = 1.0,
-                 dampers: Sequence[GroundedDamper | RelativeDamper] = (), *,
+                 dampers: DamperArgument = (), *,
                  internal_damping: Rayleigh | ModalDamping | tuple | None = None
                  ) -> SecondOrderSystem:
     """Mikota's chain (eqs. 2.2-2.3): m_i = m / i, k_i = (n - i + 1) k for DOFs i = 1..n.
@@ -103,7 +104,7 @@ def _branch(masses, springs, j: int):
 
 
 def branched_chain(masses: Sequence[Vector], springs: Sequence[Vector], hub_mass: ScalarLike,
-                   hub_spring: ScalarLike, dampers: Sequence[GroundedDamper | RelativeDamper] = (),
+                   hub_spring: ScalarLike, dampers: DamperArgument = (),
                    *, internal_damping: Rayleigh | ModalDamping | tuple | None = None
                    ) -> SecondOrderSystem:
     """Several fixed-free chains joined to a common mass (the hub), grounded by its own spring.

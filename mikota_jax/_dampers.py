@@ -8,6 +8,8 @@ continuous in p with a kink at every integer, where the derivative taken by JAX 
 one (and the left-sided one at p = n).
 """
 
+from collections.abc import Sequence
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -56,6 +58,10 @@ class RelativeDamper(eqx.Module):
         self.coefficient = as_float(coefficient, "coefficient")
         if self.coefficient.shape != ():
             raise ValueError(MARK + "RelativeDamper coefficient must be a scalar.")
+
+
+# the ``dampers`` argument of the system builders: one damper alone, or a sequence of them
+DamperArgument = GroundedDamper | RelativeDamper | Sequence[GroundedDamper | RelativeDamper]
 
 
 def _split(position, n: int):

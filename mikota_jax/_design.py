@@ -154,7 +154,10 @@ def _design_system(system, dampers) -> SecondOrderSystem:
             raise ValueError(MARK + "dampers: the system has no grounded damper to place; "
                              "pass dampers=[GroundedDamper(position, coefficient), ...].")
         return system  # its dampers were checked when it was built
-    dampers = list(dampers)
+    try:
+        dampers = [dampers] if isinstance(dampers, GroundedDamper) else list(dampers)
+    except TypeError:  # not a sequence
+        dampers = None
     if not dampers or not all(isinstance(d, GroundedDamper) for d in dampers):
         raise ValueError(MARK + "dampers must be a non-empty list of GroundedDamper.")
     fixed = [] if damping is None else [
@@ -196,7 +199,8 @@ class DamperProblem(eqx.Module):
     max_steps: int = eqx.field(static=True)
 
     def __init__(self, system: SecondOrderSystem, ts, x0=None, v0=None, load=None, *,
-                 dampers: Sequence[GroundedDamper] | None = None, objective: str = "energy",
+                 dampers: GroundedDamper | Sequence[GroundedDamper] | None = None,
+                 objective: str = "energy",
                  lowest: int | None = None, dof: int | None = None, order: int = 16,
                  snapshots: tuple[float, float] | None = None, energy: float = 0.9999,
                  criterion: str = "paper", rank: int | None = None, rtol: float = 1e-8,

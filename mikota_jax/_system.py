@@ -73,7 +73,15 @@ class SecondOrderSystem(eqx.Module):
 
 
 def dampers_operator(n: int, dampers) -> Dampers | None:
-    dampers = tuple(dampers)
+    """The ``Dampers`` of a sequence of dampers (one damper alone is a sequence of one), or None
+    when there are none."""
+    if isinstance(dampers, GroundedDamper | RelativeDamper):
+        dampers = (dampers,)
+    try:
+        dampers = tuple(dampers)
+    except TypeError:
+        raise ValueError(MARK + "dampers must be a list of GroundedDamper or RelativeDamper, "
+                         f"got {dampers!r:.60}.") from None
     for d in dampers:
         if not isinstance(d, GroundedDamper | RelativeDamper):
             raise ValueError(MARK + f"dampers must be GroundedDamper or RelativeDamper, got {d!r}.")

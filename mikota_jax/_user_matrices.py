@@ -20,14 +20,12 @@ dense n x n eigendecomposition per solve. Checks on construction: shapes, finite
 names the matrix.
 """
 
-from collections.abc import Sequence
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._dampers import GroundedDamper, RelativeDamper
+from ._dampers import DamperArgument
 from ._errors import MARK, as_float, check, is_traced
 from ._internal_damping import ModalDamping, Rayleigh, as_internal
 from ._operators import Dense, Diagonal, Sparse, SymmetricBanded, SymmetricTridiagonal
@@ -188,7 +186,7 @@ def _check(operator, name: str, definite: bool, check_definite: bool):
 
 
 def system(mass, stiffness, damping=None, *,
-           dampers: Sequence[GroundedDamper | RelativeDamper] = (),
+           dampers: DamperArgument = (),
            internal_damping: Rayleigh | ModalDamping | tuple | None = None,
            check_definite: bool = True) -> SecondOrderSystem:
     """A second-order system M x'' + D x' + K x = f (eq. 3.1) from a user's matrices.
@@ -197,8 +195,9 @@ def system(mass, stiffness, damping=None, *,
     positive semi-definite, or None. Each given as a dense (n, n) array, an (n,) diagonal, a tuple
     of bands (main diagonal, then super-diagonals), a scipy.sparse matrix or one of this package's
     operators; the module docstring lists the structure each keeps. ``dampers``:
-    ``GroundedDamper``/``RelativeDamper`` (1-based DOFs) added to D; ``internal_damping``:
-    ``Rayleigh(alpha, beta)``, ``ModalDamping(zeta)`` or both, added to D. Consistent units.
+    ``GroundedDamper``/``RelativeDamper`` (1-based DOFs; a list, or one alone) added to D;
+    ``internal_damping``: ``Rayleigh(alpha, beta)``, ``ModalDamping(zeta)`` or both, added to D.
+    Consistent units.
 
     Checks: shapes, finite entries, symmetry, definiteness (dense above tridiagonal, so refused
     beyond n = 4000 unless ``check_definite=False``); a ``ValueError`` names the matrix.

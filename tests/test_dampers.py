@@ -187,6 +187,31 @@ def test_non_damper_objects_are_rejected():
         mj.mikota_chain(N, dampers=[(2.0, 1.0)])
 
 
+def test_one_damper_not_in_a_list_is_a_list_of_one_for_every_system_builder(close):
+    grounded, relative = mj.GroundedDamper(2.0, 1.0), mj.RelativeDamper((1, 3), 0.5)
+    for damper in (grounded, relative):
+        close(damping_matrix(damper), damping_matrix([damper]), rtol=0.0, atol=0.0)
+    masses, springs = np.ones(3), np.arange(1.0, 4.0)
+    for build in (lambda d: mj.chain(masses, springs, d),
+                  lambda d: mj.system(np.eye(3), np.diag(springs), dampers=d),
+                  lambda d: mj.branched_chain([np.ones(1), np.ones(1)], [np.ones(2), np.ones(2)],
+                                              1.0, 1.0, d)):
+        close(build(relative).damping.as_matrix(), build([relative]).damping.as_matrix(),
+              rtol=0.0, atol=0.0)
+    problem = mj.DamperProblem(mj.mikota_chain(N), np.linspace(0.0, 1.0, 3), e(3),
+                               dampers=grounded)
+    assert problem.base.damping.positions.tolist() == [2.0]
+
+
+@pytest.mark.parametrize("dampers", [3, 2.5])
+def test_dampers_that_are_neither_dampers_nor_a_list_are_refused_in_one_line(dampers):
+    with pytest.raises(ValueError, match=r"^mikota_jax: dampers must be a list of "
+                       r"GroundedDamper or RelativeDamper, got .*\.$"):
+        mj.mikota_chain(N, dampers=dampers)
+    with pytest.raises(ValueError, match="dampers must be a non-empty list of GroundedDamper"):
+        mj.DamperProblem(mj.mikota_chain(N), np.linspace(0.0, 1.0, 3), e(3), dampers=dampers)
+
+
 def matrix_of(position, coefficient):
     system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(position, coefficient)])
     return system.damping.as_matrix()

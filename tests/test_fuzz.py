@@ -226,7 +226,8 @@ def api_calls():
               ("ts", lambda: mj.exact_solve(SYSTEM, TS[::-1], X0), "ts"),
               ("ts", lambda: mj.exact_solve(SYSTEM, TS.at[3].set(NAN), X0), "ts"),
               ("rtol", lambda: mj.simulate(SYSTEM, TS, X0, solver="dopri8", rtol=1.0), "rtol"),
-              ("method", lambda: mj.exact_solve(SYSTEM, TS, X0, method="fast"), "method")]
+              ("method", lambda: mj.exact_solve(SYSTEM, TS, X0, method="fast"), "method"),
+              ("dampers", lambda: mj.mikota_chain(4, dampers=3), "dampers must be a list")]
     return calls
 
 
