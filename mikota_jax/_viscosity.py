@@ -168,8 +168,18 @@ def criterion_function(system, criterion, lowest=None, horizon=None, x0=None, v0
 
 
 def _check_bounds(bound, size, name, default):
-    array = np.full(size, default, dtype=float) if bound is None else np.broadcast_to(
-        np.asarray(bound, dtype=float), (size,)).copy()
+    """``lower`` or ``upper``: None (``default``), a scalar, or one value per coefficient."""
+    if bound is None:
+        return np.full(size, default, dtype=float)
+    try:
+        array = np.asarray(bound, dtype=float)
+    except (ValueError, TypeError):  # ragged lists, text
+        array = None
+    if array is None or array.shape not in ((), (size,)):
+        count = "one number" if size == 1 else f"a number or {size} numbers"
+        raise ValueError(MARK + f"{name} must be {count} (one per damper coefficient: grounded "
+                         f"dampers first, then relative ones), got {bound!r:.60}.")
+    array = np.broadcast_to(array, (size,)).copy()
     if np.any(np.isnan(array)):
         raise ValueError(MARK + f"{name} must not be NaN, got {bound!r}.")
     return array

@@ -227,7 +227,11 @@ def api_calls():
               ("ts", lambda: mj.exact_solve(SYSTEM, TS.at[3].set(NAN), X0), "ts"),
               ("rtol", lambda: mj.simulate(SYSTEM, TS, X0, solver="dopri8", rtol=1.0), "rtol"),
               ("method", lambda: mj.exact_solve(SYSTEM, TS, X0, method="fast"), "method"),
-              ("dampers", lambda: mj.mikota_chain(4, dampers=3), "dampers must be a list")]
+              ("dampers", lambda: mj.mikota_chain(4, dampers=3), "dampers must be a list"),
+              ("lower", lambda: mj.optimise_viscosities(SYSTEM, lower=[0.0, 0.0]),
+               r"lower must be one number \(one per damper coefficient"),
+              ("upper", lambda: mj.optimise_viscosities(SYSTEM, upper=[1.0, 2.0, 3.0]),
+               r"upper must be one number \(one per damper coefficient")]
     return calls
 
 

@@ -107,6 +107,10 @@ def test_the_energy_of_a_free_vibration_is_optimised_in_one_coefficient(close):
     (dict(free=[5]), "free must be indices in 0..1"),
     (dict(lower=-1.0), "0 <= lower <= upper"),
     (dict(upper=[1.0, -1.0]), "0 <= lower <= upper"),
+    (dict(lower=[0.0, 0.0, 0.0]), r"^mikota_jax: lower must be a number or 2 numbers \(one per "
+     r"damper coefficient: grounded dampers first, then relative ones\), got \[0.0, 0.0, 0.0\]\.$"),
+    (dict(upper=[1.0]), r"upper must be a number or 2 numbers .*, got \[1.0\]\.$"),
+    (dict(upper="big"), r"upper must be a number or 2 numbers"),
     (dict(tolerance=0.0), "tolerance must lie in"),
     (dict(method="newton"), "method must be one of"),
     (dict(criterion="energy"), "horizon must be a finite time > 0"),
