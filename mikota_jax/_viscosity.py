@@ -54,7 +54,7 @@ import numpy as np
 
 from ._custom_types import Array
 from ._dampers import Dampers
-from ._errors import MARK, check_lowest, check_x64
+from ._errors import MARK, check_lowest, check_x64, integer_indices
 from ._integrate import initial_vector
 from ._objectives import smooth_peak
 from ._output_criteria import output_arguments, output_horizon, output_states, state_matrix
@@ -185,6 +185,26 @@ def _check_bounds(bound, size, name, default):
     return array
 
 
+def _free_mask(free, size: int) -> np.ndarray:
+    """(size,) booleans: which coefficients move. ``free``: None (all), or distinct 0-based
+    indices into the coefficient vector; a negative index is refused, not counted from the end."""
+    if free is None:
+        return np.ones(size, dtype=bool)
+    where = (f"0-based indices in 0..{size - 1} into the {size} damper coefficients, grounded "
+             "dampers first, then relative ones")
+    indices = integer_indices(free, "free")
+    if not indices:
+        raise ValueError(MARK + f"free must name at least one coefficient ({where}), got "
+                         f"{free!r}; None frees all.")
+    if not all(0 <= i < size for i in indices):
+        raise ValueError(MARK + f"free must be {where}, got {free!r}.")
+    if len(set(indices)) != len(indices):
+        raise ValueError(MARK + f"free must not repeat an index ({where}), got {free!r}.")
+    mask = np.zeros(size, dtype=bool)
+    mask[list(indices)] = True
+    return mask
+
+
 def checked_criterion(system, criterion, lowest, horizon, x0, v0, cx, cv, inputs, dof=None,
                       ts=None, order=16) -> Criterion:
     """The criterion's arguments checked before compiling, as a ``Criterion``."""
@@ -254,8 +274,8 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
     None: ``output_energy``), ``"h2"`` (the H2 norm from ``inputs`` to that output:
     ``h2_norm``) or ``"peak"`` (``smooth_peak`` of order ``order`` of the displacement of the
     1-based ``dof`` over the times ``ts``, free vibration from ``x0``, ``v0``). ``free``:
-    indices into the coefficient vector (grounded dampers first, then relative ones, each in the
-    order given) that move, default all; the others stay.
+    0-based indices into the coefficient vector (grounded dampers first, then relative ones, each
+    in the order given; 0..g + p - 1) that move, distinct, default all; the others stay.
     ``lower``, ``upper``: bounds, scalars or (g + p,) (default 0 and none). ``method``:
     ``"bfgs"`` (projected quasi-Newton) or ``"spg"`` (spectral projected gradient, Li &
     Tisseur's globally convergent method). See the module docstring for the methods and the
@@ -270,12 +290,7 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
     size = d.shape[0]
     if size == 0:
         raise ValueError(MARK + "system has no damper whose coefficient could be optimised.")
-    mask = np.zeros(size, dtype=bool)
-    try:
-        mask[np.arange(size) if free is None else np.asarray(free, dtype=int)] = True
-    except (IndexError, ValueError, TypeError):
-        raise ValueError(MARK + f"free must be indices in 0..{size - 1} (grounded dampers first, "
-                         f"then relative ones), got {free!r}.") from None
+    mask = _free_mask(free, size)
     lo = _check_bounds(lower, size, "lower", 0.0)
     hi = _check_bounds(upper, size, "upper", np.inf)
     if np.any(lo < 0) or np.any(hi < lo):

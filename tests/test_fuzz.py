@@ -231,7 +231,9 @@ def api_calls():
               ("lower", lambda: mj.optimise_viscosities(SYSTEM, lower=[0.0, 0.0]),
                r"lower must be one number \(one per damper coefficient"),
               ("upper", lambda: mj.optimise_viscosities(SYSTEM, upper=[1.0, 2.0, 3.0]),
-               r"upper must be one number \(one per damper coefficient")]
+               r"upper must be one number \(one per damper coefficient"),
+              ("free", lambda: mj.optimise_viscosities(SYSTEM, free=[-1]),
+               r"free must be 0-based indices in 0..0")]
     return calls
 
 

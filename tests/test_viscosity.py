@@ -104,7 +104,12 @@ def test_the_energy_of_a_free_vibration_is_optimised_in_one_coefficient(close):
     (dict(criterion="h2", cx=[1.0] * 12), "inputs must be"),
     (dict(criterion="output"), "give an output"),
     (dict(lowest=0), "lowest must be None or an integer"),
-    (dict(free=[5]), "free must be indices in 0..1"),
+    (dict(free=[5]), r"^mikota_jax: free must be 0-based indices in 0..1 into the 2 damper "
+     r"coefficients, grounded dampers first, then relative ones, got \[5\]\.$"),
+    (dict(free=[-1]), r"free must be 0-based indices in 0..1 .*, got \[-1\]\.$"),
+    (dict(free=[0, 0]), r"free must not repeat an index \(0-based indices in 0..1 .*\[0, 0\]"),
+    (dict(free=[]), r"free must name at least one coefficient .*; None frees all\.$"),
+    (dict(free=[0.5]), r"free must be integers, got \[0.5\]"),
     (dict(lower=-1.0), "0 <= lower <= upper"),
     (dict(upper=[1.0, -1.0]), "0 <= lower <= upper"),
     (dict(lower=[0.0, 0.0, 0.0]), r"^mikota_jax: lower must be a number or 2 numbers \(one per "
