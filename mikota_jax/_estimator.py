@@ -48,7 +48,7 @@ from ._galerkin import check_basis
 from ._modal import generalized_modes, scaled_modal, state_matrix
 from ._objectives import finite_gramian
 from ._operators import Diagonal
-from ._spectral import DEFECTIVE_SEPARATION, differentiable_roots, modal_damped_modes
+from ._spectral import differentiable_roots, modal_damped_modes
 from ._spectral_objectives import energy_from_modes
 from ._system import SecondOrderSystem
 
@@ -211,7 +211,7 @@ def _spectral_reduced_energy(system, basis, horizon, x0, v0):
     mass_r = rom.mass.as_matrix()
     value = energy_from_modes(roots, modes.T @ (mass_r @ (basis.T @ x0)),
                               modes.T @ (mass_r @ (basis.T @ v0)), horizon)
-    ok = frozen.converged & (frozen.separation > DEFECTIVE_SEPARATION) & jnp.isfinite(value)
+    ok = frozen.converged & frozen.clusters.ok & jnp.isfinite(value)
     return value, ok & ~not_definite, not_definite
 
 

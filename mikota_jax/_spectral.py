@@ -27,8 +27,9 @@ The undamped modes of a fixed-free chain come from ``chain_modes`` (O(n^2), rela
 other systems use ``generalized_modes`` (dense, O(n^3)).
 Memory: every step is per root, and above n = 512 the rows are formed a block of roots at a
 time (``_spectral_rows``): O(n) memory (J + gradient at n = 30000 in 1.7 GiB).
-Not yet: a structured treatment of near-defective pairs (the callers fall back to the dense
-paths there).
+Two roots that nearly coincide (critical damping) are found like any others and then summed
+as a pair by a contour integral of the resolvent, never root by root (``_spectral_clusters``:
+``DampedModes.clusters``).
 """
 
 import functools
@@ -38,6 +39,7 @@ import jax
 import jax.numpy as jnp
 
 from ._custom_types import Array, Float
+from ._spectral_clusters import Clusters, cluster_roots, find_clusters
 from ._spectral_rows import by_rows, repulsion, row_block, smallest_separation
 from ._spectral_starts import arc_starts, far_starts
 
@@ -62,7 +64,6 @@ _SETTLED_STEP = 1e-13  # ... or a Newton step below this (relative to |lambda|)
 _SETTLED_RESIDUAL = 1e-5  # ... with |phi| relative to its terms below this
 _TRACE_TOL = 1e-9  # |sum lambda + tr D_m| relative to sum |lambda|: no root found twice
 _RESTART_STEPS = 12  # Newton steps for a missing root restarted from the trace
-DEFECTIVE_SEPARATION = 1e-6  # two damped roots closer than this (relative): near-defective
 
 
 class DampedModes(eqx.Module):
@@ -75,10 +76,11 @@ class DampedModes(eqx.Module):
     each root is written from, lambda = ``poles``[A] + ``offset``; ``null`` c: (2n, k), the
     eigenvector's damper amplitudes (y = R F diag(d) c); ``converged``: whether every root passed
     the residual and trace checks; ``separation``: the smallest |lambda_j - lambda_k| /
-    |lambda_j| between two roots that interact (near-defective below ``DEFECTIVE_SEPARATION``);
-    ``iterations``: Aberth sweeps used. At an exceptional point (one DOF, d = 2 sqrt(k m):
-    lambda = -sqrt(k/m) twice, one eigenvector) the two roots come back within ~sqrt(eps) of the
-    double root with ``separation`` below the threshold.
+    |lambda_j| between two roots that interact (a diagnostic); ``iterations``: Aberth sweeps
+    used; ``clusters``: the pairs of nearly coincident roots that every sum over the roots takes
+    by a contour integral instead (``_spectral_clusters``; their ``coefficients`` are zero
+    here). At an exceptional point (one DOF, d = 2 sqrt(k m): lambda = -sqrt(k/m) twice, one
+    eigenvector) the two roots come back within ~sqrt(eps) of the double root, as one cluster.
     """
 
     omega: Float[Array, " n"]
@@ -92,6 +94,7 @@ class DampedModes(eqx.Module):
     converged: Array
     separation: Float[Array, ""]
     iterations: Array
+    clusters: Clusters
     internal: bool = eqx.field(static=True, default=False)  # whether gamma may be nonzero
 
     @property
@@ -115,6 +118,16 @@ class DampedModes(eqx.Module):
     def root_active(self) -> Array:
         """(2n,) bool: the roots of modes a damper touches."""
         return jnp.concatenate([self.active, self.active])
+
+    @property
+    def simple(self) -> Array:
+        """(2n,) bool: the damped roots summed one by one (not in a cluster)."""
+        return self.root_active & ~self.clusters.member
+
+    def safe_normalisers(self, roots, norm) -> Array:
+        """N_j with 1 for the roots in a cluster (theirs vanish at a double root; they are
+        summed by contour, and a 1 / 0 would poison the gradient through ``where``)."""
+        return jnp.where(self.clusters.member[roots], 1.0, norm)
 
     @complex_arithmetic
     def vector_rows(self, roots) -> Array:
@@ -163,17 +176,21 @@ class DampedModes(eqx.Module):
         y = self.vectors().T
         stiff = (self.omega**2).reshape((-1,) + (1,) * (q0.ndim - 1)) * q0
         lam = lam.reshape((-1,) + (1,) * (q0.ndim - 1))
-        norm = self.normalisers().reshape(lam.shape)
-        return (y @ p0 - (y @ stiff) / lam) / norm
+        roots = jnp.arange(lam.shape[0])
+        norm = self.safe_normalisers(roots, self.normalisers()).reshape(lam.shape)
+        member = self.clusters.member.reshape(lam.shape)
+        return jnp.where(member, 0.0, (y @ p0 - (y @ stiff) / lam) / norm)
 
     @complex_arithmetic
     def load_coefficients(self, g: Float[Array, " n"]) -> Array:
         """b: (2n,) complex, b_j = y_j^T g / N_j for a constant modal force g (= U^T f): the
         response of eta'' + D_m eta' + Omega^2 eta = g from rest is eta(t) = sum_j b_j
         (exp(lambda_j t) - 1) / lambda_j y_j (the static part Omega^-2 g = -sum_j b_j y_j /
-        lambda_j)."""
+        lambda_j); zero for the roots in a cluster, as ``coefficients``."""
         y = self.vectors().T
-        return (y @ g) / self.normalisers()
+        roots = jnp.arange(y.shape[0])
+        norm = self.safe_normalisers(roots, self.normalisers())
+        return jnp.where(self.clusters.member, 0.0, (y @ g) / norm)
 
 
 def _poles(omega, gamma):
@@ -461,12 +478,23 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
 
     state = assess(anchor, *settle(anchor, offset, root_active, _POLISH_STEPS))
     state = jax.lax.cond((jnp.sum(~state[4]) == 1) & ~state[5], restart, lambda s: s, state)
-    anchor, offset, lam, c, root_ok, trace_ok = state
-    residual_ok = jnp.all(root_ok)
+    anchor, offset, lam, c, root_ok, _ = state
     separation = smallest_separation(poles, anchor, offset, root_active, n, block)
-    converged = residual_ok & trace_ok & jnp.all(jnp.isfinite(lam)) & jnp.all(jnp.isfinite(c))
+    # a pair summed by contour: its two roots need not pass one by one (at a double root they
+    # are only sqrt(eps)-accurate and Newton's residual stays at rounding), but the circle must
+    # hold exactly two, and their sum (by contour) stands for them in the trace check
+    clusters = find_clusters(poles, anchor, offset, active, block)
+    count, inside = cluster_roots(poles, factor, weights, active, clusters)
+    paired = jnp.all(~clusters.valid | (jnp.abs(count - 2) < 1e-6))
+    residual_ok = jnp.all(root_ok | clusters.member)
+    simple = root_active & ~clusters.member
+    total = jnp.sum(jnp.where(simple, lam, 0.0)) + jnp.sum(jnp.where(clusters.valid, inside, 0.0))
+    trace_ok = (jnp.abs(total + trace)
+                <= _TRACE_TOL * jnp.sum(jnp.where(root_active, jnp.abs(lam), 0.0)))
+    converged = (residual_ok & trace_ok & paired & jnp.all(jnp.isfinite(lam))
+                 & jnp.all(jnp.isfinite(c)))
     return DampedModes(omega, gamma, factor, weights, active, anchor, offset, c, converged,
-                       separation, iterations, internal)
+                       separation, iterations, clusters, internal)
 
 
 @complex_arithmetic
@@ -479,7 +507,7 @@ def differentiable_roots(modes: DampedModes, block: int | None = None) -> Damped
     poles = _poles(modes.omega, modes.gamma)
     phi, phi_prime, *_ = _secular(poles, modes.gamma, modes.factor, modes.weights,
                                   frozen.active, frozen.anchor, frozen.offset, block)
-    active = frozen.root_active
+    active = frozen.simple  # a root in a cluster carries no derivative of its own (1 / 0 there)
     step = jnp.where(active, phi / jnp.where(active, phi_prime, 1.0), 0.0)
     offset = frozen.offset - (step - jax.lax.stop_gradient(step))
     _, _, _, c, _ = _secular(poles, modes.gamma, modes.factor, modes.weights, frozen.active,

@@ -15,9 +15,11 @@ from the bi-orthogonality (``DampedModes.coefficients``). Then
   Truhar & Veselic, SIAM J. Matrix Anal. Appl. 31:18, 2009).
 
 Both cost O(k n^2) after the modes for dampers alone, O(n^3) (one BLAS-3 product) with internal
-damping (``modal_gram``). Each returns whether it holds (every root converged, no two
-interacting roots nearly coincide); the public ``integrated_energy`` and ``total_average_energy``
-fall back to their dense (Van Loan) paths where it does not.
+damping (``modal_gram``). A pair of nearly coincident roots (critical damping) is left out of
+these root-by-root sums and enters by contour integrals of the resolvent instead
+(``_spectral_clusters``): its cross terms with every other root (``cluster_energy``,
+``cluster_trace``) cost O(NODES n^2) more per pair, and only where there is one. Each returns
+whether it holds (every root converged, every nearly coincident pair in a cluster).
 """
 
 import equinox as eqx
@@ -26,8 +28,9 @@ import jax.numpy as jnp
 
 from ._custom_types import Array
 from ._modal import modal_projection
-from ._spectral import DampedModes, complex_arithmetic
-from ._spectral_rows import by_rows, row_block
+from ._spectral import DampedModes, complex_arithmetic, small_solve
+from ._spectral_clusters import initial_rhs, resolvent_at, solve_at
+from ._spectral_rows import by_rows, row_block, sum_by_rows
 from ._spectral_system import live_modes, live_rows, uses_rows
 
 # --- the energy kernels: Gram matrix of the damped modes, pair sums, time integrals ----------
@@ -96,6 +99,84 @@ def growth(s, horizon):
 
 
 
+# --- pairs of nearly coincident roots, by contour (``_spectral_clusters``) ----------------
+
+
+@complex_arithmetic
+def cluster_energy(modes: DampedModes, q0, p0, horizon, a, block):
+    """The terms of J that involve the clusters: twice cluster x simple root, plus cluster x
+    cluster; (m,) for q0, p0 (n, m) and the simple roots' coefficients a (2n, m) (zero in the
+    clusters). Zero without a cluster (then not computed, except under ``vmap``).
+
+    With u(s) = Q(s)^-1 b(s), b(s) = (s I + D_m) q0 + p0, the clusters' part of the modal state
+    is sum_p w_p exp(s_p t) (Omega u_p, s_p u_p) (``Clusters.nodes``), so each term is the
+    simple roots' one with (lambda_j, a_j y_j) replaced by (s_p, w_p u_p): O(NODES n (2n + k))
+    per cluster (``block`` roots at a time, as ``_blocked_energy``)."""
+    def terms():
+        s, w = modes.clusters.nodes()
+        u = solve_at(modes, s, initial_rhs(modes, s, q0, p0))  # (P, n, m)
+        omega2 = modes.omega**2
+        lam = modes.eigenvalues
+        weighted = u * omega2[None, :, None]
+
+        def cross(j, weight):
+            y = modes.vector_rows(j)  # (B, n)
+            gram = jnp.einsum("plm,bl->pmb", weighted, y) + (
+                s[:, None, None] * lam[j][None, None, :]) * jnp.einsum("plm,bl->pmb", u, y)
+            kernel = growth(s[:, None] + lam[j][None, :], horizon)  # (P, B)
+            coefficient = jnp.where((modes.simple[j] & (weight > 0))[:, None], a[j], 0.0)
+            return jnp.real(jnp.einsum("p,pmb,pb,bm->m", w, gram, kernel, coefficient))
+
+        index = jnp.arange(lam.shape[0])
+        if block is None:
+            both = cross(index, jnp.ones(index.shape[0]))
+        else:
+            both = sum_by_rows(cross, block, index)
+        gram = jnp.einsum("plm,qlm->pqm", weighted, u) + (
+            s[:, None, None] * s[None, :, None]) * jnp.einsum("plm,qlm->pqm", u, u)
+        kernel = growth(s[:, None] + s[None, :], horizon)
+        inner = jnp.einsum("p,q,pqm,pq->m", w, w, gram, kernel)
+        return both + jnp.real(inner) / 2
+
+    shape = jax.eval_shape(terms)
+    return jax.lax.cond(modes.clusters.any, terms, lambda: jnp.zeros(shape.shape, shape.dtype))
+
+
+@complex_arithmetic
+def cluster_trace(modes: DampedModes, y, scale):
+    """The terms of ``trace_from_modes``'s double sum that involve the clusters (zero
+    without one): sum over a cluster's roots of G_jk^2 h(lambda_j) / N_j is the contour
+    integral of beta_k(s)^T Q(s)^-1 beta_k(s) h(s), beta_k(s) = (Omega^2 + s lambda_k) y_k, of
+    which only the singular part -s R F W H^-1 F^T R of Q^-1 contributes (the rest is analytic
+    inside the circle); cluster x cluster likewise with both singular parts (O(NODES^2 n k^2)).
+    ``y`` (2n, n) the vectors as rows, ``scale`` (2n,) lambda_k N_k (1 in the clusters)."""
+    def terms():
+        s, w = modes.clusters.nodes()
+        r, f, h = resolvent_at(modes, s)
+        lam = modes.eigenvalues
+        omega2 = modes.omega**2
+        rf = r[:, :, None] * f[None]  # R F (P, n, k)
+        e1 = jnp.einsum("pla,kl->pak", rf * omega2[None, :, None], y)
+        e2 = jnp.einsum("pla,kl->pak", rf, y)
+        beta = e1 + (s[:, None] * lam[None, :])[:, None, :] * e2  # F^T R beta_k (P, k, 2n)
+        quad = jnp.sum(beta * modes.weights[None, :, None] * small_solve(h, beta), axis=1)
+        factor = -1 / (scale[None, :] * s[:, None] * (s[:, None] + lam[None, :]))
+        cross = jnp.einsum("p,pk,pk->", w, -s[:, None] * quad,
+                           jnp.where(modes.simple[None, :], factor, 0.0))
+        k = f.shape[1]
+        eye = jnp.broadcast_to(jnp.eye(k, dtype=h.dtype), h.shape)
+        c = -s[:, None, None] * modes.weights[None, :, None] * small_solve(h, eye)  # (P, k, k)
+        b = jnp.einsum("pla,qlb->pqab", rf * omega2[None, :, None], rf) + (
+            s[:, None, None, None] * s[None, :, None, None]) * jnp.einsum(
+                "pla,qlb->pqab", rf, rf)
+        traces = jnp.einsum("pab,pqbc,qcd,pqad->pq", c, b, c, b)
+        inner = jnp.einsum("p,q,pq,pq->", w, w, traces,
+                           -1 / (s[:, None] * s[None, :] * (s[:, None] + s[None, :])))
+        return jnp.real(2 * cross + inner)
+
+    return jax.lax.cond(modes.clusters.any, terms, lambda: jnp.zeros(()))
+
+
 # --- the objectives --------------------------------------------------------------------------
 
 
@@ -120,8 +201,9 @@ def _blocked_energy(modes: DampedModes, q0, p0, horizon, block):
         lam = poles[anchor[j]] + offset[j]
         act = active[j]
         y = modes.vector_rows(j)
-        norm = modes.normaliser_rows(j, y)
+        norm = modes.safe_normalisers(j, modes.normaliser_rows(j, y))
         coefficient = (y @ p0 - (y @ (omega2[:, None] * q0)) / lam[:, None]) / norm[:, None]
+        coefficient = jnp.where(modes.clusters.member[j][:, None], 0.0, coefficient)
         # the conjugate partner: summed directly (lambda_j + lambda_k below rounding)
         gap = jnp.abs((base[None, :] - jnp.conj(base[j])[:, None])
                       + (offset[None, :] - jnp.conj(offset[j])[:, None]))
@@ -142,7 +224,8 @@ def _blocked_energy(modes: DampedModes, q0, p0, horizon, block):
         return jnp.real(coefficient * (kernel @ a))  # (roots, batch)
 
     rows = by_rows(second, block, index, partner, direct, a)
-    value = (jnp.sum(rows, axis=0) / 2).reshape(batch)
+    value = jnp.sum(rows, axis=0) / 2 + cluster_energy(modes, q0, p0, horizon, a, block)
+    value = value.reshape(batch)
     q0, p0 = q0.reshape((n,) + batch), p0.reshape((n,) + batch)
     return value + _idle_energy(modes, q0, p0, horizon)
 
@@ -169,10 +252,16 @@ def energy_from_modes(modes: DampedModes, q0, p0, horizon, block: int | None = N
     s, pair = pair_sums(modes)
     if not modes.internal:  # a mode no damper touches keeps its energy: T E_l(0), exactly
         pair = pair & modes.root_active[:, None]
+    apart = ~modes.clusters.member
+    pair = pair & apart[:, None] & apart[None, :]
     a = modes.coefficients(q0, p0)
     kernel = jnp.where(pair, modal_gram(modes, y) * growth(jnp.where(pair, s, -1.0), horizon),
                        0.0)
     value = jnp.real(jnp.einsum("j...,jk,k...->...", a, kernel, a)) / 2
+    batch = q0.shape[1:]
+    n = q0.shape[0]
+    value = value + cluster_energy(modes, q0.reshape(n, -1), p0.reshape(n, -1), horizon,
+                                   a.reshape(2 * n, -1), None).reshape(batch)
     if modes.internal:
         return value
     return value + _idle_energy(modes, q0, p0, horizon)
@@ -214,13 +303,17 @@ def trace_from_modes(modes: DampedModes, lowest):
         return 2 * jnp.sum(energy_from_modes(modes, *_unit_states(modes.omega, lowest), None))
     y = modes.vectors().T
     s, pair = pair_sums(modes)
-    scale = modes.eigenvalues * modes.normalisers()
+    apart = ~modes.clusters.member
+    pair = pair & apart[:, None] & apart[None, :]
+    roots = jnp.arange(y.shape[0])
+    scale = modes.eigenvalues * modes.safe_normalisers(roots, modes.normalisers())
+    scale = jnp.where(modes.clusters.member, 1.0, scale)
     gram = modal_gram(modes, y)
     # G_jk^2 / (lambda_j lambda_k N_j N_k) as G_jk (G_jk / (lambda_j N_j)) / (lambda_k N_k):
     # no overflow of the squared Gram entries
     terms = jnp.where(pair, gram * (gram / scale[:, None] / scale[None, :])
                       * growth(jnp.where(pair, s, -1.0), None), 0.0)
-    value = jnp.real(jnp.sum(terms))
+    value = jnp.real(jnp.sum(terms)) + cluster_trace(modes, y, scale)
     if not modes.internal:  # a mode no damper touches never decays: X does not exist
         value = jnp.where(jnp.all(modes.active), value, jnp.inf)
     return value

@@ -19,11 +19,15 @@ conjugate pair fills one slot, counted twice; two real roots share one, packed a
 (exact by linearity, no threshold on a rounding-level imaginary part); an inconsistent pairing
 makes the result not ok.
 
+A pair of nearly coincident roots (critical damping, where the expansion's coefficients blow up
+like 1 / separation) is not summed root by root but by a contour integral around it
+(``_spectral_clusters``): its part of eta(t) is sum_p w_p exp(s_p t) u_p, u_p = Q(s_p)^-1 b(s_p),
+NODES pseudo-roots s_p per pair with the load's terms in the same form (``_cluster_history``).
+
 For a ``SecondOrderSystem`` whose damping is discrete dampers, with or without internal damping
 diagonal in modal coordinates (``_spectral.spectral_applies``). The result is a pair
-(``Trajectory``, ok); where not ok (a root did not converge, two damped roots nearly coincide --
-critical damping, where the expansion's coefficients blow up like 1 / separation -- or a
-non-finite output) the caller must use the dense path.
+(``Trajectory``, ok); where not ok (a root did not converge, roots nearly coincide outside a
+pair, or a non-finite output) the caller must use the dense path.
 """
 
 import equinox as eqx
@@ -34,6 +38,7 @@ from ._chain_combine import chain_mode_combination
 from ._integrate import Trajectory
 from ._modal import modal_projection
 from ._spectral import complex_arithmetic
+from ._spectral_clusters import initial_rhs, solve_at
 from ._spectral_rows import by_rows, sum_by_rows
 from ._spectral_system import live_modes, live_rows, uses_rows
 from ._spectral_system import spectral_applies as system_applies
@@ -127,6 +132,24 @@ def _conjugate_slots(lam, block=None):
     return first, second, real, consistent
 
 
+@complex_arithmetic
+def _cluster_history(modes, q0, p0, g, ts, load, displacement, velocity):
+    """The clusters' part of the modal history: ((N, P) tables, (P, n) modal vectors) pairs
+    whose ``Re(table @ vectors)`` add up to eta(t) (and eta'(t)) of the pairs of nearly
+    coincident roots: free vibration sum_p w_p exp(s_p t) Q(s_p)^-1 b(s_p), and a load's
+    sum_p w_p (its switch-on/off terms at s_p) Q(s_p)^-1 g, exactly as ``_modal_tables`` writes
+    them for roots (the residues at the pair of the same integrands)."""
+    s, w = modes.clusters.nodes()
+    free = solve_at(modes, s, initial_rhs(modes, s, q0[:, None], p0[:, None]))[..., 0]
+    cx, cv = _modal_tables(s, w, None, ts, None, displacement, velocity)
+    parts = [(cx, cv, free)]
+    if load is not None:
+        forced = solve_at(modes, s, jnp.broadcast_to(g[None, :, None], free.shape + (1,)))
+        lx, lv = _modal_tables(s, jnp.zeros_like(w), w, ts, load, displacement, velocity)
+        parts.append((lx, lv, forced[..., 0]))
+    return parts
+
+
 def _real_product(c, w):
     """Re(c w^T): (N, d) from c (N, m) and w (d, m) complex, as one real matrix product."""
     stacked = jnp.concatenate([jnp.real(c), jnp.imag(c)], axis=1)  # (N, 2m)
@@ -154,8 +177,10 @@ def spectral_solve_with_result(system, ts, x0, v0, load, *, dofs, displacement, 
                              velocity=velocity, block=block)
     modes, modes_u, modes_ok = live_modes(system)
     project = modal_projection(system, modes_u)
-    a = modes.coefficients(project(x0), project(v0))
-    b = None if load is None else modes.load_coefficients(modes_u.T @ load.direction)
+    q0, p0 = project(x0), project(v0)
+    a = modes.coefficients(q0, p0)
+    g = None if load is None else modes_u.T @ load.direction
+    b = None if load is None else modes.load_coefficients(g)
     lam = modes.eigenvalues
     first, second, real, consistent = _conjugate_slots(jax.lax.stop_gradient(lam))
     real_part = lambda z: None if z is None else jnp.real(z[second])  # noqa: E731
@@ -177,6 +202,16 @@ def spectral_solve_with_result(system, ts, x0, v0, load, *, dofs, displacement, 
 
     x = None if cx is None else _real_product(pack(cx, rx), w)
     v = None if cv is None else _real_product(pack(cv, rv), w)
+
+    def clusters(x, v):
+        for tx, tv, vectors in _cluster_history(modes, q0, p0, g, ts, load, displacement,
+                                                velocity):
+            out = (rows @ vectors.T)  # (d, P)
+            x = None if x is None else x + _real_product(tx, out)
+            v = None if v is None else v + _real_product(tv, out)
+        return x, v
+
+    x, v = jax.lax.cond(modes.clusters.any, clusters, lambda x, v: (x, v), x, v)
     finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(y)) for y in (x, v) if y is not None]))
     ok = modes_ok & consistent & finite
     return Trajectory(ts, x, v, dofs, None), ok
@@ -214,9 +249,10 @@ def rows_response(system, ts, x0, v0, load, *, dofs, displacement, velocity, blo
 
     def coefficients(roots):
         y = modes.vector_rows(roots)
-        norm = modes.normaliser_rows(roots, y)
-        a = (y @ p0 - (y @ stiff) / lam[roots]) / norm
-        return y, a, None if g is None else (y @ g) / norm
+        norm = modes.safe_normalisers(roots, modes.normaliser_rows(roots, y))
+        member = modes.clusters.member[roots]
+        a = jnp.where(member, 0.0, (y @ p0 - (y @ stiff) / lam[roots]) / norm)
+        return y, a, None if g is None else jnp.where(member, 0.0, (y @ g) / norm)
 
     def slots(one, two, is_real, weight):
         y1, a1, b1 = coefficients(one)
@@ -235,6 +271,14 @@ def rows_response(system, ts, x0, v0, load, *, dofs, displacement, velocity, blo
         return tuple(history(c, r) for c, r in ((cx, rx), (cv, rv)) if c is not None)
 
     etas = sum_by_rows(slots, size, first, second, real)
+
+    def clusters(etas):
+        parts = _cluster_history(modes, q0, p0, g, ts, load, displacement, velocity)
+        tables = [[t for t in (tx, tv) if t is not None] for tx, tv, _ in parts]
+        return tuple(e + sum(_real_product(t[i], vectors.T) for t, (*_, vectors) in
+                             zip(tables, parts)) for i, e in enumerate(etas))
+
+    etas = jax.lax.cond(modes.clusters.any, clusters, lambda e: e, etas)
     index = jnp.asarray(dofs) - 1
     outputs = chain_mode_combination(masses, system.stiffness.springs, index,
                                      jnp.concatenate([e.T for e in etas], axis=1))

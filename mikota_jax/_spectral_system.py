@@ -11,7 +11,7 @@ from ._dampers import Dampers
 from ._errors import MARK, RESULTS, check, check_x64
 from ._modal import generalized_modes
 from ._operators import Diagonal, SymmetricTridiagonal
-from ._spectral import DEFECTIVE_SEPARATION, DampedModes, differentiable_roots, modal_damped_modes
+from ._spectral import DampedModes, differentiable_roots, modal_damped_modes
 
 
 def spectral_applies(system) -> str | None:
@@ -97,7 +97,8 @@ def damped_modes(system) -> DampedModes:
 def live_modes(system, block: int | None = None):
     """(differentiable ``DampedModes``, U, ok): the roots found without derivatives, then
     carrying the implicit derivative of the secular equation; ok: converged and no two
-    interacting roots nearly coincide. ``block``: as ``modal_damped_modes``."""
+    interacting roots nearly coincide outside a cluster (``_spectral_clusters``). ``block``: as
+    ``modal_damped_modes``."""
     omega, modes_u, factor, weights, gamma = modal_data(system)
     modes, ok = _live(omega, factor, weights, gamma, block)
     return modes, modes_u, ok
@@ -120,5 +121,5 @@ def _live(omega, factor, weights, gamma, block=None):
     live = frozen if gamma is None else eqx.tree_at(lambda m: m.gamma, frozen, gamma)
     modes = differentiable_roots(eqx.tree_at(lambda m: (m.omega, m.factor, m.weights), live,
                                               (omega, factor, weights)), block)
-    ok = frozen.converged & (frozen.separation > DEFECTIVE_SEPARATION)
+    ok = frozen.converged & frozen.clusters.ok
     return modes, ok

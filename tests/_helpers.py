@@ -63,3 +63,68 @@ def mp_eigen_energy(system, horizon, x0, v0, dps=60):
                 integral = horizon if s == 0 else mp.expm1(s * horizon) / s
                 total += mp.conj(y[i]) * gram[i, j] * integral * y[j]
         return float(mp.re(total) / 2)
+
+
+def mp_first_order(m, d, k, dps, scale=1):
+    """The physical first-order matrix [[0, I], [-M^-1 K, -M^-1 scale D]] in mpmath at ``dps``
+    (``scale`` an mpmath number: a damper coefficient set beyond float64, for differences)."""
+    import mpmath as mp
+
+    n = m.shape[0]
+    with mp.workdps(dps):
+        a = mp.zeros(2 * n, 2 * n)
+        for i in range(n):
+            a[i, n + i] = 1
+            for j in range(n):
+                a[n + i, j] = -mp.mpf(float(k[i, j])) / mp.mpf(float(m[i, i]))
+                a[n + i, n + j] = -scale * mp.mpf(float(d[i, j])) / mp.mpf(float(m[i, i]))
+        return a
+
+
+def mp_truths(matrices, horizon, x0, v0, ts, dps=80, scale=1, exact=False):
+    """(J, trace X, x(ts)) of M x'' + D x' + K x = 0 (M diagonal) from mpmath's eigen-expansion
+    at ``dps`` digits (D times the mpmath number ``scale``): J = int_0^T (x'Kx + v'Mv) / 2 dt;
+    trace X of ``total_average_energy`` (A^T X + X A = -I in the scaled modal coordinates
+    (Omega eta, eta')); x (len(ts), n).
+
+    Near critical damping the expansion's coefficients grow like 1 / separation: at a relative
+    distance delta from a double root the separation is ~sqrt(delta) and ~|log10 delta| / 2
+    digits are lost, so at 80 digits (delta >= 1e-17) the truths keep more than 60. An exactly
+    defective system (mpmath's eig fails there) needs another truth. ``exact``: J and the trace
+    as mpmath numbers (for central differences beyond float64)."""
+    import mpmath as mp
+
+    m, d, k = (np.asarray(a, dtype=float) for a in matrices)
+    n = m.shape[0]
+    with mp.workdps(dps):
+        a = mp_first_order(m, d, k, dps, scale)
+        lam, v = mp.eig(a)
+        y = mp.lu_solve(v, mp.matrix([float(x) for x in x0] + [float(x) for x in v0]))
+        weight = mp.zeros(2 * n, 2 * n)
+        for i in range(n):
+            for j in range(n):
+                weight[i, j] = mp.mpf(float(k[i, j]))
+            weight[n + i, n + i] = mp.mpf(float(m[i, i]))
+        gram = v.transpose_conj() * weight * v
+        energy = mp.mpf(0)
+        for i in range(2 * n):
+            for j in range(2 * n):
+                s = mp.conj(lam[i]) + lam[j]
+                energy += mp.conj(y[i]) * gram[i, j] * mp.expm1(s * horizon) / s * y[j]
+        xs = []
+        for t in ts:
+            state = v * mp.matrix([y[i] * mp.exp(lam[i] * t) for i in range(2 * n)])
+            xs.append([float(mp.re(state[i])) for i in range(n)])
+        # trace X = int_0^inf |exp(A_s t)|_F^2 dt for A_s = S A S^-1, any S with S^T S = W =
+        # blockdiag(K, M) (|z|^2 = x'Kx + v'Mv, as the scaled modal coordinates): the trace is
+        # tr(exp(A^T t) W exp(A t) W^-1) integrated, sum_ij (V^H W V)_ij (V^-1 W^-1 V^-H)_ji /
+        # -(conj(lam_i) + lam_j)
+        vinv = v**-1
+        inner = vinv * weight**-1 * vinv.transpose_conj()
+        trace = mp.mpf(0)
+        for i in range(2 * n):
+            for j in range(2 * n):
+                trace += gram[i, j] * inner[j, i] / -(mp.conj(lam[i]) + lam[j])
+        if exact:
+            return mp.re(energy) / 2, mp.re(trace), np.array(xs)
+        return float(mp.re(energy) / 2), float(mp.re(trace)), np.array(xs)
