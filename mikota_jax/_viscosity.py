@@ -276,7 +276,8 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
     1-based ``dof`` over the times ``ts``, free vibration from ``x0``, ``v0``). ``free``:
     0-based indices into the coefficient vector (grounded dampers first, then relative ones, each
     in the order given; 0..g + p - 1) that move, distinct, default all; the others stay.
-    ``lower``, ``upper``: bounds, scalars or (g + p,) (default 0 and none). ``method``:
+    ``lower``, ``upper``: bounds, scalars or (g + p,) (default 0 and none); a coefficient with
+    lower = upper (``upper=0`` switches a damper off) stays there. ``method``:
     ``"bfgs"`` (projected quasi-Newton) or ``"spg"`` (spectral projected gradient, Li &
     Tisseur's globally convergent method). See the module docstring for the methods and the
     stopping rule. Returns a ``ViscosityResult``.
@@ -296,10 +297,16 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
     if np.any(lo < 0) or np.any(hi < lo):
         raise ValueError(MARK + f"bounds must satisfy 0 <= lower <= upper, got lower {lower!r}, "
                          f"upper {upper!r}.")
+    if not np.all(np.isfinite(lo)):
+        raise ValueError(MARK + f"lower must be finite, got {lower!r}.")
     if method not in METHODS:
         raise ValueError(MARK + f"method must be one of {METHODS}, got {method!r}.")
     if not (isinstance(tolerance, float | int) and 0 < tolerance < 1):
         raise ValueError(MARK + f"tolerance must lie in (0, 1), got {tolerance!r}.")
+    # a free coefficient whose bounds meet (lower = upper, 0 included) is fixed there, no search
+    # variable: its log coordinate would be a constant, -inf at 0
+    pinned = mask & (lo == hi)
+    d, mask = np.where(pinned, lo, d), mask & ~pinned
     d = np.where(mask, np.clip(d, lo, hi), d)
     # the search runs in u = log d of the free coefficients (see the module docstring); a free
     # coefficient that starts at 0 starts at 1 % of the largest one (or at its lower bound)
@@ -343,8 +350,8 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
     f, g = evaluate(u)
     if not np.isfinite(f) or not np.all(np.isfinite(g)):
         raise ValueError(MARK + f"the criterion is not finite at the start design ({f}); a mode "
-                         "no damper reaches has no total average energy: move a damper or "
-                         "restrict lowest.")
+                         "no damper reaches (a coefficient held at 0 reaches none) has no total "
+                         "average energy: move a damper, raise its bound, or restrict lowest.")
     # the first step changes log d by _FIRST_STEP along the steepest descent (then the method's
     # own scale takes over)
     first = _FIRST_STEP / max(np.linalg.norm(g), 1e-300)
@@ -355,7 +362,7 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
     d, g = design(u), last[u.tobytes()]
     converged = history[-1][1] < tolerance
     if converged:
-        status = "converged"
+        status = "converged" if mask.any() else "nothing to move: every free coefficient is pinned"
     return ViscosityResult(d, f, g, history[-1][1], converged, iterations, evaluations,
                            time.perf_counter() - start, history, status)
 

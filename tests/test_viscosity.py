@@ -2,6 +2,8 @@
 on a small chain, checked against scipy's L-BFGS-B on the same function, a grid around the
 optimum, the first-order conditions at a bound, and the refusals."""
 
+import warnings
+
 import jax
 import numpy as np
 import pytest
@@ -68,6 +70,48 @@ def test_an_upper_bound_holds_its_damper_with_the_gradient_pushing_out(optimum, 
     assert fixed.coefficients[1] == 0.7 and fixed.converged
 
 
+def dof_2_and_5(c2=1.0, c5=1.0):
+    return mj.mikota_chain(6, dampers=[mj.GroundedDamper(2.0, c2), mj.GroundedDamper(5.0, c5)])
+
+
+@pytest.mark.parametrize("method", ["bfgs", "spg"])
+def test_a_damper_pinned_at_zero_is_fixed_and_the_other_reaches_its_lone_optimum(method, close):
+    # the truth: the DOF-5 damper alone, its trace by scipy's dense Bartels-Stewart (refined;
+    # ~1e-14 relative) minimised in log c by Brent's method (c to ~1e-7)
+    lone = lambda logc: lyapunov_trace(mj.mikota_chain(  # noqa: E731
+        6, dampers=[mj.GroundedDamper(5.0, float(np.exp(logc)))]))
+    truth = scipy.optimize.minimize_scalar(lone, bracket=(-2.0, 0.0, 2.0), tol=1e-12)
+    assert round(float(np.exp(truth.x)), 3) == 0.826 and round(truth.fun, 3) == 59.647
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no log(0) of the pinned coefficient
+        pinned = mj.optimise_viscosities(dof_2_and_5(), upper=[0.0, 10.0], method=method)
+    assert pinned.converged, pinned.status
+    assert pinned.coefficients[0] == 0.0 and pinned.iterations > 0
+    close(pinned.coefficients[1], np.exp(truth.x), rtol=1e-5)
+    close(pinned.value, truth.fun, rtol=1e-11)
+    # lower = upper > 0 pins too; pinning every free one leaves nothing to move
+    held = mj.optimise_viscosities(dof_2_and_5(c5=3.0), lower=[0.5, 0.0], upper=[0.5, 10.0],
+                                   method=method)
+    assert held.converged and held.coefficients[0] == 0.5
+    nothing = mj.optimise_viscosities(dof_2_and_5(), free=[1], upper=[np.inf, 2.0],
+                                      lower=[0.0, 2.0], method=method)
+    assert nothing.converged and nothing.iterations == 0 and "pinned" in nothing.status
+    assert nothing.coefficients.tolist() == [1.0, 2.0]
+
+
+def test_an_infinite_criterion_at_the_start_is_one_line_not_an_optimum(monkeypatch):
+    # a coefficient pinned at 0 can leave a mode undamped: its trace is infinite (the spectral
+    # evaluation returns inf there), and no finite optimum may be reported
+    from mikota_jax import _viscosity
+
+    monkeypatch.setattr(_viscosity, "criterion_function", lambda system, args: (
+        lambda d: (np.inf, np.zeros(2))))
+    with pytest.raises(ValueError, match=r"^mikota_jax: the criterion is not finite at the "
+                       r"start design \(inf\); a mode no damper reaches \(a coefficient held "
+                       r"at 0 reaches none\)[^\n]*\.$"):
+        mj.optimise_viscosities(dof_2_and_5(), upper=[0.0, 10.0])
+
+
 def test_the_spectral_projected_gradient_reaches_the_same_optimum_and_bound(optimum):
     # Li & Tisseur's method (SPG): the optimum of the projected BFGS, and the KKT point at a cap
     spg = mj.optimise_viscosities(two_dampers(), "average_energy", lowest=LOWEST, method="spg")
@@ -111,6 +155,7 @@ def test_the_energy_of_a_free_vibration_is_optimised_in_one_coefficient(close):
     (dict(free=[]), r"free must name at least one coefficient .*; None frees all\.$"),
     (dict(free=[0.5]), r"free must be integers, got \[0.5\]"),
     (dict(lower=-1.0), "0 <= lower <= upper"),
+    (dict(lower=np.inf), r"^mikota_jax: lower must be finite, got inf\.$"),
     (dict(upper=[1.0, -1.0]), "0 <= lower <= upper"),
     (dict(lower=[0.0, 0.0, 0.0]), r"^mikota_jax: lower must be a number or 2 numbers \(one per "
      r"damper coefficient: grounded dampers first, then relative ones\), got \[0.0, 0.0, 0.0\]\.$"),
