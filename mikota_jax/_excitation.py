@@ -74,10 +74,16 @@ def pulse(n: int, dof: int, amplitude: ScalarLike = 1.0, duration: ScalarLike = 
     Short pulses approach the Dirac limit v0 = M^-1 (amplitude duration) e_dof (Section 4).
     """
     _check_dof(n, dof, "dof")
-    duration = as_float(duration, "duration")
+    amplitude, duration, start = (as_float(x, name) for x, name in (
+        (amplitude, "amplitude"), (duration, "duration"), (start, "start")))
+    for x, name in ((amplitude, "amplitude"), (duration, "duration"), (start, "start")):
+        if x.shape != ():
+            raise ValueError(MARK + f"pulse {name} must be a scalar, got shape {x.shape}.")
+    # checked here, or a NaN force would surface later blamed on the system
+    amplitude = check(amplitude, ~jnp.isfinite(amplitude), "pulse amplitude must be finite.")
     duration = check(duration, ~(jnp.isfinite(duration) & (duration > 0)),
                      "pulse duration must be finite and > 0.")
-    start = as_float(start, "start")
+    start = check(start, ~jnp.isfinite(start), "pulse start must be finite.")
     return Pulse(unit_vector(n, dof, amplitude), start, duration)
 
 

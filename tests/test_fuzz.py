@@ -217,6 +217,13 @@ def api_calls():
     for bad in (0.5, 0.0, 4.5, NAN, INF):
         calls.append(("position", lambda b=bad: mj.simulate(
             mj.mikota_chain(4, dampers=[mj.GroundedDamper(b, 0.5)]), TS, X0), "position"))
+    for bad in (NAN, INF, -INF):  # refused when the pulse is built, not blamed on the system
+        calls += [("amplitude", lambda b=bad: mj.pulse(4, 1, amplitude=b),
+                   r"^mikota_jax: pulse amplitude must be finite\.$"),
+                  ("start", lambda b=bad: mj.pulse(4, 1, start=b),
+                   r"^mikota_jax: pulse start must be finite\.$"),
+                  ("duration", lambda b=bad: mj.pulse(4, 1, duration=b),
+                   r"^mikota_jax: pulse duration must be finite and > 0\.$")]
     for bad in ([0], [5], [1.5], [-1]):
         calls.append(("dofs", lambda b=bad: mj.exact_solve(SYSTEM, TS, X0, dofs=b), "dofs"))
     for bad in (0, -1, 2.5, True):

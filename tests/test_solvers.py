@@ -323,6 +323,19 @@ def test_a_pulse_of_the_wrong_size_is_rejected(undamped):
         mj.pulse(N, 9)
 
 
+@pytest.mark.parametrize("name", ["amplitude", "start"])
+def test_a_non_finite_pulse_amplitude_or_start_is_refused_naming_it_eagerly_and_under_jit(name):
+    with pytest.raises(ValueError, match=rf"^mikota_jax: pulse {name} must be finite\.$"):
+        mj.pulse(N, 1, **{name: np.nan})
+    with pytest.raises(ValueError, match=rf"^mikota_jax: pulse {name} must be a scalar, got "
+                       r"shape \(2,\)\.$"):
+        mj.pulse(N, 1, **{name: [1.0, 2.0]})
+    build = eqx.filter_jit(lambda value: mj.pulse(N, 1, **{name: value}))
+    assert build(jnp.asarray(0.5)).size == N
+    with pytest.raises(eqx.EquinoxRuntimeError, match=f"pulse {name} must be finite"):
+        build(jnp.asarray(np.inf))
+
+
 # --- derivatives through the solve ---------------------------------------------------------------
 
 
