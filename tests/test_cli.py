@@ -217,6 +217,14 @@ def test_ctrl_c_while_the_command_line_imports_jax_is_one_line(tmp_path, command
     assert proc.returncode == 130 and lines == ["interrupted: stopped, nothing more written"], err
 
 
+def test_the_scene_size_that_picks_the_compile_level_is_read_past_a_byte_order_mark(tmp_path):
+    from mikota_jax.app.cli import _scene_size
+
+    scene = tmp_path / "marked.toml"
+    scene.write_bytes("\ufeff".encode() + SCENE.encode())
+    assert _scene_size(str(scene)) == 6
+
+
 FULL_ORDER_SCENE = """
 [chain]
 type = "mikota"

@@ -1,6 +1,7 @@
 """Scenes: TOML validation (one clear error per bad key); run_scene computes only what is asked."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -102,6 +103,22 @@ def test_a_missing_scene_file_is_a_clear_error(tmp_path):
     (tmp_path / "latin1.toml").write_bytes(b"name = \"caf\xe9\"\n")
     with pytest.raises(ValueError, match="latin1.toml.*is not UTF-8 text"):
         mj.load_scene(tmp_path / "latin1.toml")
+
+
+def test_a_scene_file_with_a_byte_order_mark_loads_and_a_broken_one_names_the_file(tmp_path):
+    bom = "\ufeff".encode()  # UTF-8's byte-order mark, which Windows editors write
+    (tmp_path / "marked.toml").write_bytes(bom + SMALL.encode())
+    plain = mj.load_scene(SMALL)
+    marked = mj.load_scene(tmp_path / "marked.toml")
+    assert marked.name == "marked" and marked.system.size == plain.system.size == 12
+    assert mj.load_scene("\ufeff" + SMALL).system.size == 12  # text that kept the mark
+    (tmp_path / "broken.toml").write_bytes(bom + b"[chain\n")
+    path = str(tmp_path / "broken.toml")
+    with pytest.raises(ValueError, match=rf"^mikota_jax: scene file {re.escape(repr(path))} is "
+                       r"not valid TOML: .*\(at line 1, column 7\)$"):
+        mj.load_scene(path)
+    with pytest.raises(ValueError, match=r"^mikota_jax: scene text is not valid TOML"):
+        mj.load_scene("this is = not toml [")
 
 
 def test_a_scene_path_with_an_equals_sign_is_a_path(tmp_path):

@@ -154,7 +154,7 @@ def _scene_size(source: str) -> int | None:
         if source in PAPER_SCENES:
             text = resources.files("mikota_jax").joinpath("scenes", f"{source}.toml").read_text()
         elif "\n" not in source and Path(source).is_file():
-            text = Path(source).read_text(encoding="utf-8")
+            text = Path(source).read_text(encoding="utf-8-sig")
         else:
             text = source
         chain = tomllib.loads(text)["chain"]

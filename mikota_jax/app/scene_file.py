@@ -240,21 +240,21 @@ def load_scene(source: str | Path | Mapping) -> Scene:
     is_text = (isinstance(source, str) and ("\n" in source or "=" in source)
                and not ("\n" not in source and _is_file(path)))
     if is_text:
-        text, name = source, "scene"
+        text, name, where = source.removeprefix("\ufeff"), "scene", "scene text"
     else:
         if path.is_dir():
             raise ValueError(MARK + f"scene file {str(path)!r} is a directory, not a TOML file.")
         if not path.is_file():
             raise ValueError(MARK + f"scene file {str(path)!r} does not exist (or name one of "
                              f"{list(PAPER_SCENES)}).")
-        try:
-            text = path.read_text(encoding="utf-8")
+        try:  # "utf-8-sig": a byte-order mark (Windows editors write one) is not TOML
+            text = path.read_text(encoding="utf-8-sig")
         except UnicodeDecodeError as error:
             raise ValueError(MARK + f"scene file {str(path)!r} is not UTF-8 text ({error.reason} "
                              f"at byte {error.start}).") from None
-        name, base = path.stem, path.parent
+        name, base, where = path.stem, path.parent, f"scene file {str(path)!r}"
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:
-        raise ValueError(MARK + f"scene {name!r} is not valid TOML: {error}") from None
+        raise ValueError(MARK + f"{where} is not valid TOML: {error}") from None
     return scene_from_dict(data, name=name, base=base)
