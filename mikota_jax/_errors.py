@@ -107,8 +107,8 @@ class RESULTS(eqx.Enumeration):
         "total_average_energy: some mode is undamped (the Lyapunov solution does not exist); "
         "place a damper where every mode moves, or restrict Z with lowest=s.")
     spectral_failed = (
-        "the spectral path did not hold here (a root did not converge, or two roots nearly "
-        "coincide: a mode at critical damping); use method='dense'.")
+        "the spectral path did not hold here (a root did not converge, or roots nearly "
+        "coincide beyond a critically damped pair); use method='dense'.")
 
 
 # every failure, in the order a batch reports them (the first that holds anywhere wins)

@@ -170,17 +170,6 @@ def _is_uniform(ts) -> bool | None:
     return bool(np.max(np.abs(gaps - gaps[0])) <= _step_tolerance(ts, gaps[0], np))
 
 
-@eqx.filter_jit
-def _spectral_or_dense(trajectory, ok, model, ts, x0, v0, load, *, dofs, displacement,
-                       velocity, uniform):
-    """Under a caller's ``jit``/``vmap``: the spectral trajectory, or the dense path's where it
-    does not hold (a ``lax.cond``; under ``vmap`` with a batched ``ok`` both run)."""
-    return jax.lax.cond(
-        ok, lambda: (trajectory, RESULTS.successful),
-        lambda: _exact(model, ts, x0, v0, load, dofs=dofs, displacement=displacement,
-                       velocity=velocity, uniform=uniform))
-
-
 @raises_value_error
 def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = None, load=None,
                 *, dofs: Sequence[int] | None = None, displacement: bool = True,
@@ -199,9 +188,12 @@ def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = 
     y_j over the 2n damped modes (``_spectral``), every requested output at every time as one
     matrix product; any increasing grid; the undamped modes (O(n^2) for a fixed-free chain,
     else one dense eigendecomposition), the secular equation for the roots (O(k^2 n^2) a sweep,
-    k damper columns) and O(N d n) for the outputs. Where its modes do not hold (a root not
-    converged, or two roots within 1e-6: a critically damped mode) it falls back to the dense
-    path, also under ``jit``. The dense path (the only one for a ``ReducedModel``, a user's
+    k damper columns) and O(N d n) for the outputs; a pair of roots at or near critical damping
+    is summed by a contour integral around it (``_spectral_clusters``), right to rounding on
+    both sides of the double root. The choice is made from the structure alone: where the
+    spectral path fails (a root not converged, three roots nearly coinciding) it says so in one
+    line (use ``method="dense"``), eagerly and under ``jit``, and nothing else is compiled or
+    run. The dense path (the only one for a ``ReducedModel``, a user's
     damping matrix or an undamped system): modal coordinates and a matrix exponential; any
     increasing grid when undamped (a rotation per mode), a uniform grid when damped (one 2n x 2n
     matrix exponential serves every step); one eigendecomposition and O(n^2) per time step.
@@ -210,8 +202,7 @@ def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = 
     spectral one, except for a fixed-free chain with dampers alone above n = 4096: its spectral
     path holds neither U nor the (n, 2n) vectors (O(n (N + 2^24 / n)) memory: the (N, n) modal
     history, then x = U eta a chunk of modes at a time; 401 times x all DOFs at n = 30000 in
-    235 s at 1.9 GiB on 2 cores, ``benchmarks/spectral_response_large.py``). There no dense
-    fallback is compiled (it could not run): a failure of the spectral path is raised.
+    235 s at 1.9 GiB on 2 cores, ``benchmarks/spectral_response_large.py``).
     """
     check_x64()
     if method not in METHODS:
@@ -247,22 +238,12 @@ def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = 
     if not spectral:
         trajectory, result = _exact(model, ts, x0, v0, load, **options)
         return raise_result(trajectory, result)
+    # the path is chosen from the structure alone: no dense fallback is compiled or run where
+    # the spectral one fails (a root not converged, roots nearly coinciding outside a pair),
+    # which is reported in one line instead
     trajectory, ok = spectral_solve_with_result(model, ts, x0, v0, load, **options)
-    if uses_rows(system):  # no dense fallback (not even compiled under jit): it could not run
-        return raise_result(trajectory, RESULTS.where(ok, RESULTS.successful,
-                                                      RESULTS.spectral_failed))
-    uniform = _is_uniform(ts)
-    try:
-        holds = bool(ok)  # concrete eagerly and under jax.grad: no dense path compiled
-    except jax.errors.ConcretizationTypeError:  # a caller's jit or vmap: choose inside
-        trajectory, result = _spectral_or_dense(trajectory, ok, model, ts, x0, v0, load,
-                                                uniform=bool(uniform), **options)
-        return raise_result(trajectory, result)
-    if holds:
-        return trajectory
-    check_dense_memory(system.size, 32, "exact_solve (its modes did not hold: the dense path)")
-    trajectory, result = _exact(model, ts, x0, v0, load, uniform=bool(uniform), **options)
-    return raise_result(trajectory, result)
+    return raise_result(trajectory, RESULTS.where(ok, RESULTS.successful,
+                                                  RESULTS.spectral_failed))
 
 
 dense_solve_with_result = _exact  # the dense path by name (``mikota_jax.testing``)

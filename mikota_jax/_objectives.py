@@ -149,29 +149,15 @@ def takes_spectral(model) -> bool:
     return spectral_applies(model) is None
 
 
-def _spectral_or_dense(spectral, dense):
-    """(value, ``RESULTS``): the spectral value where it holds, else the dense one. Eagerly only
-    the branch needed runs; under a caller's trace, a ``lax.cond`` (both compiled; under ``vmap``
-    both evaluated)."""
-    value, ok = spectral()
-    try:
-        holds = bool(ok)
-    except jax.errors.ConcretizationTypeError:
-        return jax.lax.cond(ok, lambda: (value, RESULTS.successful), dense)
-    return (value, RESULTS.successful) if holds else dense()
-
-
 def integrated_energy_exact_with_result(model, horizon, x0, v0, method="exact"):
     """``integrated_energy`` without a load on checked inputs: (J, ``RESULTS``). ``method``:
-    "exact" (spectral where it applies and holds, else dense), "spectral" or "dense"."""
-    dense = lambda: van_loan_energy_with_result(model, horizon, x0, v0)  # noqa: E731
+    "exact" (spectral where it applies, from the structure alone, else dense), "spectral" or
+    "dense". A failure of the spectral path is reported, never replaced by the dense one (which
+    under ``jit`` would compile, and under ``vmap`` run, beside it)."""
     if method == "dense" or not takes_spectral(model):
-        return dense()
-    spectral = lambda: spectral_energy_with_result(model, horizon, x0, v0)  # noqa: E731
-    if method == "spectral":
-        value, ok = spectral()
-        return value, RESULTS.where(ok, RESULTS.successful, RESULTS.spectral_failed)
-    return _spectral_or_dense(spectral, dense)
+        return van_loan_energy_with_result(model, horizon, x0, v0)
+    value, ok = spectral_energy_with_result(model, horizon, x0, v0)
+    return value, RESULTS.where(ok, RESULTS.successful, RESULTS.spectral_failed)
 
 
 @eqx.filter_jit
@@ -232,12 +218,13 @@ def integrated_energy(model, horizon: float, x0: Vector | None = None,
     (``_spectral_objectives``), O(k n^2) after the undamped modes for k damper columns; applies
     to a full system with discrete dampers and internal damping diagonal in modal coordinates
     (Rayleigh, modal; then O(n^3) in one matrix product), not to a reduced model, a user's
-    damping matrix or an undamped system; where a root does not converge or two roots nearly
-    coincide (a mode at critical damping) ``"exact"`` falls back to ``"dense"``, except for a
-    fixed-free chain with dampers alone above n = 4096: its spectral path runs in O(n) memory
-    (404 s for J + gradient at n = 30000 on 2 cores, ``benchmarks/spectral_energy_large.py``)
-    where the dense one could not, so ``"exact"`` is ``"spectral"`` there and a failure is
-    raised. ``"dense"``: a
+    damping matrix or an undamped system. A mode at or near critical damping (two roots
+    meeting) is summed as a pair by a contour integral (``_spectral_clusters``), right to
+    rounding on both sides. ``"exact"`` is ``"spectral"`` wherever it applies, chosen from the
+    structure alone: where it fails (a root not converged, three roots nearly coinciding) it
+    says so in one line, eagerly and under ``jit``, and no dense path is compiled beside it. A
+    fixed-free chain with dampers alone above n = 4096 runs in O(n) memory (404 s for J +
+    gradient at n = 30000 on 2 cores, ``benchmarks/spectral_energy_large.py``). ``"dense"``: a
     matrix-exponential integral (Van Loan, doubling), O(n^3) -- the choice for a reduced model.
     ``method="ode"``: the integral is one more state of an adaptive Dopri8 solve (``rtol``/
     ``atol``, ``max_steps``, ``adjoint`` as in ``simulate``; use ``diffrax.ForwardMode()`` under
@@ -248,7 +235,8 @@ def integrated_energy(model, horizon: float, x0: Vector | None = None,
         raise ValueError(MARK + "method must be 'exact', 'spectral', 'dense' or 'ode', got "
                          f"{method!r}.")
     horizon = as_float(horizon, "horizon")
-    horizon = check(horizon, ~(jnp.isfinite(horizon) & (horizon > 0)), "horizon must be > 0.")
+    horizon = check(horizon, ~(jnp.isfinite(horizon) & (horizon > 0)),
+                    "horizon must be finite and > 0.")
     x0, v0, load = check_problem(model, x0, v0, load)
     if method in _EXACT_METHODS:
         if load is not None:
@@ -289,21 +277,13 @@ def _dense_trace_with_result(model, *, lowest):
 
 def total_average_energy_with_result(model, *, lowest, method="exact"):
     """The compiled ``total_average_energy`` on checked inputs: (trace X, ``RESULTS``)."""
-    dense = lambda: _dense_trace_with_result(model, lowest=lowest)  # noqa: E731
     if method == "dense" or not takes_spectral(model):
-        return dense()
-
-    def spectral():
-        value, ok = spectral_trace_with_result(model, lowest=lowest)
-        # an undamped mode: X does not exist (inf), which the dense path reports as such
-        return value, ok
-
-    if method == "spectral":
-        value, ok = spectral()
-        return value, RESULTS.where(ok, RESULTS.successful,
-                                    RESULTS.where(jnp.isinf(value), RESULTS.not_damped,
-                                                  RESULTS.spectral_failed))
-    return _spectral_or_dense(spectral, dense)
+        return _dense_trace_with_result(model, lowest=lowest)
+    value, ok = spectral_trace_with_result(model, lowest=lowest)
+    # an undamped mode: X does not exist (inf), which is said as such
+    return value, RESULTS.where(ok, RESULTS.successful,
+                                RESULTS.where(jnp.isinf(value), RESULTS.not_damped,
+                                              RESULTS.spectral_failed))
 
 
 @raises_value_error
@@ -319,7 +299,7 @@ def total_average_energy(model, lowest: int | None = None, *,
 
     ``method`` as in ``integrated_energy``: ``"exact"`` takes ``"spectral"`` (closed form from the
     damped modes, O(k n^2 + s n^2) for dampers alone, O(n^3) in one matrix product with internal
-    damping; a full system with discrete dampers) where it applies and holds, else ``"dense"``
+    damping; a full system with discrete dampers) wherever it applies, else ``"dense"``
     (Smith doubling of Van Loan's integral, O(n^3) per doubling, 64 doublings).
     """
     check_x64()

@@ -39,7 +39,7 @@ import jax
 import jax.numpy as jnp
 
 from ._custom_types import Array, Float
-from ._spectral_clusters import Clusters, cluster_roots, find_clusters
+from ._spectral_clusters import Clusters, cluster_roots, find_clusters, no_clusters
 from ._spectral_rows import by_rows, repulsion, row_block, smallest_separation
 from ._spectral_starts import arc_starts, far_starts
 
@@ -118,6 +118,19 @@ class DampedModes(eqx.Module):
     def root_active(self) -> Array:
         """(2n,) bool: the roots of modes a damper touches."""
         return jnp.concatenate([self.active, self.active])
+
+    @property
+    def undamped(self) -> Array:
+        """(n,) bool: the modes that nothing damps, decided from the structure up to rounding:
+        no internal damping and sum_i d_i F_li^2 at most (n eps)^2 sum_i d_i max_l F_li^2 (a
+        damper of coefficient 0, or one on a node of the mode, where the chain's mode shape
+        is zero to rounding). Their roots stay on the imaginary axis: the infinite-horizon
+        objectives (the trace) do not exist where one is seen."""
+        n = self.omega.shape[0]
+        eps = jnp.finfo(self.omega.dtype).eps
+        coupling = jnp.sum(self.weights[None, :] * self.factor**2, axis=1)
+        scale = jnp.sum(self.weights * jnp.max(self.factor**2, axis=0))
+        return (self.gamma == 0) & (coupling <= (n * eps) ** 2 * scale)
 
     @property
     def simple(self) -> Array:
@@ -483,7 +496,18 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
     # a pair summed by contour: its two roots need not pass one by one (at a double root they
     # are only sqrt(eps)-accurate and Newton's residual stays at rounding), but the circle must
     # hold exactly two, and their sum (by contour) stands for them in the trace check
-    clusters = find_clusters(poles, anchor, offset, active, block)
+    provisional = DampedModes(omega, gamma, factor, weights, active, anchor, offset, c,
+                              jnp.array(True), separation, iterations, no_clusters(2 * n),
+                              internal)
+
+    def conditioning(roots):  # 2 |lambda| |y|^2 / |N|: ~1 / separation near a double root
+        y = provisional.vector_rows(roots)
+        norm = jnp.abs(provisional.normaliser_rows(roots, y))
+        size = 2 * jnp.abs(lam[roots]) * jnp.sum(jnp.abs(y) ** 2, axis=1)
+        return jnp.where(norm > 0, size / jnp.where(norm > 0, norm, 1.0), jnp.inf)
+
+    condition = by_rows(conditioning, block, jnp.arange(2 * n))
+    clusters = find_clusters(poles, anchor, offset, active, condition, block)
     count, inside = cluster_roots(poles, factor, weights, active, clusters)
     paired = jnp.all(~clusters.valid | (jnp.abs(count - 2) < 1e-6))
     residual_ok = jnp.all(root_ok | clusters.member)

@@ -28,9 +28,12 @@ distance to every other singularity, where the root-by-root sum is as accurate a
 (its coefficients are then no larger than ~9 / |lambda|): the two sides agree to rounding,
 and nothing switches with the physics.
 
-At most ``MAX_CLUSTERS`` pairs are taken (static shapes); more, or roots that nearly coincide
-without forming such a pair (three at once, or a pair touching a pole), make the result not ok
-(``Clusters.ok``), as do roots that did not converge.
+At most ``MAX_CLUSTERS`` pairs are taken (static shapes), the worst conditioned first; a root
+left to the root-by-root sums must be well conditioned, 2 |lambda| |y|^2 / |N| <=
+``CONDITION_LIMIT`` (about 1 / its relative distance from a double root), else the result is
+not ok (``Clusters.ok``): three roots meeting, more pairs than slots, or a pair touching a pole.
+Nearly equal roots with well-conditioned eigenvectors (the identical branches of a branched
+chain) are no such case and stay simple.
 """
 
 import equinox as eqx
@@ -43,7 +46,8 @@ from ._spectral_rows import by_rows, roots_difference
 NODES = 40  # trapezoidal points on each circle (error 3^-NODES)
 MAX_CLUSTERS = 2  # pairs summed by contour at once (a conjugate pair of pairs takes two)
 _ISOLATION = 3.0  # radius = distance to anything else / 3; members within radius / 3
-NEAR_COINCIDENT = 1e-6  # roots this close (relative) must belong to a cluster, else not ok
+CONDITION_LIMIT = 1e6  # a simple root's 2 |lambda| |y|^2 / |N| above this: not ok
+NEAR_COINCIDENT = 1e-6  # a mode no damper touches with its two poles this close: not ok
 
 
 class Clusters(eqx.Module):
@@ -80,10 +84,12 @@ def no_clusters(size: int) -> Clusters:
                     jnp.zeros(MAX_CLUSTERS, bool), jnp.zeros(size, bool), jnp.array(True))
 
 
-def find_clusters(poles, anchor, offset, active, block=None) -> Clusters:
+def find_clusters(poles, anchor, offset, active, condition, block=None) -> Clusters:
     """The pairs of damped roots to sum by contour, from the frozen roots (no derivative: the
-    circles are fixed, the integrands carry the derivatives)."""
-    poles, anchor, offset, active = jax.lax.stop_gradient((poles, anchor, offset, active))
+    circles are fixed, the integrands carry the derivatives); ``condition`` (2n,) each root's
+    2 |lambda| |y|^2 / |N|."""
+    poles, anchor, offset, active, condition = jax.lax.stop_gradient(
+        (poles, anchor, offset, active, condition))
     size = anchor.shape[0]
     root_active = jnp.concatenate([active, active])
     index = jnp.arange(size)
@@ -107,7 +113,8 @@ def find_clusters(poles, anchor, offset, active, block=None) -> Clusters:
     room = jnp.minimum(room, jnp.abs(jnp.real(center)))
     score = jnp.where(candidate & (room > 0), half / jnp.where(room > 0, room, 1.0), jnp.inf)
     wanted = score <= 1 / _ISOLATION**2
-    _, pick = jax.lax.top_k(-score, MAX_CLUSTERS)
+    worst = jnp.maximum(condition, condition[nearest])
+    _, pick = jax.lax.top_k(jnp.where(wanted, worst, -jnp.inf), MAX_CLUSTERS)
     c = center[pick]
     pole_live = jnp.concatenate([active, active])
     to_poles = jnp.min(jnp.where(pole_live[None, :], jnp.abs(c[:, None] - poles[None, :]),
@@ -120,8 +127,13 @@ def find_clusters(poles, anchor, offset, active, block=None) -> Clusters:
     radius = jnp.where(valid, radius, 1.0)
     hits = jnp.zeros(size, int).at[pick].add(valid).at[nearest[pick]].add(valid)
     member = hits > 0
-    close = first <= NEAR_COINCIDENT * jnp.abs(lam)
-    ok = (jnp.sum(wanted) <= MAX_CLUSTERS) & ~jnp.any(root_active & close & ~member)
+    # a mode no damper touches at critical internal damping: its two poles meet (not summed
+    # by contour here)
+    n = size // 2
+    double_pole = ~active & (jnp.abs(poles[:n] - poles[n:]) <= NEAR_COINCIDENT
+                             * jnp.abs(poles[:n]))
+    ill = root_active & ~member & ~(condition <= CONDITION_LIMIT)
+    ok = ~jnp.any(ill) & ~jnp.any(double_pole)
     return Clusters(c, radius, valid, member, ok)
 
 

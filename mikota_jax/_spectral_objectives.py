@@ -300,7 +300,8 @@ def _unit_states(omega, lowest):
 def trace_from_modes(modes: DampedModes, lowest):
     """trace X, A^T X + X A = -Z, Z = I (``lowest`` None) or the s = ``lowest`` lowest modes."""
     if lowest is not None:
-        return 2 * jnp.sum(energy_from_modes(modes, *_unit_states(modes.omega, lowest), None))
+        value = 2 * jnp.sum(energy_from_modes(modes, *_unit_states(modes.omega, lowest), None))
+        return jnp.where(jnp.any(modes.undamped[:lowest]), jnp.inf, value)
     y = modes.vectors().T
     s, pair = pair_sums(modes)
     apart = ~modes.clusters.member
@@ -314,9 +315,12 @@ def trace_from_modes(modes: DampedModes, lowest):
     terms = jnp.where(pair, gram * (gram / scale[:, None] / scale[None, :])
                       * growth(jnp.where(pair, s, -1.0), None), 0.0)
     value = jnp.real(jnp.sum(terms)) + cluster_trace(modes, y, scale)
-    if not modes.internal:  # a mode no damper touches never decays: X does not exist
-        value = jnp.where(jnp.all(modes.active), value, jnp.inf)
-    return value
+    # a mode nothing damps never decays: X does not exist (decided from the structure, not
+    # from a huge value: a node of the mode or a zero coefficient gave 1e32 or a finite 12)
+    undamped = jnp.any(modes.undamped)
+    if not modes.internal:
+        undamped = undamped | ~jnp.all(modes.active)
+    return jnp.where(undamped, jnp.inf, value)
 
 
 @eqx.filter_jit
@@ -347,12 +351,43 @@ def output_energy_from_modes(modes: DampedModes, q0, p0, cx, cv, horizon):
     s = (base[:, None] + base[None, :]) + (modes.offset[:, None] + modes.offset[None, :])
     a = modes.coefficients(q0, p0)  # (2n, m)
     weight = (a @ a.T) * (w.T @ w)  # sum over the states of a_j a_k, times w_j^T w_k
+    clusters = _cluster_output(modes, q0, p0, cx, cv, w, a, horizon)
     if horizon is None:
-        still = s == 0  # two roots of an undamped mode: its output never decays
+        # two roots of an undamped mode (decided from the structure, ``DampedModes.undamped``):
+        # its output never decays, so the value is infinite where the inputs and outputs see
+        # it, and it is dropped where they do not (an uncontrollable or unobservable mode;
+        # seen: above rounding relative to the largest term)
+        undamped = modes.undamped[modes.modes]
+        still = (s == 0) | (undamped[:, None] & undamped[None, :]
+                            & (modes.modes[:, None] == modes.modes[None, :]))
+        n = modes.omega.shape[0]
+        seen = jnp.abs(weight) > (n * jnp.finfo(s.real.dtype).eps) ** 2 * jnp.max(jnp.abs(
+            jnp.where(still, 0.0, weight)))
         value = jnp.real(jnp.sum(jnp.where(still, 0.0, weight * growth(jnp.where(still, -1.0, s),
                                                                       None))))
-        return jnp.where(jnp.any(still & (jnp.abs(weight) > 0)), jnp.inf, value)
-    return jnp.real(jnp.sum(weight * growth(s, horizon)))
+        return jnp.where(jnp.any(still & seen), jnp.inf, value + clusters)
+    return jnp.real(jnp.sum(weight * growth(s, horizon))) + clusters
+
+
+@complex_arithmetic
+def _cluster_output(modes: DampedModes, q0, p0, cx, cv, w, a, horizon):
+    """The clusters' terms of ``output_energy_from_modes`` (zero without one): their output is
+    sum_p w_p exp(s_p t) (cx + s_p cv) u_p with u_p = Q(s_p)^-1 b(s_p) (``cluster_energy``),
+    crossed with the simple roots' outputs w_j a_j and with itself."""
+    def terms():
+        s, weights = modes.clusters.nodes()
+        u = solve_at(modes, s, initial_rhs(modes, s, q0, p0))  # (P, n, m)
+        out = jnp.einsum("ql,plm->pqm", cx, u) + s[:, None, None] * jnp.einsum("ql,plm->pqm",
+                                                                               cv, u)
+        lam = modes.eigenvalues
+        simple = jnp.where(modes.simple[:, None], a, 0.0)
+        cross = jnp.einsum("p,pqm,qk,km,pk->", weights, out, w, simple,
+                           growth(s[:, None] + lam[None, :], horizon))
+        inner = jnp.einsum("p,r,pqm,rqm,pr->", weights, weights, out, out,
+                           growth(s[:, None] + s[None, :], horizon))
+        return jnp.real(2 * cross + inner)
+
+    return jax.lax.cond(modes.clusters.any, terms, lambda: jnp.zeros(()))
 
 
 @eqx.filter_jit

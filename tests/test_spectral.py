@@ -10,7 +10,7 @@ import scipy.optimize as so
 from _helpers import lyapunov_trace
 
 import mikota_jax as mj
-from mikota_jax._spectral import DEFECTIVE_SEPARATION
+from mikota_jax._spectral_clusters import NEAR_COINCIDENT
 from mikota_jax._spectral_objectives import spectral_energy_with_result
 from mikota_jax._spectral_system import damped_modes
 
@@ -113,24 +113,22 @@ def test_the_traced_fallback_at_the_exceptional_point_is_the_dense_value(close):
     close(jax.jit(mj.integrated_energy)(system, T, x0), dense_energy(system, T, x0), rtol=1e-12)
 
 
-@pytest.mark.slow  # default-run time (issue: CI under 15 min)
-def test_the_exceptional_point_of_one_dof_is_flagged_and_the_energy_falls_back(close):
+def test_the_exceptional_point_of_one_dof_is_one_cluster_and_the_energy_is_exact(close):
     # m = k = 1, d = 2 sqrt(k m): lambda = -1 twice, one eigenvector. The iteration returns two
-    # roots within sqrt(eps) of -1 and flags them (separation below DEFECTIVE_SEPARATION); the
-    # energy then comes from the Van Loan path
+    # roots within sqrt(eps) of -1; they form one cluster, summed by contour, and the spectral
+    # energy is the analytic one, x = (1 + t) e^-t: J = 3/4 - e^(-2T) (T^2 + 2T + 3/2) / 2
+    # (exact; its float64 evaluation is right to a few ulps)
     system = mj.mikota_chain(1, dampers=[mj.GroundedDamper(1.0, 2.0)])
     modes = damped_modes(system)
-    assert float(modes.separation) < DEFECTIVE_SEPARATION
     assert np.all(np.abs(np.asarray(modes.eigenvalues) + 1.0) < 1e-7)
+    assert bool(modes.converged) and bool(modes.clusters.ok)
+    assert np.asarray(modes.clusters.member).tolist() == [True, True]
     x0 = np.array([1.0])
-    _, ok = spectral_energy_with_result(system, jnp.array(T), jnp.asarray(x0), jnp.zeros(1))
-    assert not bool(ok)
-    value = mj.integrated_energy(system, T, x0)
-    close(value, dense_energy(system, T, x0), rtol=1e-12)
-    with pytest.raises(ValueError, match="critical damping"):
-        spectral_energy(system, T, x0)
-    # x = (1 + t) e^-t: J = 3/4 - e^(-2T) (T^2 + 2T + 3/2) / 2
-    close(value, 0.75 - np.exp(-2 * T) * (T**2 + 2 * T + 1.5) / 2, rtol=1e-12)
+    value, ok = spectral_energy_with_result(system, jnp.array(T), jnp.asarray(x0), jnp.zeros(1))
+    assert bool(ok)
+    truth = 0.75 - np.exp(-2 * T) * (T**2 + 2 * T + 1.5) / 2
+    close(value, truth, rtol=1e-14)
+    close(mj.integrated_energy(system, T, x0), truth, rtol=1e-14)
 
 
 @pytest.mark.parametrize("coefficient", [pytest.param(1e-8, marks=pytest.mark.slow),
@@ -265,7 +263,7 @@ def test_a_mode_at_critical_internal_damping_is_flagged_and_the_energy_falls_bac
                                                                        0.01, 1.0)))
     modes = damped_modes(system)
     assert not bool(modes.active[n - 1])
-    assert float(modes.separation) < DEFECTIVE_SEPARATION
+    assert float(modes.separation) < NEAR_COINCIDENT
     value, ok = spectral_energy_with_result(system, T, unit(n, n), np.zeros(n))
     assert not bool(ok)
     close(mj.integrated_energy(system, T, unit(n, n)), dense_energy(system, T, unit(n, n)),
