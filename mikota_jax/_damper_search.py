@@ -126,6 +126,23 @@ def _pair_candidates(pairs, n: int) -> np.ndarray:
     return array.astype(int) - 1
 
 
+def _onto(kind: str, design: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    """``design`` (grounded: (g,) positions; relative: (p, 2) 0-based pairs) with every place
+    that is not a candidate moved to the nearest candidate not yet taken (the first of equals)."""
+    if kind == "grounded":
+        distance = np.abs(design[:, None] - candidates[None, :])
+    else:  # pairs in either order are the same place
+        distance = np.minimum(np.abs(design[:, None, :] - candidates[None, :, :]).sum(-1),
+                              np.abs(design[:, None, ::-1] - candidates[None, :, :]).sum(-1))
+    exact = distance == 0
+    taken = exact.any(axis=0)
+    placed = design.copy()
+    for i in np.flatnonzero(~exact.any(axis=1)):
+        j = int(np.argmin(np.where(taken, np.inf, distance[i])))
+        placed[i], taken[j] = candidates[j], True
+    return placed
+
+
 def place_dampers(system, criterion: str = "average_energy", *, candidates=None,
                   pair_candidates=None, lowest: int | None = None, horizon: float | None = None,
                   x0=None, v0=None, cx=None, cv=None, inputs=None, dof: int | None = None,
@@ -137,9 +154,11 @@ def place_dampers(system, criterion: str = "average_energy", *, candidates=None,
     coefficient, at full order (see the module docstring).
 
     ``system``: a ``SecondOrderSystem`` with dampers; their places and coefficients are the
-    start. Grounded dampers move among ``candidates`` (1-based DOFs, default all). Relative
-    dampers move among ``pair_candidates`` ((c, 2) 1-based pairs of DOFs) when it is given and
-    stay where they are otherwise; their coefficients are optimised either way. ``criterion``
+    start. Grounded dampers move among ``candidates`` (1-based DOFs, default all; at least one
+    per damper). Relative dampers move among ``pair_candidates`` ((c, 2) 1-based pairs of DOFs,
+    at least one per damper) when it is given and stay where they are otherwise; their
+    coefficients are optimised either way. A damper that does not start on a candidate starts
+    on the nearest free one, so every place returned is a candidate. ``criterion``
     and its arguments (``lowest``, ``horizon``, ``x0``, ``v0``, ``cx``, ``cv``, ``inputs``,
     ``dof``, ``ts``, ``order``), ``lower``, ``upper``, ``tolerance``, ``method``: as in
     ``optimise_viscosities``. ``keep``: places polished per damper and sweep (>= 1);
@@ -159,10 +178,16 @@ def place_dampers(system, criterion: str = "average_energy", *, candidates=None,
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise ValueError(MARK + f"{name} must be an integer >= 1, got {value!r}.")
     places = {"grounded": _candidates(candidates, system.size)}
+    if places["grounded"].shape[0] < g:
+        raise ValueError(MARK + f"candidates must hold at least one DOF per grounded damper "
+                         f"({g}), got {places['grounded'].shape[0]}: {candidates!r:.60}.")
     if pair_candidates is not None:
         if p == 0:
             raise ValueError(MARK + "pair_candidates: the system has no RelativeDamper to move.")
         places["relative"] = _pair_candidates(pair_candidates, system.size)
+        if places["relative"].shape[0] < p:
+            raise ValueError(MARK + f"pair_candidates must hold at least one pair per relative "
+                             f"damper ({p}), got {places['relative'].shape[0]}.")
     options = dict(lowest=lowest, horizon=horizon, x0=x0, v0=v0, cx=cx, cv=cv, inputs=inputs,
                    dof=dof, ts=ts, order=order, lower=lower, upper=upper, tolerance=tolerance,
                    method=method)
@@ -224,16 +249,18 @@ def place_dampers(system, criterion: str = "average_energy", *, candidates=None,
         return best, design, sweep, history, status
 
     rng = np.random.default_rng(seed)
-    designs = [{"grounded": np.asarray(system.damping.positions, dtype=float).copy(),
-                "relative": np.asarray(system.damping.pairs).copy()}]
+    own = {"grounded": np.asarray(system.damping.positions, dtype=float),
+           "relative": np.asarray(system.damping.pairs)}
+    # the first start: the system's own places, a damper off the candidates moved to the nearest
+    # free one (a damper a sweep cannot move, its place taken, would otherwise stay off them)
+    designs = [{kind: _onto(kind, own[kind], places[kind]) if kind in places else own[kind].copy()
+                for kind in own}]
     for _ in range(starts - 1):  # distinct random places among the candidates
         designs.append({
-            "grounded": (rng.choice(places["grounded"], g, replace=False)
-                         if g <= places["grounded"].shape[0] else designs[0]["grounded"]),
+            "grounded": rng.choice(places["grounded"], g, replace=False),
             "relative": (places["relative"][rng.choice(places["relative"].shape[0], p,
                                                        replace=False)]
-                         if "relative" in places and p <= places["relative"].shape[0]
-                         else designs[0]["relative"])})
+                         if "relative" in places else own["relative"].copy())})
     runs = [descend(design, f"start {k + 1} of {starts}") for k, design in enumerate(designs)]
     best, design, sweeps, history, status = min(runs, key=lambda run: run[0].value)
     return DamperPlacement(design["grounded"], design["relative"] + 1, best.coefficients,

@@ -86,7 +86,8 @@ def test_a_grounded_and_a_relative_damper_moved_together_reach_the_enumerations_
 
 
 def test_a_relative_damper_alone_moves_among_candidate_pairs():
-    pairs = [(1, 4), (5, 9), (6, 12), (1, 12), (2, 3)]
+    # it starts at (2, 3), no candidate: on the nearest one, (1, 4)
+    pairs = [(1, 4), (5, 9), (6, 12), (1, 12)]
     system = mj.mikota_chain(N, dampers=[mj.RelativeDamper((2, 3), 1.0)],
                              internal_damping=mj.ModalDamping(0.02))
     best = min((mj.optimise_viscosities(mj.mikota_chain(
@@ -106,6 +107,8 @@ def test_a_relative_damper_alone_moves_among_candidate_pairs():
     (dict(max_sweeps=1.5), "max_sweeps must be"),
     (dict(starts=0), "starts must be"),
     (dict(criterion="maximum"), "criterion must be"),
+    (dict(candidates=[3]), r"^mikota_jax: candidates must hold at least one DOF per grounded "
+     r"damper \(2\), got 1: \[3\]\.$"),
 ])
 def test_bad_arguments_are_named(kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -117,6 +120,33 @@ def test_bad_arguments_are_named(kwargs, match):
 def test_bad_pair_candidates_are_named(pairs):
     with pytest.raises(ValueError, match="pair_candidates must be"):
         mj.place_dampers(chain([2], relative=(5, 9)), pair_candidates=pairs)
+
+
+def test_fewer_candidate_pairs_than_relative_dampers_is_refused_in_one_line():
+    system = mj.mikota_chain(N, dampers=[mj.RelativeDamper((2, 5), 1.0),
+                                         mj.RelativeDamper((6, 9), 1.0)])
+    with pytest.raises(ValueError, match=r"^mikota_jax: pair_candidates must hold at least one "
+                       r"pair per relative damper \(2\), got 1\.$"):
+        mj.place_dampers(system, pair_candidates=[(1, 3)])
+
+
+def test_dampers_off_the_candidates_start_on_the_nearest_free_ones_and_end_on_candidates():
+    # dampers at DOFs 2 and 5, candidates 3 and 4: the only placement is (3, 4); before, the
+    # DOF-5 damper could not move (3 taken by the other) and came back at 5, no candidate
+    only = mj.place_dampers(chain([2, 5]), lowest=LOWEST, candidates=[3, 4])
+    assert sorted(only.positions.tolist()) == [3.0, 4.0]
+    assert only.value == pytest.approx(
+        mj.optimise_viscosities(chain([3, 4]), lowest=LOWEST).value, rel=1e-12)
+
+
+@pytest.mark.slow  # default-run time: the screening compiles for this structure (~30 s)
+def test_dampers_off_three_candidates_end_on_them_at_the_enumerations_optimum():
+    candidates = [1, 3, 6]
+    value, positions = enumeration(2, candidates)
+    found = mj.place_dampers(chain([2, 5]), lowest=LOWEST, candidates=candidates)
+    assert set(found.positions.tolist()) <= set(candidates)
+    assert sorted(found.positions.tolist()) == sorted(positions)
+    assert found.value <= value * (1 + 1e-9)
 
 
 def test_a_system_without_dampers_to_move_is_refused():
