@@ -224,6 +224,9 @@ def api_calls():
                    r"^mikota_jax: pulse start must be finite\.$"),
                   ("duration", lambda b=bad: mj.pulse(4, 1, duration=b),
                    r"^mikota_jax: pulse duration must be finite and > 0\.$")]
+    for bad in BAD_NUMBERS:
+        calls.append(("horizon", lambda b=bad: mj.integrated_energy(SYSTEM, b, X0),
+                      r"^mikota_jax: horizon must be finite and > 0\.$"))
     for bad in ([0], [5], [1.5], [-1]):
         calls.append(("dofs", lambda b=bad: mj.exact_solve(SYSTEM, TS, X0, dofs=b), "dofs"))
     for bad in (0, -1, 2.5, True):

@@ -101,9 +101,10 @@ def test_lowest_outside_1_to_n_is_refused(lowest):
         mj.total_average_energy(damped(), lowest=lowest)
 
 
-def test_a_non_positive_horizon_is_refused():
-    with pytest.raises(ValueError, match="horizon must be > 0"):
-        mj.integrated_energy(damped(), 0.0, X0)
+@pytest.mark.parametrize("horizon", [0.0, -1.0, np.inf, np.nan])
+def test_a_horizon_not_finite_and_positive_is_refused_saying_both(horizon):
+    with pytest.raises(ValueError, match=r"^mikota_jax: horizon must be finite and > 0\.$"):
+        mj.integrated_energy(damped(), horizon, X0)
 
 
 @pytest.mark.parametrize("order", [2, 16, 64])
