@@ -44,8 +44,11 @@ from ._spectral_objectives import spectral_output_energy_with_result
 from ._spectral_system import spectral_applies
 from ._system import SecondOrderSystem
 
-_NOT_OK = ("the damped modes did not converge, or two roots nearly coincide (a mode at "
-           "critical damping); move the damper coefficients off that point.")
+_NOT_OK = ("the damped modes did not converge, or roots nearly coincide beyond a critically "
+           "damped pair; move the damper coefficients off that point.")
+_UNDAMPED_SEEN = ("a mode that nothing damps is excited by the inputs (or initial states) and "
+                  "seen by the outputs: the infinite-horizon value does not exist; give a "
+                  "finite horizon or move a damper off that mode's node.")
 _NOT_OK_REDUCED = ("the reduced model is not definite, or one of its modes does not decay "
                    "(no damper reaches it): give a finite horizon or move a damper.")
 
@@ -129,8 +132,9 @@ def output_energy(system: SecondOrderSystem, cx=None, cv=None, *, x0=None, v0=No
     an (n,) vector is one output). Initial states: the columns of ``x0``, ``v0`` ((n,) or
     (n, m); a missing one is zero), or ``lowest`` s: the 2s unit states of the s lowest modes
     in scaled modal coordinates (the average-energy weight Z of ``total_average_energy``);
-    neither: all 2n of them. ``horizon``: T > 0, or None for T = inf (then infinite where an
-    undamped mode reaches the output). Units: output^2 x time.
+    neither: all 2n of them. ``horizon``: T > 0, or None for T = inf (then refused where a mode
+    that nothing damps is excited and reaches the output; such modes that the states do not
+    excite or the outputs do not see are dropped). Units: output^2 x time.
     """
     check_x64()
     cx, cv = output_arguments(system, cx, cv)
@@ -142,16 +146,18 @@ def output_energy(system: SecondOrderSystem, cx=None, cv=None, *, x0=None, v0=No
         return check(value, ~ok, _NOT_OK_REDUCED)
     value, ok = spectral_output_energy_with_result(system, x0, v0, None, cx, cv,
                                                    output_horizon(horizon), lowest)
-    return check(value, ~ok, _NOT_OK)
+    value = check(value, ~ok & ~jnp.isinf(value), _NOT_OK)
+    return check(value, jnp.isinf(value), _UNDAMPED_SEEN)
 
 
 @raises_value_error
 def h2_norm(system: SecondOrderSystem, inputs, cx=None, cv=None) -> Float[Array, ""]:
     """||G||_H2 of G(s) = (C_x + s C_v)(s^2 M + s D + K)^-1 B: the square root of the output
     energy of the impulse responses of ``inputs`` B ((n, m) or (n,): force directions), over
-    [0, inf). ``cx``, ``cv`` as in ``output_energy``. Finite only if every mode the inputs
-    excite and the outputs see is damped (a mode with a node at the damper to rounding, u_l =
-    1e-16, counts as damped at that level: the norm comes out huge, ~1e15, not infinite)."""
+    [0, inf). ``cx``, ``cv`` as in ``output_energy``. Refused if a mode that nothing damps
+    (a zero coefficient, or a damper on the mode's node to rounding: ``DampedModes.undamped``)
+    is excited by the inputs and seen by the outputs; such modes that the inputs do not excite
+    or the outputs do not see contribute nothing and are dropped."""
     check_x64()
     cx, cv = output_arguments(system, cx, cv)
     forces = state_matrix(inputs, system.size, "inputs", required=True)
@@ -160,7 +166,8 @@ def h2_norm(system: SecondOrderSystem, inputs, cx=None, cv=None) -> Float[Array,
         return jnp.sqrt(check(value, ~ok, _NOT_OK_REDUCED))
     value, ok = spectral_output_energy_with_result(system, None, None, forces, cx, cv, None,
                                                    None)
-    return jnp.sqrt(check(value, ~ok, _NOT_OK))
+    value = check(value, ~ok & ~jnp.isinf(value), _NOT_OK)
+    return jnp.sqrt(check(value, jnp.isinf(value), _UNDAMPED_SEEN))
 
 
 @eqx.filter_jit

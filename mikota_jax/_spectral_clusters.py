@@ -55,13 +55,15 @@ class Clusters(eqx.Module):
 
     ``center`` (K,) complex, ``radius`` (K,), ``valid`` (K,) bool: the circles (K =
     ``MAX_CLUSTERS``; an invalid slot contributes nothing); ``member`` (2n,) bool: the roots
-    inside a valid circle, left out of every root-by-root sum; ``ok``: every pair of nearly
-    coincident roots is inside a valid circle."""
+    inside a valid circle, left out of every root-by-root sum; ``mate`` (2n,) int: the other
+    root of a member's pair (itself for the others); ``ok``: every root left to the
+    root-by-root sums is well conditioned."""
 
     center: Array
     radius: Array
     valid: Array
     member: Array
+    mate: Array
     ok: Array
 
     def nodes(self):
@@ -81,7 +83,8 @@ class Clusters(eqx.Module):
 def no_clusters(size: int) -> Clusters:
     """No pair (a system whose roots are all simple and apart, or an empty one)."""
     return Clusters(jnp.zeros(MAX_CLUSTERS, complex), jnp.ones(MAX_CLUSTERS),
-                    jnp.zeros(MAX_CLUSTERS, bool), jnp.zeros(size, bool), jnp.array(True))
+                    jnp.zeros(MAX_CLUSTERS, bool), jnp.zeros(size, bool), jnp.arange(size),
+                    jnp.array(True))
 
 
 def find_clusters(poles, anchor, offset, active, condition, block=None) -> Clusters:
@@ -127,6 +130,7 @@ def find_clusters(poles, anchor, offset, active, condition, block=None) -> Clust
     radius = jnp.where(valid, radius, 1.0)
     hits = jnp.zeros(size, int).at[pick].add(valid).at[nearest[pick]].add(valid)
     member = hits > 0
+    mate = jnp.where(member, nearest, index)
     # a mode no damper touches at critical internal damping: its two poles meet (not summed
     # by contour here)
     n = size // 2
@@ -134,7 +138,7 @@ def find_clusters(poles, anchor, offset, active, condition, block=None) -> Clust
                              * jnp.abs(poles[:n]))
     ill = root_active & ~member & ~(condition <= CONDITION_LIMIT)
     ok = ~jnp.any(ill) & ~jnp.any(double_pole)
-    return Clusters(c, radius, valid, member, ok)
+    return Clusters(c, radius, valid, member, mate, ok)
 
 
 def resolvent_at(modes, s):

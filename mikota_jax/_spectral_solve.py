@@ -103,7 +103,7 @@ def _modal_tables(lam, a, b, ts, load, displacement: bool, velocity: bool):
 
 
 @complex_arithmetic
-def _conjugate_slots(lam, block=None):
+def _conjugate_slots(lam, block=None, mate=None):
     """n slots for the 2n roots, so that the real sum needs n terms, not 2n.
 
     Each root's partner is the root nearest its conjugate (itself for a root on the real axis),
@@ -112,13 +112,17 @@ def _conjugate_slots(lam, block=None):
     as c = Re c_1 + i Re c_2, w = Re w_1 - i Re w_2 (Re(c w) = Re(c_1 w_1) + Re(c_2 w_2)). The
     number of real roots is even when the partners pair up; ``consistent`` says they do.
     Returns (first, second, real, consistent): (n,) indices, (n,) bool, a bool. ``block``: the
-    partners ``block`` roots at a time (``by_rows``), O(n block) memory.
+    partners ``block`` roots at a time (``by_rows``), O(n block) memory. ``mate``: the roots
+    of a cluster (``Clusters.mate``, whose coefficients are zero) are each other's partners
+    (at a double root their values are equal and the nearest-conjugate rule cannot pair them).
     """
     size = lam.shape[0]
     n = size // 2
     index = jnp.arange(size)
     partner = by_rows(  # argmin_k |lambda_k - conj(lambda_j)|
         lambda z: jnp.argmin(jnp.abs(lam[None, :] - jnp.conj(z)[:, None]), axis=1), block, lam)
+    if mate is not None:
+        partner = jnp.where(mate != index, mate, partner)
     consistent = jnp.all(partner[partner] == index)
     self_conjugate = partner == index
     key = jnp.where(self_conjugate, 1, jnp.where(index < partner, 0, 2))
@@ -182,7 +186,8 @@ def spectral_solve_with_result(system, ts, x0, v0, load, *, dofs, displacement, 
     g = None if load is None else modes_u.T @ load.direction
     b = None if load is None else modes.load_coefficients(g)
     lam = modes.eigenvalues
-    first, second, real, consistent = _conjugate_slots(jax.lax.stop_gradient(lam))
+    first, second, real, consistent = _conjugate_slots(jax.lax.stop_gradient(lam),
+                                                       mate=modes.clusters.mate)
     real_part = lambda z: None if z is None else jnp.real(z[second])  # noqa: E731
     # the first root of every slot in complex arithmetic; the second (real roots only) in real
     cx, cv = _modal_tables(lam[first], a[first], None if b is None else b[first], ts, load,
@@ -203,10 +208,11 @@ def spectral_solve_with_result(system, ts, x0, v0, load, *, dofs, displacement, 
     x = None if cx is None else _real_product(pack(cx, rx), w)
     v = None if cv is None else _real_product(pack(cv, rv), w)
 
+    @complex_arithmetic
     def clusters(x, v):
         for tx, tv, vectors in _cluster_history(modes, q0, p0, g, ts, load, displacement,
                                                 velocity):
-            out = (rows @ vectors.T)  # (d, P)
+            out = rows @ vectors.T  # (d, P)
             x = None if x is None else x + _real_product(tx, out)
             v = None if v is None else v + _real_product(tv, out)
         return x, v
@@ -244,7 +250,8 @@ def rows_response(system, ts, x0, v0, load, *, dofs, displacement, velocity, blo
     g = None if load is None else projected[:, 2]
     lam = modes.eigenvalues
     size = response_block(n, block)
-    first, second, real, consistent = _conjugate_slots(jax.lax.stop_gradient(lam), size)
+    first, second, real, consistent = _conjugate_slots(jax.lax.stop_gradient(lam), size,
+                                                       modes.clusters.mate)
     stiff = modes.omega**2 * q0
 
     def coefficients(roots):

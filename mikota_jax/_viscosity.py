@@ -120,9 +120,9 @@ class Criterion(eqx.Module):
 
 
 def criterion_value(system, criterion: Criterion):
-    """The criterion on the spectral path, +inf where it does not hold (a root not converged, a
-    mode at critical damping, a mode no damper reaches): no check inside, so a compiled search
-    meets a failed design as a value to reject, never as an error."""
+    """The criterion on the spectral path, +inf where it does not hold (a root not converged,
+    roots coinciding beyond a critically damped pair, an undamped mode seen): no check inside,
+    so a compiled search meets a failed design as a value to reject, never as an error."""
     c = criterion
     if c.name == "average_energy":
         value, ok = spectral_trace_with_result(system, lowest=c.lowest)

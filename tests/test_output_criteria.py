@@ -113,10 +113,10 @@ def test_an_undamped_mode_that_reaches_the_output_has_infinite_h2_norm():
     _, u = sl.eigh(k, m)
     assert abs(u[2, 1]) < 1e-10
     finite = float(mj.h2_norm(system, m @ u[:, 0], np.eye(4)))  # mode 1 only: damped
-    # mode 2 only: its node sits at the damper to rounding (u = 6e-16 in the computed modes),
-    # so the norm is infinite or, through that rounding-level coupling, astronomically large
-    untouched = float(mj.h2_norm(system, m @ u[:, 1], np.eye(4)))
-    assert not np.isfinite(untouched) or untouched > 1e6 * finite
+    # mode 2 only: its node sits at the damper to rounding (u = 6e-16 in the computed modes):
+    # undamped, decided from the structure, and seen by the outputs: refused in one line
+    with pytest.raises(ValueError, match="nothing damps"):
+        mj.h2_norm(system, m @ u[:, 1], np.eye(4))
     assert np.isfinite(finite) and finite > 0
 
 

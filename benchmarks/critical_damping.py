@@ -1,0 +1,241 @@
+"""The default exact path across critical damping, under jit/vmap, and what it costs.
+
+Three parts, in one process (the memory figures in child processes, one per measurement):
+
+* **Accuracy through critical damping**: the five cases of ``tests/test_critical_damping.py``
+  (one mass, c* = 2; two masses; Mikota n = 8; a relative damper; two dampers) at c = c* (1 +
+  delta) for delta in +-{0, 1e-16, ..., 1e-2}: the default path's relative errors in J, the
+  trace, x(t) (max over 41 times, relative to max |x|) and dJ/dc, dtrace/dc against the tests'
+  truths (closed forms for one mass, mpmath's eigen-expansion at 80 digits and its central
+  differences otherwise). Targets: values within 1e-9, gradients within 1e-7, nothing negative.
+  With each case, the compiled J + gradient of the default path against ``method="dense"``.
+* **Memory under jit and vmap** (peak resident memory of a child process that runs only that):
+  ``jax.jit(jax.value_and_grad(energy))`` of the full Mikota chain with one grounded damper
+  against the eager ``jax.grad`` at the same n; ``jax.jit(jax.vmap(energy))`` over 64 designs at
+  n = 300 against 64 eager calls (time in this process). Targets: jit at n = 2000 under 2 GB and
+  within 2x of eager; vmap within 2x of the eager calls' time and memory.
+* **Section 5 before and after** (n = 300, damper d = 1 at DOF 7.3, x_3(0) = 1, T = 20): J +
+  gradient and the all-DOF history at 401 times, compiled, by this package and by the package
+  at ``--before`` (a git revision, imported beside it under another name). Target: no more than
+  20 % slower.
+
+Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/critical_damping.py [--quick]`` (``--quick``: two
+cases, four deltas, n = 500 for memory). Writes ``results/critical_damping.json`` and ``.png``.
+"""
+
+# _common first: it sets OPENBLAS_NUM_THREADS before jax and numpy load.
+from _common import (Compiled, figure, legend, metadata, parse_args,  # noqa: I001
+                     print_table, read_json, save_figure, subtitle, timed, write_json)
+
+import importlib
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import mikota_jax as mj
+
+NAME = "critical_damping"
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tests"))  # the truths are the tests' own
+
+DELTAS = [0.0, 1e-16, -1e-16, 1e-14, -1e-14, 1e-12, -1e-12, 1e-10, -1e-10, 1e-8, -1e-8, 1e-6,
+          -1e-6, 1e-4, -1e-4, 1e-2, -1e-2]
+
+
+def accuracy(quick):
+    import test_critical_damping as cases
+
+    names = list(cases.CASES)[:2] if quick else list(cases.CASES)
+    deltas = [0.0, 1e-16, -1e-12, 1e-6] if quick else DELTAS
+    table, timing = {}, {}
+    for name in names:
+        make, _, x0, v0 = cases.CASES[name]
+        energy = jax.jit(lambda c, make=make, x0=x0, v0=v0: mj.integrated_energy(make(c), 10.0,
+                                                                                 x0, v0))
+        grad_energy = jax.jit(jax.grad(lambda c, make=make, x0=x0, v0=v0:
+                                       mj.integrated_energy(make(c), 10.0, x0, v0)))
+        trace = jax.jit(lambda c, make=make: mj.total_average_energy(make(c)))
+        grad_trace = jax.jit(jax.grad(lambda c, make=make: mj.total_average_energy(make(c))))
+        rows = []
+        for delta in deltas:
+            c = cases.probe(name, delta)
+            j, t, xs = cases.truths(name, c)
+            dj, dt = cases.derivative_truths(name, c)
+            history = np.asarray(mj.exact_solve(make(c), cases.TS, x0, v0).displacement)
+            ours = dict(J=float(energy(c)), trace=float(trace(c)), dJ=float(grad_energy(c)),
+                        dtrace=float(grad_trace(c)))
+            rows.append(dict(delta=delta, c=c, J=ours["J"], trace=ours["trace"],
+                             error_J=abs(ours["J"] / j - 1),
+                             error_trace=abs(ours["trace"] / t - 1),
+                             error_x=float(np.max(np.abs(history - xs)) / np.max(np.abs(xs))),
+                             # relative to the derivative, or to value / c where it is 0
+                             # (the one-mass trace optimum)
+                             error_dJ=abs(ours["dJ"] - dj) / max(abs(dj), abs(j / c)),
+                             error_dtrace=abs(ours["dtrace"] - dt) / max(abs(dt), abs(t / c))))
+            print(f"{name:16s} delta {delta:9.1e}: J {rows[-1]['error_J']:.1e} trace "
+                  f"{rows[-1]['error_trace']:.1e} x {rows[-1]['error_x']:.1e} dJ "
+                  f"{rows[-1]['error_dJ']:.1e} dtrace {rows[-1]['error_dtrace']:.1e}", flush=True)
+        table[name] = rows
+        c = jnp.array(cases.probe(name, 0.0))
+        both = {}
+        for method in ("exact", "dense"):
+            fn = Compiled(jax.value_and_grad(lambda c, make=make, x0=x0, v0=v0, m=method:
+                                             mj.integrated_energy(make(c), 10.0, x0, v0,
+                                                                  method=m)), c)
+            (value, _), seconds, _ = timed(fn, c, repeats=5)
+            both[method] = dict(seconds=seconds, compile_s=fn.compile_s, value=float(value))
+        timing[name] = both
+    return table, timing
+
+
+CHILD = r"""
+import json, resource, sys, time
+import jax, numpy as np
+jax.config.update("jax_enable_x64", True)
+import mikota_jax as mj
+mode, n = sys.argv[1], int(sys.argv[2])
+x0 = np.zeros(n); x0[2] = 1.0
+def energy(c):
+    system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(7.0, c)])
+    return mj.integrated_energy(system, 20.0, x0)
+start = time.perf_counter()
+if mode == "jit":
+    out = jax.jit(jax.value_and_grad(energy))(1.0)
+elif mode == "eager":
+    out = jax.value_and_grad(energy)(1.0)
+elif mode == "vmap":
+    out = jax.jit(jax.vmap(energy))(jax.numpy.linspace(0.5, 2.0, 64))
+elif mode == "loop":
+    out = [energy(c) for c in np.linspace(0.5, 2.0, 64)]
+jax.block_until_ready(out)
+print(json.dumps(dict(seconds=time.perf_counter() - start,
+                      peak_gib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20)))
+"""
+
+
+def child(mode, n):
+    done = subprocess.run([sys.executable, "-c", CHILD, mode, str(n)], capture_output=True,
+                          text=True, check=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def memory(quick):
+    sizes = [500] if quick else [1000, 2000]
+    out = {"gradient": {}, "vmap": {}}
+    for n in sizes:
+        out["gradient"][str(n)] = {mode: child(mode, n) for mode in ("jit", "eager")}
+        print(f"n = {n}: jit(value_and_grad) {out['gradient'][str(n)]['jit']}, eager "
+              f"{out['gradient'][str(n)]['eager']}", flush=True)
+    n = 100 if quick else 300
+    out["vmap"] = dict(n=n, designs=64, **{mode: child(mode, n) for mode in ("vmap", "loop")})
+    print(f"vmap over 64 designs at n = {n}: {out['vmap']}", flush=True)
+    return out
+
+
+def package_at(revision):
+    """The package at a git revision, importable beside this one as ``mikota_jax_before``."""
+    where = Path(tempfile.mkdtemp())
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", revision, "mikota_jax"],
+                             capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(where)], input=archive, check=True)
+    (where / "mikota_jax").rename(where / "mikota_jax_before")
+    sys.path.insert(0, str(where))
+    return importlib.import_module("mikota_jax_before")
+
+
+def section5(package, n, repeats):
+    x0 = jnp.zeros(n).at[2].set(1.0)
+    ts = jnp.linspace(0.0, 20.0, 401)
+
+    def energy(p, c):
+        system = package.mikota_chain(n, dampers=[package.GroundedDamper(p, c)])
+        return package.integrated_energy(system, 20.0, x0)
+
+    def history(p, c):
+        system = package.mikota_chain(n, dampers=[package.GroundedDamper(p, c)])
+        return package.exact_solve(system, ts, x0).displacement
+
+    point = (jnp.array(7.3), jnp.array(1.0))
+    out = {}
+    for key, fn in (("energy_gradient", jax.value_and_grad(energy, argnums=(0, 1))),
+                    ("history", history)):
+        compiled = Compiled(fn, *point)
+        result, seconds, _ = timed(compiled, *point, repeats=repeats)
+        out[key] = dict(seconds=seconds, compile_s=compiled.compile_s)
+        out[key + "_value"] = (float(result[0]) if key == "energy_gradient"
+                               else float(jnp.max(jnp.abs(result))))
+    return out
+
+
+def plot(data: dict) -> None:
+    fig, axes = figure(ncols=2, figsize=(12, 4.6))
+    ax = axes[0]
+    for name, rows in data["accuracy"].items():
+        order = sorted(rows, key=lambda r: (np.sign(r["delta"]), abs(r["delta"])))
+        x = [r["delta"] for r in order]
+        worst = [max(r["error_J"], r["error_trace"], r["error_x"], r["error_dJ"],
+                     r["error_dtrace"], 1e-17) for r in order]
+        ax.plot(range(len(x)), worst, "o-", label=name)
+        ax.set_xticks(range(len(x)), [f"{d:.0e}" for d in x], rotation=90, fontsize=7)
+    ax.axhline(1e-9, color="grey", ls="--", lw=1)
+    ax.set_yscale("log")
+    ax.set_xlabel("delta (c = c* (1 + delta))")
+    ax.set_ylabel("worst relative error (J, trace, x, dJ/dc, dtrace/dc)")
+    ax.set_title("default path through critical damping")
+    legend(ax, "below")
+    ax = axes[1]
+    sizes = sorted(data["memory"]["gradient"], key=int)
+    for mode, marker in (("jit", "o-"), ("eager", "s--")):
+        ax.plot([int(n) for n in sizes], [data["memory"]["gradient"][n][mode]["peak_gib"]
+                                          for n in sizes], marker, label=f"{mode} value_and_grad")
+    ax.set_xlabel("n")
+    ax.set_ylabel("peak resident memory (GiB)")
+    ax.set_title("J + gradient of the full chain: jit against eager")
+    fig.suptitle(subtitle(data.get("meta")), fontsize=9)
+    legend(ax, "below")
+    save_figure(fig, NAME, data.get("quick", False))
+
+
+def main(argv=None):
+    args = parse_args(__doc__, argv, replot=True,
+                      before=dict(default="7ebd474", help="the revision to compare Section 5 "
+                                  "with (before the contour clusters)"))
+    if args.replot:
+        return plot(read_json(NAME, args.quick))
+    table, timing = accuracy(args.quick)
+    mem = memory(args.quick)
+    n = 100 if args.quick else 300
+    repeats = 3 if args.quick else 7
+    after = section5(mj, n, repeats)
+    before = section5(package_at(args.before), n, repeats)
+    data = dict(quick=args.quick, accuracy=table, timing=timing, memory=mem,
+                section5=dict(n=n, before=before, after=after, revision=args.before),
+                meta=metadata())
+    rows = [dict(case=name, exact_s=t["exact"]["seconds"], dense_s=t["dense"]["seconds"],
+                 ratio=t["dense"]["seconds"] / t["exact"]["seconds"],
+                 worst_value=max(max(r["error_J"], r["error_trace"], r["error_x"])
+                                 for r in table[name]),
+                 worst_gradient=max(max(r["error_dJ"], r["error_dtrace"]) for r in table[name]),
+                 negative=any(r["J"] < 0 or r["trace"] < 0 for r in table[name]))
+            for name, t in timing.items()]
+    print_table(rows, [("case", "case", ""), ("exact_s", "default J+grad s", ".4f"),
+                       ("dense_s", "dense J+grad s", ".4f"), ("ratio", "dense / default", ".1f"),
+                       ("worst_value", "worst value err", ".1e"),
+                       ("worst_gradient", "worst gradient err", ".1e"),
+                       ("negative", "negative?", "")])
+    for key in ("energy_gradient", "history"):
+        b, a = before[key]["seconds"], after[key]["seconds"]
+        print(f"Section 5 {key}: before {b:.4f} s, after {a:.4f} s ({a / b - 1:+.0%}); values "
+              f"{before[key + '_value']:.15g} / {after[key + '_value']:.15g}")
+    write_json(NAME, args.quick, data, data["meta"])
+    plot(data)
+
+
+if __name__ == "__main__":
+    main()

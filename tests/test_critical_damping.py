@@ -1,0 +1,213 @@
+"""The default exact path across critical damping, against truths far stronger than float64.
+
+At a critical point two damped roots meet (a double root with one eigenvector). The spectral path
+sums such a pair by a contour integral (``_spectral_clusters``); here J, the trace X and x(t),
+and their derivatives in the damper coefficient, are swept through c = c* (1 + delta) for delta
+from 0 to 1e-2 on both sides and compared with
+
+* one mass (m = k = 1, c* = 2): closed forms (x(t) from the two roots in mpmath at 50 digits, or
+  (1 + t) e^-t at c = 2; trace X = c / 2 + 2 / c, d/dc = 1 / 2 - 2 / c^2 exactly);
+* the other cases: mpmath's eigen-expansion at 80 digits (``_helpers.mp_truths``; at delta ~ 1e-16
+  it loses ~8 digits to the near-defective pair, keeping ~70), and for the derivatives central
+  differences of it with h = 1e-12 c in exact arithmetic (truncation ~1e-24).
+
+c* of the cases we picked (a relative damper, and two dampers of which one sweeps) were found by
+mpmath's findroot on det Q(lambda, c) = d/dlambda det Q(lambda, c) = 0 at 60 digits; a wrong c*
+would only move the probe, not the truth (which is computed at the float c used).
+"""
+
+import jax
+import jax.numpy as jnp
+import mpmath as mp
+import numpy as np
+import pytest
+from _helpers import mp_truths
+
+import mikota_jax as mj
+from mikota_jax._spectral_system import damped_modes
+
+T = 10.0
+TS = np.linspace(0.0, T, 41)
+
+
+def one_dof(c):
+    return mj.mikota_chain(1, dampers=[mj.GroundedDamper(1.0, c)])
+
+
+CASES = {
+    # name: (system of c, c* to 40 digits, x0, v0)
+    "one mass": (one_dof, "2", np.array([1.0]), np.array([0.0])),
+    "two masses": (lambda c: mj.chain(np.ones(2), np.ones(2), [mj.GroundedDamper(2.0, c)]),
+                   "1.553026040673962751124894081872586606709", np.array([1.0, 0.0]),
+                   np.array([0.0, 0.5])),
+    "mikota 8": (lambda c: mj.mikota_chain(8, dampers=[mj.GroundedDamper(1.0, c)]),
+                 "6.857092135881596014188153624389535170610", np.eye(8)[2],
+                 np.linspace(0.0, 1.0, 8)),
+    "relative damper": (lambda c: mj.chain(np.ones(3), np.ones(3), [mj.RelativeDamper((1, 3),
+                                                                                      c)]),
+                        "1.177365133083064040670286858679642877963", np.array([1.0, 0.0, 0.0]),
+                        np.array([0.0, 0.3, -0.2])),
+    "two dampers": (lambda c: mj.mikota_chain(4, dampers=[mj.GroundedDamper(1.0, c),
+                                                          mj.GroundedDamper(3.0, 0.5)]),
+                    "4.694514930203024326374913585441467183263", np.array([0.0, 1.0, 0.0, 0.0]),
+                    np.array([0.5, 0.0, 0.0, -0.5])),
+}
+DELTAS = [0.0, -1e-12, 1e-8]
+SLOW_DELTAS = [1e-16, -1e-16, 1e-14, -1e-14, 1e-12, 1e-10, -1e-10, -1e-8, 1e-6, -1e-6, 1e-4,
+               -1e-4, 1e-2, -1e-2]
+
+
+def one_dof_truth(c, exact=False):
+    """(J, trace, x(TS)) of one mass from its two roots at 50 digits (the limit at c = 2)."""
+    with mp.workdps(50):
+        c = mp.mpf(c)
+        if c == 2:
+            x = lambda t: (1 + t) * mp.exp(-t)  # noqa: E731
+            v = lambda t: -t * mp.exp(-t)  # noqa: E731
+        else:
+            d = mp.sqrt(mp.mpc(c**2 / 4 - 1))
+            l1, l2 = -c / 2 + d, -c / 2 - d
+            a, b = -l2 / (l1 - l2), l1 / (l1 - l2)
+            x = lambda t: mp.re(a * mp.exp(l1 * t) + b * mp.exp(l2 * t))  # noqa: E731
+            v = lambda t: mp.re(a * l1 * mp.exp(l1 * t) + b * l2 * mp.exp(l2 * t))  # noqa: E731
+        energy = mp.quad(lambda t: (x(t) ** 2 + v(t) ** 2) / 2, [0, 1, 3, T])
+        trace = c / 2 + 2 / c
+        xs = np.array([[float(x(t))] for t in TS])
+        return (energy, trace, xs) if exact else (float(energy), float(trace), xs)
+
+
+def truths(name, c):
+    make, _, x0, v0 = CASES[name]
+    if name == "one mass":
+        return one_dof_truth(c)
+    return mp_truths(make(c).dense(), T, x0, v0, TS)
+
+
+def derivative_truths(name, c):
+    """(dJ/dc, dtrace/dc) at the float c by central differences at 80 digits."""
+    make, _, x0, v0 = CASES[name]
+    with mp.workdps(80):
+        h = mp.mpf(c) * mp.mpf("1e-12")
+        if name == "one mass":
+            jp, tp, _ = one_dof_truth(mp.mpf(c) + h, exact=True)
+            jm, tm, _ = one_dof_truth(mp.mpf(c) - h, exact=True)
+            return float((jp - jm) / (2 * h)), float(mp.mpf(0.5) - 2 / mp.mpf(c) ** 2)
+        m, with_one, k = (np.asarray(a) for a in make(1.0).dense())
+        d0 = np.asarray(make(0.0).dense()[1])
+        d1 = with_one - d0  # D(c) = D0 + c D1 (entries 0, +-1 and the fixed damper's: exact)
+
+        def at(c):
+            damping = mp.matrix(d0.tolist()) + c * mp.matrix(d1.tolist())
+            energy, trace, _ = mp_truths((m, damping, k), T, x0, v0, [], exact=True)
+            return energy, trace
+
+        jp, tp = at(mp.mpf(c) + h)
+        jm, tm = at(mp.mpf(c) - h)
+        return float((jp - jm) / (2 * h)), float((tp - tm) / (2 * h))
+
+
+def spectral_values(name, c):
+    make, _, x0, v0 = CASES[name]
+    system = make(c)
+    energy = mj.integrated_energy(system, T, x0, v0)
+    trace = mj.total_average_energy(system)
+    history = mj.exact_solve(system, TS, x0, v0).displacement
+    return float(energy), float(trace), np.asarray(history)
+
+
+def probe(name, delta):
+    _, cstar, _, _ = CASES[name]
+    return float(mp.mpf(cstar) * (1 + mp.mpf(delta)))
+
+
+def check_values(name, delta, close):
+    c = probe(name, delta)
+    energy, trace, history = truths(name, c)
+    ours = spectral_values(name, c)
+    close(ours[0], energy, rtol=1e-12, what="J")
+    close(ours[1], trace, rtol=1e-12, what="trace")
+    scale = np.max(np.abs(history))
+    close(ours[2] / scale, history / scale, atol=1e-12, what="x(t)")
+
+
+def check_gradients(name, delta, close):
+    make, _, x0, v0 = CASES[name]
+    c = probe(name, delta)
+    d_energy, d_trace = derivative_truths(name, c)
+    grad_energy = jax.grad(lambda c: mj.integrated_energy(make(c), T, x0, v0))(c)
+    grad_trace = jax.grad(lambda c: mj.total_average_energy(make(c)))(c)
+    # relative to the derivative, or to value / c where that is 0 (the one-mass trace optimum)
+    energy, trace, _ = truths(name, c)
+    close(grad_energy, d_energy, rtol=1e-10, atol=1e-10 * abs(energy / c), what="dJ/dc")
+    close(grad_trace, d_trace, rtol=1e-10, atol=1e-10 * abs(trace / c), what="dtrace/dc")
+
+
+QUICK = ["one mass", "two masses", "mikota 8"]  # the default run; every case under -m slow
+
+
+@pytest.mark.parametrize("name", [pytest.param(name, marks=() if name in QUICK else
+                                               pytest.mark.slow) for name in CASES])
+def test_values_and_gradients_stay_exact_through_critical_damping(name, close):
+    # one case's compiled paths serve every delta: the deltas cost only their truths
+    for delta in DELTAS:
+        check_values(name, delta, close)
+        check_gradients(name, delta, close)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(CASES))
+def test_the_whole_sweep_through_critical_damping_is_exact(name, close):
+    for delta in SLOW_DELTAS:
+        check_values(name, delta, close)
+        check_gradients(name, delta, close)
+
+
+@pytest.mark.parametrize("name", [pytest.param(name, marks=() if name == "two dampers" else
+                                               pytest.mark.slow) for name in CASES])
+def test_the_pair_at_a_critical_point_is_one_cluster(name):
+    make, _, _, _ = CASES[name]
+    modes = damped_modes(make(probe(name, 1e-12)))
+    assert bool(modes.converged) and bool(modes.clusters.ok)
+    assert int(np.sum(np.asarray(modes.clusters.member))) == 2
+
+
+def test_the_optimiser_finds_the_one_mass_trace_optimum_at_critical_damping(close):
+    # trace X = c / 2 + 2 / c: minimum 2 at c = 2 (exact), where the two roots meet
+    result = mj.optimise_viscosities(one_dof(0.5))
+    assert result.converged
+    close(result.coefficients, [2.0], rtol=1e-8)
+    close(result.value, 2.0, rtol=1e-13)
+
+
+def test_jit_vmap_and_grad_agree_with_the_eager_values_at_the_critical_point(close):
+    make, _, x0, v0 = CASES["two masses"]
+    cs = jnp.array([probe("two masses", d) for d in (0.0, 1e-12, -1e-8, 1e-2)])
+    energy = lambda c: mj.integrated_energy(make(c), T, x0, v0)  # noqa: E731
+    eager = [float(energy(c)) for c in cs]
+    close(jax.jit(jax.vmap(energy))(cs), eager, rtol=1e-14)
+    value, grad = jax.jit(jax.value_and_grad(energy))(cs[0])
+    close(value, eager[0], rtol=1e-14)
+    close(grad, jax.grad(energy)(cs[0]), rtol=1e-12)
+
+
+@pytest.mark.parametrize("system", [
+    pytest.param(mj.mikota_chain(6, dampers=[mj.GroundedDamper(2.0, 0.0)]), id="zero coefficient"),
+    pytest.param(mj.mikota_chain(6, dampers=[mj.RelativeDamper((2, 4), 0.0)]),
+                 id="zero relative", marks=pytest.mark.slow),
+    pytest.param(mj.chain(np.ones(4), np.ones(4), [mj.GroundedDamper(3.0, 1.0)]),
+                 id="damper on a node"),  # mode 2 of four equal masses vanishes at DOF 3
+])
+def test_an_undamped_mode_makes_the_trace_refuse_eagerly_and_under_jit(system):
+    with pytest.raises(ValueError, match="undamped"):
+        mj.total_average_energy(system)
+    with pytest.raises(jax.errors.JaxRuntimeError, match="undamped"):
+        jax.jit(mj.total_average_energy)(system)
+
+
+def test_a_zero_damper_keeps_the_energy_of_free_vibration(close):
+    # c = 0: nothing dissipates, J = T E(0) exactly
+    system = mj.mikota_chain(6, dampers=[mj.GroundedDamper(2.0, 0.0)])
+    x0, v0 = np.eye(6)[1], np.linspace(0.0, 1.0, 6)
+    m, _, k = (np.asarray(a) for a in system.dense())
+    close(mj.integrated_energy(system, T, x0, v0), T * (x0 @ k @ x0 + v0 @ m @ v0) / 2,
+          rtol=1e-12)
