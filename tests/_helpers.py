@@ -67,7 +67,8 @@ def mp_eigen_energy(system, horizon, x0, v0, dps=60):
 
 def mp_first_order(m, d, k, dps, scale=1):
     """The physical first-order matrix [[0, I], [-M^-1 K, -M^-1 scale D]] in mpmath at ``dps``
-    (``scale`` an mpmath number: a damper coefficient set beyond float64, for differences)."""
+    (``scale`` an mpmath number: a damper coefficient set beyond float64, for differences; ``d``
+    may be an mpmath matrix itself)."""
     import mpmath as mp
 
     n = m.shape[0]
@@ -77,7 +78,8 @@ def mp_first_order(m, d, k, dps, scale=1):
             a[i, n + i] = 1
             for j in range(n):
                 a[n + i, j] = -mp.mpf(float(k[i, j])) / mp.mpf(float(m[i, i]))
-                a[n + i, n + j] = -scale * mp.mpf(float(d[i, j])) / mp.mpf(float(m[i, i]))
+                dij = d[i, j] if isinstance(d, mp.matrix) else mp.mpf(float(d[i, j]))
+                a[n + i, n + j] = -scale * dij / mp.mpf(float(m[i, i]))
         return a
 
 
@@ -94,7 +96,7 @@ def mp_truths(matrices, horizon, x0, v0, ts, dps=80, scale=1, exact=False):
     as mpmath numbers (for central differences beyond float64)."""
     import mpmath as mp
 
-    m, d, k = (np.asarray(a, dtype=float) for a in matrices)
+    m, d, k = (a if isinstance(a, mp.matrix) else np.asarray(a, dtype=float) for a in matrices)
     n = m.shape[0]
     with mp.workdps(dps):
         a = mp_first_order(m, d, k, dps, scale)

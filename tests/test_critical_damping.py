@@ -52,9 +52,9 @@ CASES = {
                     "4.694514930203024326374913585441467183263", np.array([0.0, 1.0, 0.0, 0.0]),
                     np.array([0.5, 0.0, 0.0, -0.5])),
 }
-DELTAS = [0.0, -1e-12, 1e-8]
-SLOW_DELTAS = [1e-16, -1e-16, 1e-14, -1e-14, 1e-12, 1e-10, -1e-10, -1e-8, 1e-6, -1e-6, 1e-4,
-               -1e-4, 1e-2, -1e-2]
+DELTAS = [0.0, -1e-12]
+SLOW_DELTAS = [1e-16, -1e-16, 1e-14, -1e-14, 1e-12, 1e-10, -1e-10, 1e-8, -1e-8, 1e-6, -1e-6,
+               1e-4, -1e-4, 1e-2, -1e-2]
 
 
 def one_dof_truth(c, exact=False):
@@ -142,7 +142,7 @@ def check_gradients(name, delta, close):
     close(grad_trace, d_trace, rtol=1e-10, atol=1e-10 * abs(trace / c), what="dtrace/dc")
 
 
-QUICK = ["one mass", "two masses", "mikota 8"]  # the default run; every case under -m slow
+QUICK = ["one mass", "two masses"]  # the default run; every case under -m slow
 
 
 @pytest.mark.parametrize("name", [pytest.param(name, marks=() if name in QUICK else
@@ -180,8 +180,8 @@ def test_the_optimiser_finds_the_one_mass_trace_optimum_at_critical_damping(clos
 
 
 def test_jit_vmap_and_grad_agree_with_the_eager_values_at_the_critical_point(close):
-    make, _, x0, v0 = CASES["two masses"]
-    cs = jnp.array([probe("two masses", d) for d in (0.0, 1e-12, -1e-8, 1e-2)])
+    make, _, x0, v0 = CASES["one mass"]
+    cs = jnp.array([probe("one mass", d) for d in (0.0, 1e-12, -1e-8, 1e-2)])
     energy = lambda c: mj.integrated_energy(make(c), T, x0, v0)  # noqa: E731
     eager = [float(energy(c)) for c in cs]
     close(jax.jit(jax.vmap(energy))(cs), eager, rtol=1e-14)
@@ -195,7 +195,7 @@ def test_jit_vmap_and_grad_agree_with_the_eager_values_at_the_critical_point(clo
     pytest.param(mj.mikota_chain(6, dampers=[mj.RelativeDamper((2, 4), 0.0)]),
                  id="zero relative", marks=pytest.mark.slow),
     pytest.param(mj.chain(np.ones(4), np.ones(4), [mj.GroundedDamper(3.0, 1.0)]),
-                 id="damper on a node"),  # mode 2 of four equal masses vanishes at DOF 3
+                 id="damper on a node", marks=pytest.mark.slow),  # mode 2 of four equal masses vanishes at DOF 3
 ])
 def test_an_undamped_mode_makes_the_trace_refuse_eagerly_and_under_jit(system):
     with pytest.raises(ValueError, match="undamped"):
