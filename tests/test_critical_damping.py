@@ -194,8 +194,9 @@ def test_jit_vmap_and_grad_agree_with_the_eager_values_at_the_critical_point(clo
     pytest.param(mj.mikota_chain(6, dampers=[mj.GroundedDamper(2.0, 0.0)]), id="zero coefficient"),
     pytest.param(mj.mikota_chain(6, dampers=[mj.RelativeDamper((2, 4), 0.0)]),
                  id="zero relative", marks=pytest.mark.slow),
+    # mode 2 of four equal masses vanishes at DOF 3
     pytest.param(mj.chain(np.ones(4), np.ones(4), [mj.GroundedDamper(3.0, 1.0)]),
-                 id="damper on a node", marks=pytest.mark.slow),  # mode 2 of four equal masses vanishes at DOF 3
+                 id="damper on a node", marks=pytest.mark.slow),
 ])
 def test_an_undamped_mode_makes_the_trace_refuse_eagerly_and_under_jit(system):
     with pytest.raises(ValueError, match="undamped"):
