@@ -12,7 +12,7 @@ Three parts, in one process (the memory figures in child processes, one per meas
 * **Memory under jit and vmap** (peak resident memory of a child process that runs only that):
   ``jax.jit(jax.value_and_grad(energy))`` of the full Mikota chain with one grounded damper
   against the eager ``jax.grad`` at the same n; ``jax.jit(jax.vmap(energy))`` over 64 designs at
-  n = 300 against 64 eager calls (time in this process). Targets: jit at n = 2000 under 2 GB and
+  n = 300 against 64 eager calls (wall time of each child, compilation included). Targets: jit at n = 2000 under 2 GB and
   within 2x of eager; vmap within 2x of the eager calls' time and memory.
 * **Section 5 before and after** (n = 300, damper d = 1 at DOF 7.3, x_3(0) = 1, T = 20): J +
   gradient and the all-DOF history at 401 times, compiled, by this package and by the package
@@ -174,7 +174,7 @@ def section5(package, n, repeats):
 
 
 def plot(data: dict) -> None:
-    fig, axes = figure(ncols=2, figsize=(12, 4.6))
+    fig, axes = figure(readable=True, ncols=2, figsize=(12, 5.2))
     ax = axes[0]
     for name, rows in data["accuracy"].items():
         order = sorted(rows, key=lambda r: (np.sign(r["delta"]), abs(r["delta"])))
@@ -182,7 +182,7 @@ def plot(data: dict) -> None:
         worst = [max(r["error_J"], r["error_trace"], r["error_x"], r["error_dJ"],
                      r["error_dtrace"], 1e-17) for r in order]
         ax.plot(range(len(x)), worst, "o-", label=name)
-        ax.set_xticks(range(len(x)), [f"{d:.0e}" for d in x], rotation=90, fontsize=7)
+        ax.set_xticks(range(len(x)), [f"{d:.0e}" for d in x], rotation=90)
     ax.axhline(1e-9, color="grey", ls="--", lw=1)
     ax.set_yscale("log")
     ax.set_xlabel("delta (c = c* (1 + delta))")

@@ -22,6 +22,8 @@ import mpmath as mp
 import numpy as np
 import pytest
 from _helpers import mp_truths
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import mikota_jax as mj
 from mikota_jax._spectral_system import damped_modes
@@ -212,3 +214,47 @@ def test_a_zero_damper_keeps_the_energy_of_free_vibration(close):
     m, _, k = (np.asarray(a) for a in system.dense())
     close(mj.integrated_energy(system, T, x0, v0), T * (x0 @ k @ x0 + v0 @ m @ v0) / 2,
           rtol=1e-12)
+
+
+# --- random systems at and around their critical points (hypothesis) ------------------------
+
+DRAWS = settings(max_examples=8, deadline=None, derandomize=True, database=None)
+
+
+@st.composite
+def critical_oscillators(draw):
+    """One mass m on a spring k with a grounded damper at c = 2 sqrt(k m) (1 + delta): the two
+    roots -sqrt(k/m) (1 + delta +- sqrt(delta (2 + delta))) meet at delta = 0; delta drawn from
+    0 and +-1e-16 ... 1e-2 (the decades where the root-by-root sum lost its digits)."""
+    mass = draw(st.floats(1e-2, 1e2))
+    stiffness = draw(st.floats(1e-2, 1e2))
+    delta = draw(st.sampled_from([0.0] + [s * 10.0**-e for e in range(2, 17, 2) for s in (1, -1)]))
+    return mass, stiffness, delta
+
+
+@given(critical_oscillators())
+@DRAWS
+def test_a_random_oscillator_near_its_critical_point_keeps_its_exact_energy(case):
+    # x(0) = 1, x'(0) = 0 on [0, T]; truth: the scaled one-mass solution at 50 digits
+    # (time t sqrt(k/m), c / (2 sqrt(k m)) = 1 + delta: J scales as k (T in units of sqrt(m/k)))
+    mass, stiffness, delta = case
+    c = 2 * np.sqrt(stiffness * mass) * (1 + delta)
+    system = mj.chain(np.array([mass]), np.array([stiffness]), [mj.GroundedDamper(1.0, c)])
+    rate = np.sqrt(stiffness / mass)
+    horizon = 5.0 / rate
+    with mp.workdps(50):
+        zeta = mp.mpf(c) / (2 * mp.sqrt(mp.mpf(stiffness) * mp.mpf(mass)))
+        if zeta == 1:
+            x = lambda t: (1 + t) * mp.exp(-t)  # noqa: E731
+            v = lambda t: -t * mp.exp(-t)  # noqa: E731
+        else:
+            d = mp.sqrt(mp.mpc(zeta**2 - 1))
+            l1, l2 = -zeta + d, -zeta - d
+            a, b = -l2 / (l1 - l2), l1 / (l1 - l2)
+            x = lambda t: mp.re(a * mp.exp(l1 * t) + b * mp.exp(l2 * t))  # noqa: E731
+            v = lambda t: mp.re(a * l1 * mp.exp(l1 * t) + b * l2 * mp.exp(l2 * t))  # noqa: E731
+        # E = (k x^2 + m x'^2) / 2 with x'(t) = rate v(rate t); dt = d(rate t) / rate
+        scaled = mp.quad(lambda s: (x(s) ** 2 + v(s) ** 2) / 2, [0, 1, 3, 5])
+        truth = float(scaled * mp.mpf(stiffness) / mp.mpf(rate))
+    value = float(mj.integrated_energy(system, horizon, np.array([1.0])))
+    assert value == pytest.approx(truth, rel=1e-12)
