@@ -12,8 +12,9 @@ Three parts, in one process (the memory figures in child processes, one per meas
 * **Memory under jit and vmap** (peak resident memory of a child process that runs only that):
   ``jax.jit(jax.value_and_grad(energy))`` of the full Mikota chain with one grounded damper
   against the eager ``jax.grad`` at the same n; ``jax.jit(jax.vmap(energy))`` over 64 designs at
-  n = 300 against 64 eager calls (wall time of each child, compilation included). Targets: jit at n = 2000 under 2 GB and
-  within 2x of eager; vmap within 2x of the eager calls' time and memory.
+  n = 300 against 64 eager calls (wall time of each child, compilation included). Targets: jit
+  at n = 2000 under 2 GB and within 2x of eager up to n = 10^4 (``--memory-only 4000 10000``
+  adds sizes to the JSON); vmap within 2x of the eager calls' time and memory.
 * **Section 5 before and after** (n = 300, damper d = 1 at DOF 7.3, x_3(0) = 1, T = 20): J +
   gradient and the all-DOF history at 401 times, compiled, by this package and by the package
   at ``--before`` (a git revision, imported beside it under another name). Target: no more than
@@ -205,9 +206,19 @@ def plot(data: dict) -> None:
 def main(argv=None):
     args = parse_args(__doc__, argv, replot=True,
                       before=dict(default="7ebd474", help="the revision to compare Section 5 "
-                                  "with (before the contour clusters)"))
+                                  "with (before the contour clusters)"),
+                      memory_only=dict(type=int, nargs="+", default=None, help="only measure "
+                                       "the jit/eager memory at these n, merged into the JSON"))
     if args.replot:
         return plot(read_json(NAME, args.quick))
+    if args.memory_only:
+        data = read_json(NAME, args.quick)
+        for n in args.memory_only:
+            data["memory"]["gradient"][str(n)] = {mode: child(mode, n) for mode in ("jit",
+                                                                                     "eager")}
+            print(f"n = {n}: {data['memory']['gradient'][str(n)]}", flush=True)
+        write_json(NAME, args.quick, data, data["meta"])
+        return plot(data)
     table, timing = accuracy(args.quick)
     mem = memory(args.quick)
     n = 100 if args.quick else 300

@@ -24,6 +24,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
+import numpy as np
 
 from ._custom_types import Array, Float, Vector
 from ._errors import (
@@ -35,6 +36,7 @@ from ._errors import (
     check_lowest,
     check_x64,
     first_failure,
+    is_traced,
     raise_result,
     raises_value_error,
 )
@@ -312,7 +314,29 @@ def total_average_energy(model, lowest: int | None = None, *,
     check_dense_memory(_modal_size(model), 100 if not takes_spectral(model) else 12,
                        "total_average_energy")
     value, result = total_average_energy_with_result(model, lowest=lowest, method=method)
+    _name_undamped_modes(model, result, lowest)
     return raise_result(value, result)
+
+
+def _name_undamped_modes(model, result, lowest):
+    """Eagerly, a refusal for an undamped mode names the modes (1-based, by frequency); under a
+    caller's ``jit`` the code's own line says the same without the numbers."""
+    if (any(is_traced(leaf) for leaf in jax.tree.leaves(result)) or not takes_spectral(model)
+            or not bool(np.any(np.asarray(result == RESULTS.not_damped)))):
+        return
+    from ._spectral_system import damped_modes
+
+    modes = damped_modes(model)
+    undamped = np.asarray(modes.undamped) | ~np.asarray(modes.active)
+    if lowest is not None:
+        undamped[lowest:] = False
+    numbers = (np.nonzero(undamped)[0] + 1).tolist()
+    if numbers:
+        shown = ", ".join(map(str, numbers[:8])) + (", ..." if len(numbers) > 8 else "")
+        raise ValueError(MARK + f"total_average_energy: mode {shown} (1-based, by frequency) "
+                         "is undamped (no damper moves it), so the Lyapunov solution does not "
+                         "exist; place a damper where it moves, or restrict Z with lowest=s "
+                         f"(s < {numbers[0]}).")
 
 
 def smooth_peak(values, order: int = 16) -> Float[Array, ""]:

@@ -144,7 +144,7 @@ def check_gradients(name, delta, close):
     close(grad_trace, d_trace, rtol=1e-10, atol=1e-10 * abs(trace / c), what="dtrace/dc")
 
 
-QUICK = ["one mass", "two masses"]  # the default run; every case under -m slow
+QUICK = ["two masses"]  # the default run; every case under -m slow
 
 
 @pytest.mark.parametrize("name", [pytest.param(name, marks=() if name in QUICK else
@@ -218,7 +218,7 @@ def test_a_zero_damper_keeps_the_energy_of_free_vibration(close):
 
 # --- random systems at and around their critical points (hypothesis) ------------------------
 
-DRAWS = settings(max_examples=8, deadline=None, derandomize=True, database=None)
+DRAWS = settings(max_examples=5, deadline=None, derandomize=True, database=None)
 
 
 @st.composite
@@ -258,3 +258,11 @@ def test_a_random_oscillator_near_its_critical_point_keeps_its_exact_energy(case
         truth = float(scaled * mp.mpf(stiffness) / mp.mpf(rate))
     value = float(mj.integrated_energy(system, horizon, np.array([1.0])))
     assert value == pytest.approx(truth, rel=1e-12)
+
+
+def test_the_refusal_names_the_undamped_mode_eagerly():
+    # four equal masses: mode 2 has a node at DOF 3, where the damper sits
+    system = mj.chain(np.ones(4), np.ones(4), [mj.GroundedDamper(3.0, 1.0)])
+    with pytest.raises(ValueError, match=r"mode 2 \(1-based, by frequency\) is undamped"):
+        mj.total_average_energy(system)
+    assert float(mj.total_average_energy(system, lowest=1)) > 0  # mode 1 alone is damped
