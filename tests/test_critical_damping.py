@@ -266,3 +266,13 @@ def test_the_refusal_names_the_undamped_mode_eagerly():
     with pytest.raises(ValueError, match=r"mode 2 \(1-based, by frequency\) is undamped"):
         mj.total_average_energy(system)
     assert float(mj.total_average_energy(system, lowest=1)) > 0  # mode 1 alone is damped
+
+
+def test_the_h2_norm_at_a_critical_point_equals_the_dense_gramians(close):
+    # the clusters' terms of the output energies (``_cluster_output``) against the dense path of
+    # a full-rank reduced model (Van Loan / Lyapunov by doubling, right to ~1e-13 here)
+    make, _, _, _ = CASES["two masses"]
+    system = make(probe("two masses", 0.0))
+    inputs, outputs = np.array([1.0, 0.3]), np.array([[0.2, 1.0]])
+    dense = mj.galerkin(system, np.eye(2))
+    close(mj.h2_norm(system, inputs, outputs), mj.h2_norm(dense, inputs, outputs), rtol=1e-12)
