@@ -90,6 +90,7 @@ def test_the_chunked_combination_is_u_times_c():
     np.testing.assert_allclose(np.asarray(mine), np.asarray(truth), atol=1e-11)
 
 
+@pytest.mark.slow  # its jitted rows response once compiled for > 5 min beside another worker
 def test_exact_solve_and_the_energy_take_the_large_chain_path_above_the_threshold(monkeypatch):
     # an unusual size and grid, so no other test's compiled solve is reused or left behind
     n, ts = 37, jnp.linspace(0.0, 3.0, 23)
