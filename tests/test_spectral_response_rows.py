@@ -7,6 +7,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 import mikota_jax as mj
 import mikota_jax._spectral_system as spectral_system
