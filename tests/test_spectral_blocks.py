@@ -41,6 +41,7 @@ def energy(design, block):
     return energy_from_modes(modes, q0, p0, T, block), jax.lax.stop_gradient(modes)
 
 
+@pytest.mark.slow  # 145-200 s in a loaded full run (the rows path compiles its cluster branches)
 def test_the_large_chain_path_equals_the_whole_one_and_the_dense_energy():
     design = jnp.array([12.4, 40.0])
     grad = jax.jit(jax.value_and_grad(energy, has_aux=True), static_argnums=1)

@@ -41,6 +41,7 @@ def response(system, load, dofs, block):
     return trajectory.displacement, trajectory.velocity, ok
 
 
+@pytest.mark.slow  # 145-200 s in a loaded full run (the rows path compiles its cluster branches)
 def test_the_large_chain_response_equals_the_spectral_and_the_dense_one():
     for load in (None, LOAD):
         for dofs in (tuple(range(1, N + 1)), (3, 17, 40)):
