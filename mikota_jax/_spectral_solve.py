@@ -168,9 +168,9 @@ def spectral_solve_with_result(system, ts, x0, v0, load, *, dofs, displacement, 
 
     ``system``: a ``SecondOrderSystem`` with dampers only (``spectral_applies``); ``ts`` (N,);
     ``x0``, ``v0`` (n,); ``load`` None or a ``Pulse``; ``dofs`` a tuple of 1-based DOFs. ok is
-    False where the roots did not converge, two damped roots nearly coincide (relative
-    separation below ``DEFECTIVE_SEPARATION``) or an output is not finite: then the
-    trajectory must not be used. Differentiable in the system's values and the initial state,
+    False where the roots did not converge, a root outside a cluster is ill-conditioned
+    (``Clusters.ok``) or an output is not finite: then the trajectory must not be used. A
+    critically damped pair enters by contour (``_cluster_history``). Differentiable in the system's values and the initial state,
     through one Newton step on the secular equation at the roots (``differentiable_roots``).
 
     A chain that ``uses_rows`` (n > 4096, dampers only) takes ``rows_response``: no U and no
