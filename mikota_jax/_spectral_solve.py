@@ -170,8 +170,9 @@ def spectral_solve_with_result(system, ts, x0, v0, load, *, dofs, displacement, 
     ``x0``, ``v0`` (n,); ``load`` None or a ``Pulse``; ``dofs`` a tuple of 1-based DOFs. ok is
     False where the roots did not converge, a root outside a cluster is ill-conditioned
     (``Clusters.ok``) or an output is not finite: then the trajectory must not be used. A
-    critically damped pair enters by contour (``_cluster_history``). Differentiable in the system's values and the initial state,
-    through one Newton step on the secular equation at the roots (``differentiable_roots``).
+    critically damped pair enters by contour (``_cluster_history``). Differentiable in the
+    system's values and the initial state, through one Newton step on the secular equation at
+    the roots (``differentiable_roots``).
 
     A chain that ``uses_rows`` (n > 4096, dampers only) takes ``rows_response``: no U and no
     (n, 2n) vectors (``block`` 0: all at once from U, as below).
