@@ -98,6 +98,8 @@ def accuracy(quick):
 CHILD = r"""
 import json, resource, sys, time
 import jax, numpy as np
+from pathlib import Path
+extra = {}
 jax.config.update("jax_enable_x64", True)
 import mikota_jax as mj
 mode, n = sys.argv[1], int(sys.argv[2])
@@ -114,15 +116,36 @@ elif mode == "vmap":
     out = jax.jit(jax.vmap(energy))(jax.numpy.linspace(0.5, 2.0, 64))
 elif mode == "loop":
     out = [energy(c) for c in np.linspace(0.5, 2.0, 64)]
+elif mode in ("sweep", "sweep-one"):  # crossover's scene: J of the full model per design
+    sys.path.insert(0, str(Path(sys.argv[3])))
+    from crossover import scene_for
+    function = mj.SceneFunction(scene_for(n), "energy")
+    count = 8 if mode == "sweep" else 1
+    points = {"positions": np.linspace(5.0, n - 5.0, count)[:, None],
+              "coefficients": np.geomspace(0.3, 30.0, count)[:, None]}
+    out = (mj.sweep(function, points) if mode == "sweep"
+           else function(jax.tree.map(lambda a: a[0], points)))
+elif mode == "crowded":  # the crossover design whose pair the old rule called near-defective
+    sys.path.insert(0, str(Path(sys.argv[3])))
+    from crossover import design, full_query, random_designs, scene_for
+    function = mj.SceneFunction(scene_for(n), "energy")
+    position, coefficient = random_designs(n, 2)[1]
+    value, jacobian = full_query(function, design(position, coefficient))
+    out = value
+    # physical bounds: 0 <= J <= T E(0), E(0) = K_33 / 2 = (k_3 + k_4) / 2 = (2n - 5) / 2
+    extra = dict(position=position, coefficient=coefficient, J=float(value),
+                 dJ={k: float(np.ravel(v)[0]) for k, v in jacobian.items()},
+                 bound=20.0 * (2 * n - 5) / 2)
 jax.block_until_ready(out)
 print(json.dumps(dict(seconds=time.perf_counter() - start,
-                      peak_gib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20)))
+                      peak_gib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20,
+                      **extra)))
 """
 
 
 def child(mode, n):
-    done = subprocess.run([sys.executable, "-c", CHILD, mode, str(n)], capture_output=True,
-                          text=True, check=True)
+    done = subprocess.run([sys.executable, "-c", CHILD, mode, str(n), str(ROOT / "benchmarks")],
+                          capture_output=True, text=True, check=True)
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
