@@ -22,7 +22,7 @@ import scipy.linalg as sl  # noqa: E402
 import mikota_jax as mj  # noqa: E402
 
 DAMPING, PARAMETERS = "Damping extremes", "Parameter extremes"
-BOUNDS = "Physical bounds and refusals (issue 18)"
+BOUNDS = "Physical bounds and refusals"
 N, M_, K_ = 10, 1.3, 0.9
 OMEGA = np.sqrt(K_ / M_)
 TS = np.linspace(0.0, 20.0, 201)
@@ -294,7 +294,7 @@ def _parameter_rows():
 
 
 def _bound_rows():
-    """Issue 18: the physical bound 0 < J <= E0 T over strong dampers, and the refusals."""
+    """The physical bound 0 < J <= E0 T over strong dampers, and the refusals."""
     rows = []
     n, horizon = 30, 20.0
     x0 = np.zeros(n)

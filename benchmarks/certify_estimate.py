@@ -1,4 +1,4 @@
-"""The optimiser certified by the error estimate instead of the full model (issue 20, point 2).
+"""The optimiser certified by the error estimate instead of the full model.
 
 Part A: ``optimise_dampers`` on the paper's Section 5 scene (one grounded damper, the energy on
 [0, 20] of the free vibration from x_3(0) = 1), ``certify="full"`` (the full model's J and dJ/dc

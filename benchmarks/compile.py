@@ -27,7 +27,7 @@ DOF 7, x_3(0) = 1, 2001 outputs on [0, 20]; POD of the exact snapshots on [0, 10
   start to exit, each cold run with a new empty cache directory, each warm run after it with the
   filled one (median of the repeats): as the CLI runs it (XLA optimisation level 0 for scenes of
   <= 1000 DOFs) and at XLA's default level 3 (``XLA_FLAGS``), same machine, same process. Target:
-  < 10 s cold (issue 21). Runs in ``--quick`` too (one repeat).
+  < 10 s cold. Runs in ``--quick`` too (one repeat).
 * **Time to first result.** ``python -m mikota_jax reproduce`` from process start to exit, cold and
   warm cache, each split into startup + import, compile (trace + lower + backend, summed from
   ``jax.monitoring``) and run (the rest); one more plain ``python -m`` warm run (no listener) is a

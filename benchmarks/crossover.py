@@ -1,5 +1,5 @@
-"""Error against cost for every reduction, and the chain size n from which each one pays off
-(issue 20, point 5): one query and a 1000-design sweep of J and dJ/d(p, c), ROM against the best
+"""Error against cost for every reduction, and the chain size n from which each one pays off for
+one query and a 1000-design sweep of J and dJ/d(p, c), ROM against the best
 full-order path at equal accuracy.
 
 Problem at every n: Mikota's chain (m = k = 1), a grounded damper at p = 7 with c = 1 (the nominal
@@ -10,8 +10,8 @@ n = 300. n in {300, 1000, 3000}; ``--quick``: {300, 1000}.
 **n = 30000** is not in the default run; it is measured apart (``--sizes 30000 --rank-hint
 crossover_30000 --name crossover_30000``, ~80 min) and merged into ``results/crossover`` with
 ``--merge crossover_30000``. From ``LARGE`` = 10^4 on (``--large-from N`` moves that threshold,
-a check of the path at small n) the same spectral paths run in O(n) memory (since 2026-11-27:
-the roots a block at a time and, above n = 4096, no U: ``spectral_energy_large.py``): the
+a check of the path at small n) the same spectral paths run in O(n) memory
+(the roots a block at a time and, above n = 4096, no U: ``spectral_energy_large.py``): the
 reference J + gradient timed once, the histories and the POD snapshots by the spectral
 ``exact_solve``. Dopri8 there is its J alone at rtol 1e-6 (a lower bound on its J + gradient,
 which took > 25 min on 2 cores); the spectral reference is checked against Dopri8 J + gradient

@@ -1,5 +1,5 @@
 """Several dampers on the paper's Section 5 chain: the coordinate-wise search (``place_dampers``)
-against a brute-force enumeration on a coarse grid (issue 19's target: same or better
+against a brute-force enumeration on a coarse grid (the target: same or better
 objective, >= 100x faster).
 
 The scene: Mikota's chain, n = 300, x_3(0) = 1, the integrated energy on [0, 20] (the paper's

@@ -1,4 +1,4 @@
-"""POD-greedy over the Section 5 design box driven by the hierarchical estimate (issue 20):
+"""POD-greedy over the Section 5 design box driven by the hierarchical estimate:
 how small a fixed basis (+ the design's two damper moments) the greedy finds, against the
 hand-picked POD + 40 modes of ``benchmarks/hierarchical.py``.
 

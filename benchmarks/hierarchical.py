@@ -1,5 +1,5 @@
-"""One basis certified over the Section 5 design box by the hierarchical estimator (issue 20,
-targets 2 and 3), its effectivity at 1000 random designs against the full model.
+"""One basis certified over the Section 5 design box by the hierarchical estimator, and its
+effectivity at 1000 random designs against the full model.
 
 The scene: Mikota n = 300, x_3(0) = 1, J = the energy integrated over [0, 20]; the design box:
 one grounded damper at p in [1, 300] (a real position: split over two DOFs between them) with

@@ -1,5 +1,5 @@
-"""The hierarchical estimate of the gradient's error over the Section 5 design box (issue 20,
-targets 1 and 3 for the gradient; ``HierarchicalEstimator.gradient``): its effectivity at 1000
+"""The hierarchical estimate of the gradient's error over the Section 5 design box
+(``HierarchicalEstimator.gradient``): its effectivity at 1000
 random designs against the full model's gradient, no full solve.
 
 The scene, box and bases are ``hierarchical.py``'s: Mikota n = 300, x_3(0) = 1, J = the energy

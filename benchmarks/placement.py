@@ -7,7 +7,7 @@ twice: cold (compiling) and warm. The sweep evaluates the full model at every DO
 coefficients (Dopri8 with the energy as one more state, the evaluator the certification uses,
 and the exact matrix-exponential energy where the damper makes Dopri8 stiff), after compiling
 calls, then refines the coefficient of its 3 best DOFs by golden-section search. Also timed: one
-reduced objective and one gradient step (value and gradient), whose ratio the issue bounds by 4.
+reduced objective and one gradient step (value and gradient), whose ratio the target bounds by 4.
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/placement.py [--quick] [--coefficients C]
 """

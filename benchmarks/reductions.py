@@ -1,5 +1,5 @@
 """Seven reductions of the Section 5 scene compared on error against size and offline cost
-(issue 20): POD of the states (the paper's), sensitivity-enriched POD, modal truncation,
+: POD of the states (the paper's), sensitivity-enriched POD, modal truncation,
 modal truncation with the static correction of the damper direction, the second-order
 Krylov basis (SOAR, moments at s = 0 of the inputs M x0 and the damper directions), the
 rational Krylov basis at r / 2 shifts spread over the excited band (``band_shifts``, input

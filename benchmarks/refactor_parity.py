@@ -1,6 +1,6 @@
 """Restructuring parity: today's package against a reference revision, in one process.
 
-Issue 22 (one house) asks that restructuring costs no speed: the Section 5 Dopri8 solve, the ROM
+Restructuring must cost no speed: the Section 5 Dopri8 solve, the ROM
 energy gradient and the placement optimiser within 10 % of their figures before it. Both packages
 are loaded into this process (the reference from ``git archive REV`` as ``mikota_jax_reference``)
 and timed in turns (reference, current, reference, current, ...), so machine load affects both
@@ -46,7 +46,7 @@ from _common import (
 import mikota_jax as mj
 
 REPO = Path(__file__).resolve().parent.parent
-REFERENCE = "a202197"  # main before the restructuring of issue 22
+REFERENCE = "a202197"  # main before the package was restructured
 NAME = "mikota_jax_reference"
 
 

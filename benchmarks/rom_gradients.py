@@ -1,4 +1,4 @@
-"""ROM gradients across the design space: plain POD against sensitivity-enriched POD (issue 20).
+"""ROM gradients across the design space: plain POD against sensitivity-enriched POD.
 
 The Section 5 scene (Mikota n = 300, x_3(0) = 1, exact solves on [0, 20], snapshots on [0, 10]);
 J = the scene's time-integrated energy; the design is the grounded damper's (position p,
@@ -16,7 +16,7 @@ displacement and velocity added as they are (``states=``), so the ROM starts whe
 model does.
 Error = max over (p, c) of |ROM / full - 1|.
 
-Target (issue 20): within 1e-3 relative at r <= 98 on every design. Cost: offline (basis) time
+Target: within 1e-3 relative at r <= 98 on every design. Cost: offline (basis) time
 per design, warm (compiled once: the first design is the compile), median over the grid.
 
 Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/rom_gradients.py [--quick] [--replot]``

@@ -1,7 +1,7 @@
 """The full model's J and gradient by the spectral path at large n, in O(n) memory.
 
-Issue 20's n = 30000 row lacked the full model's J + gradient on this machine: the spectral path
-formed (2n, n) and (2n, 2n) complex arrays (29 GB each there) and U (7.2 GB), and Dopri8 at
+The crossover's n = 30000 row lacked the full model's J + gradient on this machine: the spectral
+path formed (2n, n) and (2n, 2n) complex arrays (29 GB each there) and U (7.2 GB), and Dopri8 at
 rtol 1e-10 did not finish in 25 min on 2 cores. The spectral engine now forms every per-root
 row a block of roots at a time (above n = 512), and a chain above n = 4096 takes its modes' rows
 and projections without U (``chain_mode_data``).

@@ -1,6 +1,6 @@
 """The spectral exact_solve at large n against our Dopri8: the Section 5 setup, one DOF.
 
-Issue 23's target: Mikota's chain (m = k = 1) of n = 10^4 DOFs with the Section 5 damper (d = 1
+The target: Mikota's chain (m = k = 1) of n = 10^4 DOFs with the Section 5 damper (d = 1
 at DOF 7) and start (x_3(0) = 1), the displacement of DOF 150 at 2001 times on [0, 20]:
 ``exact_solve`` (spectral, modes included) >= 20x faster than ``simulate(solver="dopri8")`` at
 equal or better error. The undamped modes' cost (``chain_modes``, O(n^2)) is reported apart.

@@ -1,6 +1,6 @@
 """The spectral engine's objectives against today's dense paths and scipy, in one process.
 
-Two targets of issue 23 (each ratio measured in this process, compile time apart):
+Two targets (each ratio measured in this process, compile time apart):
 
 * **Integrated energy and its gradient**, the full n = 300 Section 5 system (Mikota's chain,
   m = k = 1, a grounded damper d = 1 at DOF 7.3 so that the position derivative is smooth,

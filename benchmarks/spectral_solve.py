@@ -12,7 +12,7 @@ Correctness first: each method's error, max over DOFs and times of |x - x_ref| /
 against a reference by scipy's ``expm(A t)`` at each of 21 times (every 100th: one exponential per
 time, no accumulation). Compile time apart (``lower().compile()`` of the jitted solve), run time
 the median of 5 calls of the public ``exact_solve`` (DOP853: 3), every comparison in one
-process. Issue 23's targets: exact to 1e-12; >= 3x faster than the scipy expm loop; >= 20x
+process. The targets: exact to 1e-12; >= 3x faster than the scipy expm loop; >= 20x
 faster than DOP853 at rtol 1e-8.
 """
 

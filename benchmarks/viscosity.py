@@ -1,4 +1,4 @@
-"""Optimal viscosities at full order: FastOptimalDamping.jl's small example (issue 19's target).
+"""Optimal viscosities at full order: FastOptimalDamping.jl's small example (the target).
 
 The example (``spectral_objectives.fod_system``: n = 801, two chains of 400 masses joined by
 m_0 = 1200, internal damping Gamma = 0.02 Omega, a grounded damper at DOF 50, a relative one
@@ -18,7 +18,7 @@ included, one process, nothing warm), against:
   L-BFGS-B on the same compiled value and gradient (no compile in its time: it runs last), for
   the iteration and evaluation counts.
 
-Target (issue 19): the optimum in < 60 s wall on the 2-core CPU, compile included, certified at
+Target: the optimum in < 60 s wall on the 2-core CPU, compile included, certified at
 full order (the spectral trace is the full model's, exact), relative gradient < 1e-6.
 
 Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/viscosity.py [--quick]`` (``--quick``: two chains

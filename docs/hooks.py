@@ -1,81 +1,137 @@
-"""mkdocs hook: the guide pages are the README's sections, cut at build time (one text, no copy).
+"""mkdocs hook: the benchmark pages, generated from ``benchmarks/results/*.json`` at build time.
 
-Each page below is made from the README sections named beside it; links into the repository are
-rewritten for the site (``benchmarks/results/`` is ``figures/``, a link to the README's own
-"Library use" section goes to the first page).
+The guides are files in ``docs/``; measurements live only in the benchmarks' JSON. For every
+script ``benchmarks/NAME.py`` this writes a section of ``benchmarks.md``: the question the script
+answers (its module docstring), how it is run, and for each of its result files
+(``NAME.json``, ``NAME_gpu.json``, ...) the machine it ran on, its summary and rows as tables,
+and its figure.
 """
 
+import ast
+import json
+import math
 import re
 from pathlib import Path
 
 from mkdocs.structure.files import File
 
-README = Path(__file__).resolve().parent.parent / "README.md"
+ROOT = Path(__file__).resolve().parent.parent
+SCRIPTS = ROOT / "benchmarks"
+RESULTS = SCRIPTS / "results"
+MAX_ROWS, MAX_COLUMNS = 40, 12
 
-# page -> (title, README "## " sections in order; "" is the text before the first section)
-PAGES = {
-    "index.md": ("mikota_jax", ["", "What it computes", "Library use"]),
-    "paper.md": ("The paper, reproduced", ["The paper, reproduced"]),
-    "placement.md": ("Damper placement", ["Damper placement"]),
-    "sensitivities.md": ("Sensitivities and sweeps", ["Sensitivities and sweeps"]),
-    "reduced_models.md": ("Reduced models across the design space",
-                          ["Reduced models across the design space"]),
-    "own_matrices.md": ("Your own matrices and scenes",
-                        ["Beyond Mikota: your own matrices, internal damping, branched chains",
-                         "Scenes"]),
-    "benchmarks.md": ("Benchmarks", ["Speed"]),
-    "stability.md": ("Stability on stiff and extreme cases",
-                     ["Stability on stiff and extreme cases", "Architecture"]),
-}
+INTRO = """# Benchmarks
 
+Every figure and table on this page is generated from the JSON files the benchmark scripts wrote
+(`benchmarks/results/NAME.json`, with the machine, versions and date of the run), so a rerun
+updates the page. Run one script from the repository root:
 
-def sections(text: str) -> dict[str, str]:
-    """The README's "## " sections by title ("" for the text before the first)."""
-    parts = re.split(r"^## (.+)$", text, flags=re.MULTILINE)
-    found = {"": parts[0].split("\n", 1)[1] if parts[0].startswith("# ") else parts[0]}
-    for title, body in zip(parts[1::2], parts[2::2]):
-        found[title.strip()] = body
-    return found
+```bash
+OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/NAME.py           # full run
+OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/NAME.py --quick   # a smoke run, not committed
+OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/NAME.py --replot  # the figure from the JSON
+```
+
+Conventions (`benchmarks/_common.py`): correctness is checked before any timing; compilation is
+timed apart from running; a run time is the median of repeats, each ended by
+`jax.block_until_ready`; every comparison runs in the same process. Timings on a small shared
+machine vary by tens of per cent between runs: compare rows of one file, not across files.
+"""
 
 
-def rewrite(markdown: str) -> str:
-    """Repository links as site links."""
-    markdown = markdown.replace("](benchmarks/results/", "](figures/")
-    markdown = markdown.replace("](#library-use)", "](index.md#library-use)")
-    return re.sub(r"\[([^\]]+)\]\(benchmarks/README\.md\)", r"\1 (`benchmarks/README.md`)",
-                  markdown)
+def docstring(script: Path) -> str:
+    """The script's module docstring as markdown (``code`` -> `code`)."""
+    text = ast.get_docstring(ast.parse(script.read_text(encoding="utf-8"))) or ""
+    return re.sub(r"``([^`]+)``", r"`\1`", text)
 
 
-def page(title: str, names: list[str], found: dict[str, str]) -> str:
-    missing = [name for name in names if name not in found]
-    if missing:
-        raise ValueError(f"docs/hooks.py: README has no section {missing}")
-    chunks = []
-    for name in names:
-        heading = "" if name in ("", title) else f"## {name}\n"
-        chunks.append(heading + found[name])
-    return rewrite(f"# {title}\n\n" + "\n".join(chunks))
+def number(value) -> str:
+    if isinstance(value, bool) or value is None:
+        return str(value)
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if math.isnan(value) or math.isinf(value):
+            return str(value)
+        return f"{value:.4g}"
+    text = str(value).replace("|", "/").replace("\n", " ")
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
-FIGURES = README.parent / "benchmarks" / "results"
+def flat(record: dict, prefix: str = "") -> dict:
+    """Nested dicts of scalars as one dict with dotted keys; lists of scalars joined."""
+    out = {}
+    for key, value in record.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out |= flat(value, name + ".")
+        elif isinstance(value, list):
+            if all(not isinstance(v, dict | list) for v in value) and len(value) <= 6:
+                out[name] = ", ".join(number(v) for v in value)
+        else:
+            out[name] = number(value)
+    return out
 
 
-def gallery() -> str:
-    """Every figure the benchmarks wrote (``benchmarks/results/*.png``), under its script's name."""
-    lines = ["", "## Every benchmark figure", "",
-             "As the scripts in `benchmarks/` wrote them (`python benchmarks/NAME.py`; the JSON "
-             "beside each figure holds its numbers and the machine it ran on).", ""]
-    for figure in sorted(FIGURES.glob("*.png")):
-        if not figure.stem.endswith("_quick"):
-            lines += [f"### {figure.stem}", "", f"![{figure.stem}](figures/{figure.name})", ""]
+def table(rows: list[dict]) -> list[str]:
+    rows = [flat(row) for row in rows[:MAX_ROWS]]
+    columns = []
+    for row in rows:
+        columns += [c for c in row if c not in columns]
+    columns = columns[:MAX_COLUMNS]
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(row.get(c, "") for c in columns) + " |" for row in rows]
+    return lines
+
+
+def machine(data: dict) -> str:
+    meta = data.get("metadata") or data.get("meta") or {}
+    if not meta:
+        return "Machine not recorded in the file."
+    device = meta.get("device", "?")
+    cpus = meta.get("cpu_count")
+    return (f"Measured {meta.get('date', '?')[:10]} on {meta.get('backend', '?')} ({device}"
+            f"{f', {cpus} CPUs' if cpus else ''}), mikota_jax {meta.get('mikota_jax', '?')}, "
+            f"jax {meta.get('jax', '?')}{', quick run' if data.get('quick') else ''}.")
+
+
+def result_section(path: Path) -> list[str]:
+    data = json.loads(path.read_text(encoding="utf-8"))
+    lines = [f"### `{path.name}`", "", machine(data), ""]
+    summary = data.get("summary")
+    if isinstance(summary, dict) and flat(summary):
+        lines += ["Summary:", ""] + table([{"quantity": k, "value": v}
+                                           for k, v in flat(summary).items()]) + [""]
+    rows = data.get("rows")
+    if isinstance(rows, list) and rows and all(isinstance(r, dict) for r in rows):
+        more = f" (the first {MAX_ROWS} of {len(rows)})" if len(rows) > MAX_ROWS else ""
+        lines += [f"Rows{more}:", ""] + table(rows) + [""]
+    figure = path.with_suffix(".png")
+    if figure.exists():
+        lines += [f"![{path.stem}](figures/{figure.name})", ""]
+    return lines
+
+
+def benchmarks_page() -> str:
+    lines = [INTRO]
+    for script in sorted(SCRIPTS.glob("[!_]*.py")):
+        name = script.stem
+        results = sorted(p for p in RESULTS.glob(f"{name}*.json")
+                         if not p.stem.endswith("_quick")
+                         and re.fullmatch(rf"{name}(_[a-z0-9]+)?", p.stem)
+                         and not any(p.stem.startswith(other.stem) and other.stem != name
+                                     and len(other.stem) > len(name)
+                                     for other in SCRIPTS.glob(f"{name}_*.py")))
+        lines += [f"## {name}", "", docstring(script), "",
+                  f"Source: `benchmarks/{script.name}`.", ""]
+        if not results:
+            lines += ["No committed results.", ""]
+        for path in results:
+            lines += result_section(path)
     return "\n".join(lines)
 
 
 def on_files(files, config):
-    found = sections(README.read_text(encoding="utf-8"))
-    for path, (title, names) in PAGES.items():
-        content = page(title, names, found)
-        if path == "benchmarks.md":
-            content += gallery()
-        files.append(File.generated(config, path, content=content))
-    return files
+    files.append(File.generated(config, "benchmarks.md", content=benchmarks_page()))
+    changelog = (ROOT / "CHANGELOG.md").read_text(encoding="utf-8")
+    files.append(File.generated(config, "changelog.md", content=changelog))

@@ -242,7 +242,7 @@ def check_solve_options(rtol, atol, max_steps, adjoint):
         raise ValueError(MARK + f"max_steps must be an integer >= 1, got {max_steps!r}.")
     rtol, atol = as_float(rtol, "rtol"), as_float(atol, "atol")
     # rtol >= 1 allows a 100 % error per step: Dopri8 returned 5.5x (rtol 0.5) to 1e22x
-    # (rtol 1e300) errors, silently (issue 18); above 1e-2 it is allowed, with a warning
+    # (rtol 1e300) errors, silently; above 1e-2 it is allowed, with a warning
     rtol = check(rtol, ~((rtol > 0) & (rtol < 1)), "rtol must be > 0 and < 1.")
     atol = check(atol, ~((atol > 0) & jnp.isfinite(atol)), "atol must be > 0 and finite.")
     if not isinstance(rtol, jax.core.Tracer) and float(rtol) > 1e-2:

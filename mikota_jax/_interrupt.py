@@ -2,7 +2,7 @@
 exit code 130, at any moment of a run, the imports before it included.
 
 Python runs its own SIGINT handler only between bytecodes, so the main thread, waiting in XLA,
-acted on it only when the computation ended (more than 10 minutes at n = 3000, issue 18).
+acted on it only when the computation ended (more than 10 minutes at n = 3000).
 Python's C-level handler still writes the signal number to a wakeup pipe at once; a watcher
 thread reads it and ends the process with exit code 130. ``results.json`` is written atomically,
 so an interrupted run leaves none.

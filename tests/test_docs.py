@@ -1,6 +1,6 @@
-"""The API reference and the README's "Library use" section: every public name documents itself
-(shapes, units, 1-based DOFs, the paper's equation numbers), and the README's snippets run as
-printed and compute what their comments say."""
+"""The API reference and the getting-started page: every public name documents itself (shapes,
+units, 1-based DOFs, the paper's equation numbers), and the page's three steps and the README's
+example run as printed and compute what their comments say."""
 
 import inspect
 import re
@@ -12,7 +12,9 @@ import numpy as np
 
 import mikota_jax as mj
 
-README = Path(__file__).parent.parent / "README.md"
+ROOT = Path(__file__).parent.parent
+README = ROOT / "README.md"
+GETTING_STARTED = ROOT / "docs" / "index.md"
 PUBLIC = sorted(n for n in dir(mj)
                 if not n.startswith("_") and not isinstance(getattr(mj, n), types.ModuleType))
 CLASSES = [n for n in PUBLIC if inspect.isclass(getattr(mj, n))]
@@ -119,25 +121,42 @@ def test_docstrings_state_the_one_based_dof_convention_and_units():
     assert not {n: u for n, u in UNITS.items() if u not in doc_of(n)}
 
 
-def library_use_snippets() -> list[str]:
-    """The ```python blocks of the README's "## Library use" section, in order."""
-    text = README.read_text()
-    section = text.split("\n## Library use\n", 1)[1].split("\n## ", 1)[0]
+def three_steps() -> list[str]:
+    """The ```python blocks of the getting-started page's "## The paper's model in three steps"."""
+    text = GETTING_STARTED.read_text()
+    section = text.split("\n## The paper's model in three steps\n", 1)[1].split("\n## ", 1)[0]
     return re.findall(r"```python\n(.*?)```", section, re.S)
 
 
-def test_readme_links_to_library_use_before_its_first_section():
+def test_readme_is_a_front_page_that_links_the_guides():
     text = README.read_text()
-    top = text[:text.index("\n## ")]
-    assert "](#library-use)" in top and "help(mikota_jax." in top
+    assert len(text.encode()) <= 10_000
+    for page in ("docs/index.md", "docs/placement.md", "docs/reduced_models.md", "CHANGELOG.md"):
+        assert f"]({page})" in text
 
 
-def test_readme_library_use_snippets_run_in_sequence_and_compute_what_they_say(capsys, close):
-    snippets = library_use_snippets()
+def test_readme_example_gradient_agrees_with_central_differences(capsys, close):
+    (code,) = re.findall(r"```python\n(.*?)```", README.read_text(), re.S)
+    namespace = {}
+    exec(compile(code, "README.md, example", "exec"), namespace)
+    assert namespace["response"].displacement.shape == (2001, 1)
+    # J carries ~1e-11 relative rounding (see below), so the step is 1e-4 x scale
+    energy = namespace["energy"]
+    for which, point in (("d_position", 7.0), ("d_coefficient", 1.0)):
+        h = 1e-4 * point
+        plus, minus = ((7.0 + s * h, 1.0) if which == "d_position" else (7.0, 1.0 + s * h)
+                       for s in (1.0, -1.0))
+        central = (float(energy(*plus)) - float(energy(*minus))) / (2 * h)
+        close(namespace[which], central, rtol=1e-5, what=which)
+    assert capsys.readouterr().out.startswith(f"J = {float(namespace['value']):.6f}")
+
+
+def test_the_three_steps_run_in_sequence_and_compute_what_they_say(capsys, close):
+    snippets = three_steps()
     assert len(snippets) == 3
     namespace = {}
     for k, code in enumerate(snippets, 1):
-        exec(compile(code, f"README.md, Library use snippet {k}", "exec"), namespace)
+        exec(compile(code, f"docs/index.md, step {k}", "exec"), namespace)
     printed = capsys.readouterr().out.splitlines()
     assert len(printed) == 3
     # 1: Dopri8 at its default rtol 1e-8 against the exact solution, DOF 150
