@@ -397,20 +397,28 @@ def test_damper_problem_keeps_the_internal_damping():
     np.testing.assert_allclose(reduced, expected, rtol=1e-9)
 
 
-def test_readme_beyond_mikota_snippet_runs_and_its_gradient_is_right(capsys):
+def test_own_matrices_page_runs_and_its_gradient_is_right(capsys):
+    """docs/own_matrices.md, block by block in one namespace: the printed gradient (through the
+    ROM) is the central difference of the page's ``energy``, the structures are the ones the page
+    names, and the scene built from the page's files reproduces the Python-built response."""
+    import re
     from pathlib import Path
 
-    text = (Path(__file__).parents[1] / "README.md").read_text()
-    section = text[text.index("## Beyond Mikota"):]
-    start = section.index("```python\n") + len("```python\n")
-    namespace = {}
-    exec(compile(section[start:section.index("```", start)], "README Beyond Mikota", "exec"),
-         namespace)
-    printed = float(capsys.readouterr().out.split()[-1])
+    text = (Path(__file__).parents[1] / "docs" / "own_matrices.md").read_text()
+    namespace, printed = {}, None
+    for k, code in enumerate(re.findall(r"^```python\n(.*?)^```", text, re.S | re.M), 1):
+        exec(compile(code, f"docs/own_matrices.md, python block {k}", "exec"), namespace)
+        out = capsys.readouterr().out
+        if "jax.grad(energy)" in code:
+            printed = float(out.split()[-1])
+    assert printed is not None
     energy, h = namespace["energy"], 1e-7
     np.testing.assert_allclose(printed, (energy(1e-3 + h) - energy(1e-3 - h)) / (2 * h), rtol=1e-5)
     assert isinstance(namespace["system"].stiffness, SymmetricTridiagonal)  # dia -> tridiagonal
+    assert isinstance(namespace["same"].stiffness, SymmetricTridiagonal)  # read back from a file
     assert namespace["tree"].size == 31 and len(namespace["tree"].stiffness.links) == 2
+    scene, full = namespace["result"].full.displacement[:, 0], namespace["full"].displacement[:, 9]
+    np.testing.assert_allclose(scene, full, atol=1e-6 * float(jnp.max(jnp.abs(full))))
 
 
 def test_definiteness_of_a_tridiagonal_with_links_is_checked_in_o_n(monkeypatch):
