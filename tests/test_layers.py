@@ -4,6 +4,7 @@ mikota_jax`` stays light: the app's names are there (``dir``, attribute access) 
 import ast
 import json
 import os
+import re
 import subprocess
 import sys
 import types
@@ -99,3 +100,75 @@ def test_benchmarks_and_notebooks_use_only_public_names():
         offenders[path.name] = private_imports(code, str(path))
     assert len(offenders) > 8
     assert not {name: found for name, found in offenders.items() if found}
+
+
+ARCHITECTURE = PACKAGE.parent / "docs" / "architecture.md"
+MODULE_COLUMN = 16  # where a module's name starts on a line of the page's diagram
+
+
+def loaded_imports(path: Path) -> set[Path]:
+    """The files of the package that ``path`` imports when it is loaded (not inside functions):
+    ``from . import _x`` and ``from ._x import y`` -> ``_x.py``; a name taken from a package
+    (``from .. import simulate``) -> its ``__init__.py``."""
+    package = path.parent
+    found = set()
+
+    def file_of(dotted: str) -> Path | None:
+        if dotted != "mikota_jax" and not dotted.startswith("mikota_jax."):
+            return None
+        target = PACKAGE.joinpath(*dotted.split(".")[1:])
+        return target / "__init__.py" if target.is_dir() else target.with_suffix(".py")
+
+    def visit(node):
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.FunctionDef | ast.AsyncFunctionDef | ast.Lambda):
+                continue
+            if isinstance(child, ast.Import):
+                found.update(file_of(alias.name) for alias in child.names)
+            elif isinstance(child, ast.ImportFrom):
+                if child.level:
+                    base = package
+                    for _ in range(child.level - 1):
+                        base = base.parent
+                    parts = base.relative_to(PACKAGE.parent).parts
+                    dotted = ".".join([*parts, *([child.module] if child.module else [])])
+                else:
+                    dotted = child.module or ""
+                target = file_of(dotted)
+                if target is not None and target.name == "__init__.py":  # names or submodules
+                    for alias in child.names:
+                        sub = target.parent / f"{alias.name}.py"
+                        found.add(sub if sub.exists() else target)
+                else:
+                    found.add(target)
+            visit(child)
+
+    visit(ast.parse(path.read_text(), str(path)))
+    return {p for p in found if p is not None and p != path}
+
+
+def architecture_listing() -> list[Path]:
+    """The modules of docs/architecture.md's diagram, top to bottom, as files."""
+    text = ARCHITECTURE.read_text(encoding="utf-8")
+    diagram = next(block for block in re.findall(r"^```text\n(.*?)^```", text, re.S | re.M)
+                   if block.startswith("application layer"))
+    listed, folder = [], PACKAGE / "app"
+    for line in diagram.splitlines():
+        if line.startswith("core:"):
+            folder = PACKAGE
+        elif len(line) > MODULE_COLUMN and line[MODULE_COLUMN - 1] == " " \
+                and line[MODULE_COLUMN] != " ":
+            name = line[MODULE_COLUMN:].split()[0]
+            listed.append(PACKAGE / "__main__.py" if name == "__main__" else folder / f"{name}.py")
+    return listed
+
+
+def test_the_architecture_page_lists_every_module_once_above_what_it_imports():
+    listed = architecture_listing()
+    files = sorted(PACKAGE.rglob("*.py"))
+    assert sorted(listed) == files, "docs/architecture.md must list every module exactly once"
+    below = {path: set(listed[k + 1:]) for k, path in enumerate(listed)}
+    upward = {str(path.relative_to(PACKAGE)): sorted(str(p.relative_to(PACKAGE))
+                                                      for p in loaded_imports(path) - below[path])
+              for path in listed}
+    assert not {name: found for name, found in upward.items() if found}
