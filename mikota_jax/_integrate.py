@@ -28,7 +28,6 @@ from ._errors import (
     check_output_memory,
     check_x64,
     first_failure,
-    fits_in_memory,
     integer_indices,
     raise_result,
     raises_value_error,
@@ -280,27 +279,6 @@ def default_atol(rtol, model, ts, x0, v0, load):
 SPECTRAL_MATRICES = 12  # float64 n x n arrays the spectral solve holds at its peak, generously
 
 
-def _spectral_if_it_holds(model, ts, x0, v0, load, dofs, displacement, velocity):
-    """``simulate(solver="auto")``'s first choice: the exact spectral trajectory, or None where
-    it does not apply (a reduced model, a user's damping matrix, an undamped system, a general
-    load), would not fit in memory, the values are traced, or its modes do not hold."""
-    from ._spectral_solve import spectral_applies, spectral_solve_with_result  # (imports this)
-    from ._spectral_system import uses_rows
-
-    if load is not None and not isinstance(load, Pulse):
-        return None
-    if spectral_applies(model) is not None:
-        return None
-    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((model, ts, x0, v0))):
-        return None
-    if not (uses_rows(model) or fits_in_memory(model.size, SPECTRAL_MATRICES)):
-        return None
-    trajectory, ok = spectral_solve_with_result(
-        model, ts, x0, v0, load, dofs=check_dofs(dofs, model.size), displacement=displacement,
-        velocity=velocity)
-    return trajectory if bool(ok) else None
-
-
 @raises_value_error
 def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | None = None,
              v0: Vector | None = None, load=None, *, dofs: Sequence[int] | None = None,
@@ -323,10 +301,11 @@ def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | No
     ``solver``: "dopri8" (default; explicit, the most accurate per step), "tsit5", "dopri5",
     "kvaerno5" (L-stable implicit ESDIRK whose stage equations are solved exactly in the chain's
     O(n) structure: for stiff cases, large n or a strong damper), "auto", or a diffrax solver
-    instance (diffrax's own implicit solvers factor a dense 2n x 2n Jacobian). "auto" takes the
-    exact spectral solution (``exact_solve(method="spectral")``: no integration error,
-    ``num_steps`` None) for a full system with discrete dampers, no load or a ``Pulse``, where
-    its O(n^2) memory fits and its modes hold; otherwise ``choose_solver``: "kvaerno5" when the
+    instance (diffrax's own implicit solvers factor a dense 2n x 2n Jacobian). "auto" takes what
+    ``choose_solver(model, ts, load)`` says, from the structure: the exact spectral solution
+    (``exact_solve(method="spectral")``: no integration error, ``num_steps`` None) for a full
+    system with discrete dampers and no load or a ``Pulse`` (an error where its modes fail, a
+    refusal where its memory does not fit: never another path); otherwise "kvaerno5" when the
     highest eigenfrequency or damper rate times the span exceeds 1e5, else "dopri8".
 
     ``adjoint`` is how derivatives pass through the solve (diffrax's; default
@@ -351,11 +330,14 @@ def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | No
     check_output_memory(ts.shape[0], len(checked_dofs) * (displacement + velocity)
                         + 2 * model.size, "simulate")
     if solver == "auto":
-        exact = _spectral_if_it_holds(model, ts, x0, v0, load, dofs, displacement, velocity)
-        if exact is not None:
-            return exact
+        solver = choose_solver(model, ts, load)
+        if solver == "exact":
+            from ._exact import exact_solve  # (_exact imports this module)
+
+            return exact_solve(model, ts, x0, v0, load, dofs=dofs, displacement=displacement,
+                               velocity=velocity, method="spectral")
     if isinstance(solver, str):
-        solver = SOLVERS[choose_solver(model, ts) if solver == "auto" else solver]()
+        solver = SOLVERS[solver]()
     trajectory, result = simulate_with_result(
         model, ts, x0, v0, load, rtol, atol, solver=solver, dofs=checked_dofs,
         displacement=displacement, velocity=velocity, max_steps=max_steps, progress=progress,

@@ -65,15 +65,35 @@ def stiffness_rate(system) -> float:
     return max(float(np.sqrt(omega2)), rate)
 
 
-def choose_solver(model, ts) -> str:
-    """The solver ``simulate(solver="auto")`` takes: "kvaerno5" when rho * T > 1e5, else "dopri8".
+def exact_applies(model, load=None) -> bool:
+    """Whether ``model`` and ``load`` have the structure of the exact spectral path: a full
+    system with discrete dampers (internal damping, if any, diagonal in modal coordinates), and
+    no load or a ``Pulse``. Decided from types alone, never from values."""
+    from ._excitation import Pulse
+    from ._spectral_system import spectral_applies
+    from ._system import SecondOrderSystem
 
-    ``model``: a ``SecondOrderSystem`` or ``ReducedModel``; ``ts``: the (N,) time grid. rho is the
-    highest eigenfrequency or damper rate c / m_i in rad per unit time (a Gershgorin bound on the
-    host for a chain, >= n sqrt(k/m) for Mikota's, eq. 2.4), T = ts[-1] - ts[0]: rho * T / 5
-    is about the number of steps the explicit Dopri8 needs for stability alone, whatever the
-    tolerance. Needs concrete (not traced) system values; name the solver under ``jit``.
+    return (isinstance(model, SecondOrderSystem) and model.damped
+            and spectral_applies(model) is None and (load is None or isinstance(load, Pulse)))
+
+
+def choose_solver(model, ts, load=None) -> str:
+    """What ``simulate(solver="auto")`` takes: "exact", else "kvaerno5" when rho * T > 1e5, else
+    "dopri8".
+
+    "exact" (``exact_solve(method="spectral")``: the damped modes, no integration error) wherever
+    the structure allows it (``exact_applies``: a full system with discrete dampers, no load or a
+    ``Pulse``), decided from types alone, also under ``jit``; it is not exchanged for an
+    integrator when its modes fail (that is an error) or memory is short (that is refused).
+    Otherwise ``model``: a ``SecondOrderSystem`` or ``ReducedModel``; ``ts``: the (N,) time grid.
+    rho is the highest eigenfrequency or damper rate c / m_i in rad per unit time (a Gershgorin
+    bound on the host for a chain, >= n sqrt(k/m) for Mikota's, eq. 2.4), T = ts[-1] - ts[0]:
+    rho * T / 5 is about the number of steps the explicit Dopri8 needs for stability alone,
+    whatever the tolerance. That rule needs concrete (not traced) system values: name the solver
+    under ``jit``.
     """
+    if exact_applies(model, load):
+        return "exact"
     leaves = jax.tree.leaves(model) + [ts]
     if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
         raise ValueError(MARK + "solver='auto' needs concrete system values and times; under "

@@ -125,7 +125,9 @@ def test_auto_picks_dopri8_for_the_paper_scene_and_kvaerno5_when_stiff():
     assert choose_solver(paper, np.linspace(0.0, 20.0, 3)) == "dopri8"
     assert choose_solver(mj.mikota_chain(10_000), np.linspace(0.0, 20.0, 3)) == "kvaerno5"
     pinned = mj.mikota_chain(300, dampers=[mj.GroundedDamper(7.0, 1e4)])
-    assert choose_solver(pinned, np.linspace(0.0, 20.0, 3)) == "kvaerno5"
+    forced = lambda t: jnp.zeros(300)  # noqa: E731  (a general load: integrated)
+    assert choose_solver(pinned, np.linspace(0.0, 20.0, 3), forced) == "kvaerno5"
+    assert choose_solver(pinned, np.linspace(0.0, 20.0, 3)) == "exact"  # free: the damped modes
     # the Gershgorin bound is a bound: never below the true highest frequency (n sqrt(k/m))
     assert 300.0 <= stiffness_rate(paper) <= 2 * 300.0
     assert stiffness_rate(pinned) >= 7e4
@@ -141,6 +143,27 @@ def test_auto_needs_concrete_values_and_says_so():
 
     with pytest.raises(ValueError, match="solver='auto' needs concrete"):
         run(1.0)
+
+
+def test_auto_chooses_the_exact_path_from_the_structure_also_under_jit(close):
+    # a damped chain with no load: "exact" from the types alone, so under jit too, and the same
+    # trajectory as exact_solve (the same spectral program; no integration, num_steps None)
+    x0 = np.ones(N)
+    pulse = mj.pulse(N, 1, amplitude=1.0, duration=0.05)
+    damped = mj.mikota_chain(N, dampers=[mj.GroundedDamper(2.0, 0.5)])
+    assert choose_solver(damped, TS) == "exact" == choose_solver(damped, TS, pulse)
+    assert choose_solver(damped, TS, lambda t: jnp.zeros(N)) == "dopri8"  # a general load
+    assert choose_solver(mj.mikota_chain(N), TS) == "dopri8"  # undamped: no damped modes
+
+    @jax.jit
+    def run(c):
+        system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(2.0, c)])
+        return mj.simulate(system, TS, x0, solver="auto")
+
+    out = run(0.5)
+    assert out.num_steps is None
+    close(out.displacement, mj.exact_solve(damped, TS, x0, method="dense").displacement,
+          rtol=0, atol=1e-12)
 
 
 @pytest.mark.slow  # default-run time (issue: CI under 15 min)
