@@ -20,6 +20,12 @@ Three parts, in one process (the memory figures in child processes, one per meas
   at ``--before`` (a git revision, imported beside it under another name). Target: no more than
   20 % slower.
 
+* **Large** (``--large``, apart, ~30 min): ``mj.sweep`` of the full model's J over 8 designs at
+  n = 3000 against one call (peak memory: a compiled chunk once carried the dense branch, 7.7
+  GB), and the crossover's crowded n = 30000 design (p = 9872.4, c = 21.3; a relative
+  separation of 1.6e-7 that a fixed relative threshold once refused): J and its gradient, within
+  the physical bounds 0 <= J <= T E(0), time and peak memory.
+
 Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/critical_damping.py [--quick]`` (``--quick``: two
 cases, four deltas, n = 500 for memory). Writes ``results/critical_damping.json`` and ``.png``.
 """
@@ -162,6 +168,21 @@ def memory(quick):
     return out
 
 
+def large(data: dict, measured: dict | None = None) -> dict:
+    """``mj.sweep`` of the full model at n = 3000 (8 designs against one call: peak memory) and
+    the crowded n = 30000 design, each in its own child, merged into ``data["large"]``."""
+    measured = measured or {"sweep_one": child("sweep-one", 3000),
+                            "sweep": child("sweep", 3000),
+                            "crowded": child("crowded", 30000)}
+    data["large"] = measured
+    crowded = measured["crowded"]
+    print(f"mj.sweep n = 3000, 8 designs: {measured['sweep']}; one call: "
+          f"{measured['sweep_one']}\ncrowded n = 30000 design p = {crowded['position']:.1f}, c = "
+          f"{crowded['coefficient']:.3g}: J = {crowded['J']:.10g} (bound {crowded['bound']:.6g}), "
+          f"{crowded['seconds']:.0f} s, peak {crowded['peak_gib']:.2f} GiB", flush=True)
+    return data
+
+
 def package_at(revision):
     """The package at a git revision, importable beside this one as ``mikota_jax_before``."""
     where = Path(tempfile.mkdtemp())
@@ -231,9 +252,15 @@ def main(argv=None):
                       before=dict(default="7ebd474", help="the revision to compare Section 5 "
                                   "with (before the contour clusters)"),
                       memory_only=dict(type=int, nargs="+", default=None, help="only measure "
-                                       "the jit/eager memory at these n, merged into the JSON"))
+                                       "the jit/eager memory at these n, merged into the JSON"),
+                      large=dict(action="store_true", help="only mj.sweep at n = 3000 and the "
+                                 "crowded n = 30000 design (~30 min), merged into the JSON"))
     if args.replot:
         return plot(read_json(NAME, args.quick))
+    if args.large:
+        data = large(read_json(NAME, args.quick))
+        write_json(NAME, args.quick, data, data["meta"])
+        return plot(data)
     if args.memory_only:
         data = read_json(NAME, args.quick)
         for n in args.memory_only:
