@@ -105,7 +105,8 @@ class RESULTS(eqx.Enumeration):
         "that a strong damper pins as fixed.")
     not_damped = (
         "total_average_energy: some mode is undamped (the Lyapunov solution does not exist); "
-        "place a damper where every mode moves, or restrict Z with lowest=s.")
+        "place a damper where every mode moves, or restrict Z with lowest=s (called outside jit, "
+        "the refusal names the undamped modes).")
     spectral_failed = (
         "the spectral path did not hold here (a root did not converge, or roots nearly "
         "coincide beyond a critically damped pair); use method='dense'.")

@@ -333,10 +333,12 @@ def _name_undamped_modes(model, result, lowest):
     numbers = (np.nonzero(undamped)[0] + 1).tolist()
     if numbers:
         shown = ", ".join(map(str, numbers[:8])) + (", ..." if len(numbers) > 8 else "")
-        raise ValueError(MARK + f"total_average_energy: mode {shown} (1-based, by frequency) "
-                         "is undamped (no damper moves it), so the Lyapunov solution does not "
-                         "exist; place a damper where it moves, or restrict Z with lowest=s "
-                         f"(s < {numbers[0]}).")
+        which = (f"mode {shown} (1-based, by frequency) is" if len(numbers) == 1 else
+                 f"modes {shown} (1-based, by frequency) are")
+        raise ValueError(MARK + f"total_average_energy: {which} undamped (no damper moves "
+                         f"{'it' if len(numbers) == 1 else 'them'}), so the Lyapunov solution "
+                         "does not exist; place a damper where every mode moves, or restrict Z "
+                         f"with lowest=s (s < {numbers[0]}).")
 
 
 def smooth_peak(values, order: int = 16) -> Float[Array, ""]:
