@@ -45,8 +45,9 @@ class Energy(eqx.Module):
     Exact in a reduced model's modal form for free vibration (matrix exponentials). The full
     model's free vibration in closed form from its damped modes where the spectral path applies
     (``integrated_energy(method="spectral")``: exact, O(k n^2); this is what certifies the
-    optimum), with Dopri8 (the energy as one more state) where it does not hold; Dopri8 for a
-    load and for a Galerkin model that is not in modal form.
+    optimum; a failure of its modes is reported, never replaced); Dopri8 (the energy as one more
+    state) for a load, for a system the spectral path does not take, and for a Galerkin model
+    that is not in modal form.
     """
 
     name: ClassVar[str] = "energy"
@@ -65,8 +66,10 @@ class Energy(eqx.Module):
 
         if problem.load is not None or not takes_spectral(model):
             return ode()
+        # the structure decides: a failure of the damped modes is reported, never swapped for
+        # Dopri8 (a lax.cond would compile both, and run both under vmap)
         value, ok = spectral_energy_with_result(model, horizon, problem.x0, problem.v0)
-        return jax.lax.cond(ok, lambda: (value, RESULTS.successful), ode)
+        return value, RESULTS.where(ok, RESULTS.successful, RESULTS.spectral_failed)
 
     def in_modes(self, problem, omega, z0, a):
         horizon = problem.ts[-1] - problem.ts[0]
