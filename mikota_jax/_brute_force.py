@@ -6,9 +6,12 @@ golden-section search in log c; ``reduced_landscape`` does the same on the reduc
 plots. The grid goes through ``mikota_jax.sweep`` (chunked, sharded over the devices, one compile
 per chunk shape); a failed point is reported by its flag and becomes NaN here.
 
-Stiff points: a damper whose own rate c / M_jj exceeds 10x the highest eigenfrequency makes the
-explicit Dopri8 stiff (slow, and past ``max_steps`` failing); "auto" sends those points to the
-exact free-vibration energy (matrix exponentials, O(n^3), any stiffness).
+Evaluators: the objective's own (``Energy``: the closed form from the damped modes where the
+spectral path applies, else Dopri8 with the energy as one more state) or the exact
+free-vibration energy (the damped modes where the spectral path applies, else matrix
+exponentials, O(n^3), any stiffness). Where Dopri8 would run, a damper whose own rate c / M_jj
+exceeds 10x the highest eigenfrequency makes it stiff (slow, and past ``max_steps`` failing);
+"auto" sends those points to the exact evaluator.
 
 Shapes: positions (P,), 1-based in [1, n]; coefficients (C,), >= 0; results (P, C).
 """
@@ -228,13 +231,16 @@ def sweep_dampers(problem: DamperProblem, coefficients, positions=None, *, metho
     progress bar. On a CPU, ``batch_size=1`` is fastest (a vmapped adaptive solve steps every
     member with the batch's largest step count); on a GPU, use hundreds.
 
-    ``method``: "ode" (Dopri8 with the energy as one more state: what the optimiser certifies
-    with), "exact" (the free-vibration energy by matrix exponentials, O(n^3) per point, any
+    ``method``: "ode" (the objective's own evaluator, what the optimiser certifies with: for a
+    system with discrete dampers and no load, the closed form from the damped modes; else
+    Dopri8 with the energy as one more state), "exact" (the free-vibration energy: the damped
+    modes where the spectral path applies, else matrix exponentials, O(n^3) per point, any
     stiffness) or "auto": exact where the damper's rate c / M_jj exceeds 10x the highest
-    eigenfrequency (there Dopri8 is slower than expm and, past ``max_steps``, fails), the ODE
-    elsewhere. ``refine`` > 0: the coefficient of the ``refine`` best DOFs is then refined by
-    golden-section search in log c (to ``refine_tol``), so that the sweep's best does not carry
-    the grid's spacing.
+    eigenfrequency (where Dopri8 would be slower than expm and, past ``max_steps``, fail), the
+    objective's own evaluator elsewhere. For a chain with discrete dampers and no load all three
+    compute the same closed form. ``refine`` > 0: the coefficient of the ``refine`` best DOFs
+    is then refined by golden-section search in log c (to ``refine_tol``), so that the sweep's
+    best does not carry the grid's spacing.
     """
     check_x64()
     if not isinstance(problem, DamperProblem):

@@ -317,9 +317,9 @@ class HierarchicalEstimator(eqx.Module):
     ``basis_moments``: the reduced model's basis is ``basis`` united with that many static
     moments of the design's dampers (``reduced_basis``; default 0: ``basis`` alone). No fixed
     basis of <= 200 columns holds J to 1e-4 over the Section 5 box (a strong damper pins its
-    DOF, anywhere: the POD with 200 modes is 8.5 % off), while the POD united with 40 modes
-    (r = 113) and the damper's two moments (4 columns) is certified to 1e-4 on 755 training
-    designs, 1.6e-5 off at worst at 1000 random ones.
+    DOF, anywhere: the POD with 200 modes has an estimated error of 8.5 %), while the POD
+    united with 40 modes (r = 113) and the damper's two moments (4 columns) is certified to
+    1e-4 on 755 training designs, 1.6e-5 off at worst at 1000 random ones.
     Call it with a design's system (same M and K), the horizon and the initial state:
     jit- and vmap-compatible in the system's values (``mj.sweep``). Not to be differentiated
     directly (the fine space's QR at dependent columns); ``gradient`` gives dJ_r and dJ_f with
