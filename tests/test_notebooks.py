@@ -1,6 +1,6 @@
 """Every notebook in notebooks/ executes end to end at its small size
-(``MIKOTA_NOTEBOOK_SIZE=small``, the default run; the paper's, which has one size, under
-``-m slow``) and at its full size (``-m slow``), and is
+(``MIKOTA_NOTEBOOK_SIZE=small``) and at its full size, both under ``-m slow`` (the default run
+tests what they call, module by module), and is
 stored with its outputs stripped; the docs site's executed page (``docs/examples/NAME.md``,
 written by ``docs/execute_notebooks.py``) holds the same code, a figure and no traceback."""
 
@@ -52,9 +52,14 @@ def test_notebook_cells_have_ids(path):
 # dampers, the split search, the certification's enrichment, sweep_dampers and
 # reduced_landscape through the CLI: tests/test_optimise.py) and custom_systems (100 s: Matrix
 # Market files, branched chains, Rayleigh and modal damping, mj.system: tests/test_io.py,
-# test_systems.py, test_scene_systems.py, test_viscosity.py).
+# test_systems.py, test_scene_systems.py, test_viscosity.py). The other two small runs went the
+# same way when the default run grew past 25 min on CI (140-170 s each there): multi_damper
+# (place_dampers, optimise_viscosities and the published examples: tests/test_damper_search.py,
+# test_viscosity.py) and sensitivity_study (sensitivities, grid, sweep: tests/test_sensitivity.py,
+# test_sweep.py, and docs/sensitivities.md's blocks under -m slow).
 ONE_SIZE = {"paper_reproduction.ipynb"}
-SLOW_SMALL = ONE_SIZE | {"damper_placement.ipynb", "custom_systems.ipynb"}
+SLOW_SMALL = ONE_SIZE | {"damper_placement.ipynb", "custom_systems.ipynb", "multi_damper.ipynb",
+                         "sensitivity_study.ipynb"}
 RUNS = [pytest.param(path, "small", id=f"{path.name}-small",
                      marks=[pytest.mark.slow] if path.name in SLOW_SMALL else [])
         for path in NOTEBOOKS] + [pytest.param(path, "full", id=f"{path.name}-full",
