@@ -70,11 +70,9 @@ def exact_applies(model, load=None) -> bool:
     system with discrete dampers (internal damping, if any, diagonal in modal coordinates), and
     no load or a ``Pulse``. Decided from types alone, never from values."""
     from ._excitation import Pulse
-    from ._spectral_system import spectral_applies
-    from ._system import SecondOrderSystem
+    from ._spectral_solve import spectral_applies  # (it imports _integrate, which imports this)
 
-    return (isinstance(model, SecondOrderSystem) and model.damped
-            and spectral_applies(model) is None and (load is None or isinstance(load, Pulse)))
+    return spectral_applies(model) is None and (load is None or isinstance(load, Pulse))
 
 
 def choose_solver(model, ts, load=None) -> str:
