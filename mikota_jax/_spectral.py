@@ -415,6 +415,10 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
         denominator = phi * (others - repel) + phi_prime
         step = jnp.where(root_active & (denominator != 0),
                          phi / jnp.where(denominator != 0, denominator, 1.0), 0.0)
+        # a root parked at its place but anchored to a mode the dampers barely reach (a node)
+        # leaves H_J singular there, its step 0 / 0: it stays, the others go on (a NaN would
+        # reach every root through the repulsion); ``_best_anchors`` re-anchors it afterwards
+        step = jnp.where(jnp.isfinite(step), step, 0.0)
         offset = offset - step
         lam = poles[anchor] + offset
         size = jnp.max(jnp.where(root_active, jnp.abs(step) / jnp.abs(lam), 0.0))
