@@ -30,6 +30,8 @@ Conventions: DOFs 0-based in ``rows`` (this module is private; the public API is
 eigenvalues ascending; each mode's largest-magnitude entry positive (the package's sign rule).
 """
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -37,6 +39,7 @@ import numpy as np
 
 from ._custom_types import Array, Float, Int, Matrix, Vector
 from ._errors import MARK, as_float, check
+from ._limits import chunk as work_chunk
 
 _EPS = float(np.finfo(np.float64).eps)
 _MAX_BISECTIONS = 200  # > 53 + log2(log2(hi / lo)) for any float64 bracket
@@ -388,7 +391,7 @@ def chain_mode_data(masses: Vector, springs: Vector, rows, vectors: Float[Array,
     if vectors.ndim != 2 or vectors.shape[0] != n:
         raise ValueError(MARK + f"vectors must be (n, p) = ({n}, p), got {vectors.shape}.")
     if chunk is None:
-        chunk = max(64, 2**24 // n)
+        chunk = work_chunk(n, 64)
     if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
         raise ValueError(MARK + f"chunk must be an int >= 1 or None, got {chunk!r}.")
     size = jnp.zeros((min(chunk, n), 0))  # the chunk size as a shape: static through custom_jvp
@@ -399,7 +402,7 @@ def unchecked_chain_mode_data(masses: Vector, springs: Vector, rows, vectors, ch
     """``chain_mode_data`` without its checks, for a system whose masses and springs were
     checked when it was built (no host callback in a compiled caller); ``rows`` traced ints."""
     n = masses.shape[0]
-    chunk = max(64, 2**24 // n) if chunk is None else chunk
+    chunk = work_chunk(n, 64) if chunk is None else chunk
     return _mode_data(masses, springs, rows, vectors, jnp.zeros((min(chunk, n), 0)))
 
 
@@ -415,9 +418,9 @@ def _lowest_of_pieces(q, e, t, lower, upper, count: int):
     return jax.vmap(one)(q, e, t, lower, upper)
 
 
-def _as_fixed_free(masses: np.ndarray, springs: np.ndarray, right: float):
-    """(masses', springs', s) of a chain piece held at both ends (``right`` > 0: the spring that
-    ties its last DOF to a held one; 0: a free end) as a fixed-free chain in the coordinates
+def _as_fixed_free(masses, springs, right):
+    """(masses', springs', s) of a chain piece held at both ends (``right``: the spring that
+    ties its last DOF to a held one; None: a free end) as a fixed-free chain in the coordinates
     x = diag(s) x'. The piece's K = L^T D L with L unit lower bidiagonal (-a_i below the
     diagonal) is the backward Cholesky factorisation: D = k + e with e_(P-1) = ``right`` and
     e_i = 1 / (1 / k_(i+1) + 1 / e_(i+1)) (the springs from i on to the held end in series: sums
@@ -425,58 +428,65 @@ def _as_fixed_free(masses: np.ndarray, springs: np.ndarray, right: float):
     L diag(s) = diag(s) L_1 for the chain's difference matrix L_1, so S K S = L_1^T diag(d s^2)
     L_1 and S M S = diag(m s^2): a fixed-free chain of masses m s^2 and springs d s^2, whose
     M'-orthonormal modes u' give the piece's as u = s u'."""
-    if right <= 0:
-        return masses, springs, np.ones_like(masses)
-    flexibility = 1 / right + np.concatenate([np.cumsum((1 / springs[1:])[::-1])[::-1], [0.0]])
+    if right is None:
+        return masses, springs, jnp.ones_like(masses)
+    flexibility = 1 / right + jnp.concatenate([jnp.cumsum((1 / springs[1:])[::-1])[::-1],
+                                               jnp.zeros(1)])
     d = springs + 1 / flexibility
-    s = np.cumprod(np.concatenate([[1.0], springs[1:] / d[1:]]))
+    s = jnp.cumprod(jnp.concatenate([jnp.ones(1), springs[1:] / d[1:]]))
     return masses * s**2, d * s**2, s
 
 
-def held_chain_modes(masses, springs, held, count: int) -> tuple[np.ndarray, np.ndarray]:
+def held_chain_modes(masses, springs, held, count: int) -> tuple[Array, Array]:
     """(omega^2, U) of the ``count`` lowest modes of a fixed-free chain with the DOFs ``held``
-    (0-based) fixed: K U = M U diag(omega^2) on the other DOFs, U zero on the held ones, U^T M U
-    = I, ascending. O(n count) time and memory per piece, no dense eigenproblem: the held DOFs
-    cut the chain into pieces; each piece is a chain held at one or both ends, written as a
-    fixed-free chain (``_as_fixed_free``) and its qd data padded to length n with decoupled
-    entries (a zero coupling, a pivot above every eigenvalue of the piece), so that one compiled
-    kernel (per n, number of pieces and ``count``, wherever the held DOFs are) finds each
-    piece's ``count`` lowest modes by bisection and twisted factorisations as in
-    ``chain_modes`` (a piece's eigenvalues are simple: an unreduced tridiagonal); the pieces'
-    modes are merged by frequency, the padding's dropped. Called outside ``jit``."""
-    masses, springs = np.asarray(masses, dtype=float), np.asarray(springs, dtype=float)
+    (0-based, concrete) fixed: K U = M U diag(omega^2) on the other DOFs, U zero on the held
+    ones, U^T M U = I, ascending. O(n count) time and memory per piece, no dense eigenproblem:
+    the held DOFs cut the chain into pieces; each piece is a chain held at one or both ends,
+    written as a fixed-free chain (``_as_fixed_free``) and its qd data padded to length n with
+    decoupled entries (a zero coupling, a pivot above every eigenvalue of the piece), so that
+    one batched kernel finds each piece's ``count`` lowest modes by bisection and twisted
+    factorisations as in ``chain_modes`` (a piece's eigenvalues are simple: an unreduced
+    tridiagonal); the pieces' modes are merged by frequency, the padding's dropped. One
+    compiled program per n, held DOFs and ``count``, the same eagerly and under ``jit`` (masses
+    and springs may be traced; not differentiable)."""
+    held = tuple(int(i) for i in np.unique(np.asarray(held, dtype=int)))
+    return _held_chain_modes(jnp.asarray(masses, dtype=float), jnp.asarray(springs, dtype=float),
+                             held, int(count))
+
+
+@functools.partial(jax.jit, static_argnums=(2, 3))  # one program per n, held DOFs and count
+def _held_chain_modes(masses, springs, held, count):
     n = masses.shape[0]
-    held = np.unique(np.asarray(held, dtype=int))
+    held = np.asarray(held, dtype=int)
     starts, stops = np.concatenate([[0], held + 1]), np.concatenate([held, [n]])
     qs, es, ts, roots, scales, lowers, uppers = [], [], [], [], [], [], []
     for start, stop in zip(starts, stops):
         size = stop - start
         m, k, s = (_as_fixed_free(masses[start:stop], springs[start:stop],
-                                  springs[stop] if stop < n else 0.0) if size
-                   else (np.ones(1), np.ones(1), np.zeros(1)))
+                                  springs[stop] if stop < n else None) if size
+                   else (jnp.ones(1), jnp.ones(1), jnp.zeros(1)))
         size = m.shape[0]
-        q, e, t = _qd(m, k, np)
-        lower, upper = _bracket(m, k, np)
+        q, e, t = _qd(m, k)
+        lower, upper = _bracket(m, k)
         pad = n - size
-        qs.append(np.concatenate([q, np.full(pad, 2 * upper)]))
-        es.append(np.concatenate([e, np.zeros(pad)]))
-        ts.append(np.concatenate([t, np.zeros(pad)]))
-        roots.append(np.concatenate([np.ones(pad), np.sqrt(m)]))  # physical order, pad first
-        scales.append(np.concatenate([np.zeros(pad), s]))
+        qs.append(jnp.concatenate([q, jnp.full(pad, 2 * upper)]))
+        es.append(jnp.concatenate([e, jnp.zeros(pad)]))
+        ts.append(jnp.concatenate([t, jnp.zeros(pad)]))
+        roots.append(jnp.concatenate([jnp.ones(pad), jnp.sqrt(m)]))  # physical order, pad first
+        scales.append(jnp.concatenate([jnp.zeros(pad), s]))
         lowers.append(lower)
         uppers.append(4 * upper)
-    omega2, z = _lowest_of_pieces(*(jnp.asarray(np.stack(a)) for a in (qs, es, ts)),
-                                  jnp.asarray(lowers), jnp.asarray(uppers), int(count))
+    omega2, z = _lowest_of_pieces(*(jnp.stack(a) for a in (qs, es, ts)), jnp.stack(lowers),
+                                  jnp.stack(uppers), count)
     values, vectors = [], []
     for piece, (start, stop) in enumerate(zip(starts, stops)):
         kept = min(count, stop - start)  # the rest are the padding's eigenvalues
         if kept <= 0:
             continue
-        u = np.asarray(z[piece])[::-1, :kept] * (scales[piece] / roots[piece])[:, None]
-        block = np.zeros((n, kept))
-        block[start:stop] = u[n - (stop - start):]
-        values.append(np.asarray(omega2[piece, :kept]))
+        u = z[piece][::-1, :kept] * (scales[piece] / roots[piece])[:, None]
+        block = jnp.zeros((n, kept)).at[start:stop].set(u[n - (stop - start):])
+        values.append(omega2[piece, :kept])
         vectors.append(block)
-    omega2, modes = np.concatenate(values), np.concatenate(vectors, axis=1)
-    order = np.argsort(omega2, kind="stable")[:count]
+    omega2, modes = jnp.concatenate(values), jnp.concatenate(vectors, axis=1)
+    order = jnp.argsort(omega2, stable=True)[:count]
     return omega2[order], modes[:, order]

@@ -31,7 +31,8 @@ from ._custom_types import Basis
 from ._dampers import Dampers
 from ._errors import MARK, as_float
 from ._implicit import symmetric_tridiagonal_solve
-from ._modal import CHAIN_MODES_FROM, modal_decomposition
+from ._limits import CHAIN_MODES_FROM
+from ._modal import modal_decomposition
 from ._operators import Diagonal, SymmetricTridiagonal
 from ._system import SecondOrderSystem
 
@@ -53,7 +54,7 @@ def _check(system, rank: int) -> None:
 
 def modal_basis(system: SecondOrderSystem, rank: int) -> Basis:
     """The r = ``rank`` lowest undamped modes of ``system`` as an (n, r) orthonormal basis. For
-    a fixed-free chain of n >= 256 (outside ``jit``) O(n r): only those r modes, by bisection
+    a fixed-free chain of n >= 256 O(n r): only those r modes, by bisection
     and twisted factorisations (``held_chain_modes`` with nothing held), never the n x n ones."""
     _check(system, rank)
     chain = _long_chain(system)
@@ -66,15 +67,13 @@ def modal_basis(system: SecondOrderSystem, rank: int) -> Basis:
 
 
 def _long_chain(system: SecondOrderSystem):
-    """(masses, springs) of a fixed-free chain of n >= 256 with concrete values, else None."""
+    """(masses, springs) of a fixed-free chain of n >= ``CHAIN_MODES_FROM``, else None: decided
+    from the structure (the operators' types and n), the same eagerly and under ``jit``."""
     stiffness, mass = system.stiffness, system.mass
     if not (isinstance(mass, Diagonal) and isinstance(stiffness, SymmetricTridiagonal)
             and stiffness.springs is not None and system.size >= CHAIN_MODES_FROM):
         return None
-    if isinstance(mass.diagonal, jax.core.Tracer) or isinstance(stiffness.springs,
-                                                                jax.core.Tracer):
-        return None
-    return np.asarray(mass.diagonal), np.asarray(stiffness.springs)
+    return mass.diagonal, stiffness.springs
 
 
 def damper_directions(system: SecondOrderSystem) -> jnp.ndarray:

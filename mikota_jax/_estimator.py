@@ -221,20 +221,20 @@ def _checked_horizon(horizon):
 
 
 def _estimator_energy(system, basis, horizon, x0, v0):
-    """(J_r, not definite): the spectral value where the system has only discrete dampers and
-    the spectral path holds, else (and where it does not hold) ``_reduced_energy``'s Van Loan
-    value (a ``lax.cond``: under ``vmap`` both run)."""
+    """(J_r, bad), the method chosen from the structure: the spectral value for a system with
+    only discrete dampers (bad where it is not definite or its damped modes were not found:
+    the estimate is then inf, nothing else is run), else ``_reduced_energy``'s Van Loan value."""
     if not isinstance(system.damping, Dampers) or system.internal is not None:
         return _reduced_energy(system, basis, horizon, x0, v0)
     value, ok, not_definite = _spectral_reduced_energy(system, basis, horizon, x0, v0)
-    return jax.lax.cond(ok, lambda: (value, not_definite),
-                        lambda: _reduced_energy(system, basis, horizon, x0, v0))
+    return value, not_definite | ~ok
 
 
 class HierarchicalEstimate(eqx.Module):
     """What ``HierarchicalEstimator`` returns (scalars, float64): ``value`` J_r (the reduced
     model's energy), ``fine`` J_f (the enriched model's), ``energy`` the estimate of |J - J_r|
-    (``safety`` |J_f - J_r| + ``ROUNDING`` |J_r|; inf where either model is not definite)."""
+    (``safety`` |J_f - J_r| + ``ROUNDING`` |J_r|; inf where either model is not definite or
+    its damped modes were not found)."""
 
     value: Float[Array, ""]
     fine: Float[Array, ""]

@@ -159,17 +159,6 @@ def _exact(model, ts, x0, v0, load, *, dofs, displacement, velocity, uniform=Tru
     return Trajectory(ts, ys[0], ys[1], dofs, None), result
 
 
-def _is_uniform(ts) -> bool | None:
-    """Whether a concrete grid's steps agree to ``_UNIFORM``; None for a traced one."""
-    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(ts)):
-        return None
-    if ts.shape[0] <= 2:
-        return True
-    ts = np.asarray(ts)  # concrete: numpy, nothing to compile
-    gaps = np.diff(ts)
-    return bool(np.max(np.abs(gaps - gaps[0])) <= _step_tolerance(ts, gaps[0], np))
-
-
 @raises_value_error
 def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = None, load=None,
                 *, dofs: Sequence[int] | None = None, displacement: bool = True,

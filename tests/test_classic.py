@@ -149,6 +149,22 @@ def test_fixed_interface_modes_of_a_long_chain_take_the_o_n_r_path_to_full_accur
     assert np.max(np.abs(modes[held])) == 0.0
 
 
+def test_a_long_chain_takes_the_same_o_n_r_path_under_jit():
+    # the method is chosen from the structure (a fixed-free chain, n >= 256), not from whether
+    # the values are traced: the jitted basis is the eager one bit for bit and its program holds
+    # no dense eigensolver; truth for the frequencies: 2 sin((2j - 1) pi / (2 (2n + 1))), exact
+    n = 300
+    system = mj.chain(np.ones(n), np.ones(n))
+    eager = np.asarray(mj.modal_basis(system, 12))
+    jitted = np.asarray(jax.jit(lambda s: mj.modal_basis(s, 12))(system))
+    np.testing.assert_array_equal(jitted, eager)
+    omega, _, _ = _frequencies(system, eager)
+    np.testing.assert_allclose(omega, 2 * np.sin((2 * np.arange(1, 13) - 1) * np.pi / 1202),
+                               rtol=1e-12)
+    program = str(jax.make_jaxpr(lambda s: mj.modal_basis(s, 12))(system))
+    assert "eigh" not in program and "svd" not in program
+
+
 def test_fixed_interface_modes_with_a_tie_are_stationary_on_the_constraint():
     # DOF 3 tied to DOF 9 (C = e_3 - e_9): u_3 = u_9, and K u - omega^2 M u is a multiple of C
     # (the constraint force), for every mode
