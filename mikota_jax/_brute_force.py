@@ -27,6 +27,7 @@ import numpy as np
 from ._design import DamperProblem, Energy
 from ._errors import MARK, RESULTS, check_x64
 from ._galerkin import galerkin
+from ._limits import STIFF_RATIO
 from ._objectives import integrated_energy_exact_with_result
 from ._operators import diagonal_of
 from ._placement_objective import objective_function, reduced_form
@@ -111,7 +112,6 @@ def _evaluate_grid(problem, basis, positions, coefficients, batch_size: int, pro
     return values.reshape(shape), failed.reshape(shape)
 
 
-_STIFF_RATIO = 10.0  # beyond 10x the highest eigenfrequency, Dopri8 costs more than expm
 
 
 def _stiff_rule(problem: DamperProblem, method: str):
@@ -136,7 +136,7 @@ def _stiff_rule(problem: DamperProblem, method: str):
         if method == "exact":
             return np.ones(np.size(positions), bool)
         dof = np.clip(np.floor(np.asarray(positions)).astype(int), 1, problem.size)
-        return np.asarray(coefficients) / mass[dof - 1] > _STIFF_RATIO * omega_max
+        return np.asarray(coefficients) / mass[dof - 1] > STIFF_RATIO * omega_max
 
     return exact
 

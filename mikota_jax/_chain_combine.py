@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 
 from ._chain_modes import _chunked, _eigenvalues, _modes_of, _tangents
+from ._limits import chunk as work_chunk
 
 
 def _coefficient_chunks(coefficients, size: int):
@@ -64,6 +65,6 @@ def chain_mode_combination(masses, springs, rows, coefficients, chunk: int | Non
     springs were checked when it was built); ``chunk``: modes per chunk (default ~2^24 / n, a
     128 MB work array)."""
     n = masses.shape[0]
-    chunk = max(64, 2**24 // n) if chunk is None else chunk
+    chunk = work_chunk(n, 64) if chunk is None else chunk
     return _combine(masses, springs, jnp.asarray(rows), coefficients,
                     jnp.zeros((min(chunk, n), 0)))

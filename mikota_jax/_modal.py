@@ -14,9 +14,8 @@ import jax.scipy.linalg as jsl
 
 from ._chain_modes import unchecked_chain_modes
 from ._errors import RESULTS, check
+from ._limits import CHAIN_MODES_FROM
 from ._operators import Diagonal, SymmetricTridiagonal
-
-CHAIN_MODES_FROM = 256  # chains this long or longer: O(n^2) ``chain_modes``; shorter: the SVD
 
 
 def generalized_modes(system):

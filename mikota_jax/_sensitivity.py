@@ -45,6 +45,7 @@ from ._dampers import Dampers
 from ._errors import MARK, as_float
 from ._excitation import Pulse
 from ._galerkin import galerkin
+from ._limits import FEW_PARAMETERS
 from ._metrics import phase_error
 from ._objectives import integrated_energy
 from ._parameters import check_parameters, is_chain, with_parameters
@@ -57,7 +58,6 @@ OUTPUTS = ("displacement", "velocity", "energy", "phase_error", "singular_values
 PARAMETERS = ("m", "k", "masses", "springs", "positions", "coefficients", "relative_coefficients",
               "alpha", "beta", "zeta", "amplitude")
 MODES = ("auto", "forward", "reverse")
-_FEW_PARAMETERS = 8  # "auto" below this count: forward (4.3 s against 11.3 s compile, measured)
 _MIKOTA_TOL = 1e-13  # relative: masses * i and springs / (n - i + 1) constant to rounding
 
 
@@ -341,7 +341,7 @@ def sensitivities(scene: Scene, output: str = "energy", *, wrt=None, model: str 
     shape = jax.eval_shape(function, nominal).shape
     inputs = sum(int(np.prod(v.shape)) for v in nominal.values())
     if mode == "auto":  # forward also for a scalar of a few parameters: it compiles 2-3x faster
-        few = inputs <= _FEW_PARAMETERS
+        few = inputs <= FEW_PARAMETERS
         mode = "forward" if few or inputs <= int(np.prod(shape)) else "reverse"
     function = SceneFunction(scene, output, model=model, basis=function.basis,
                              count=function.count, forward=mode == "forward")

@@ -10,12 +10,8 @@ import numpy as np
 
 from ._errors import MARK
 from ._galerkin import ReducedModel
+from ._limits import STIFF_THRESHOLD
 from ._operators import Diagonal, abs_row_sums
-
-# Dopri8 is stable for |h lambda| up to about 4-6; beyond rho T = 1e5 (some 2e4 explicit steps)
-# the structured implicit solver was measured faster (n = 1000: 1.0x, 10^4: 27x, section 5 damper
-# c = 1000 at DOF 7: 1.25x), below it the explicit one (far fewer steps per unit accuracy).
-STIFF_THRESHOLD = 1e5
 
 
 def gershgorin_omega(mass_diagonal, stiffness) -> float:

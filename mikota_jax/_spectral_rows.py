@@ -12,9 +12,7 @@ import jax
 import jax.numpy as jnp
 
 from ._errors import MARK
-
-BLOCK_ABOVE = 512  # n above which the per-root (2n, n) and (2n, 2n) work is done in blocks
-_BLOCK_ENTRIES = 2**18  # entries of one (roots, n) block: 4 MiB complex, about a cache's size
+from ._limits import BLOCK_ABOVE, BLOCK_ENTRIES
 
 
 def row_block(n: int, block: int | None = None) -> int | None:
@@ -27,7 +25,7 @@ def row_block(n: int, block: int | None = None) -> int | None:
         if isinstance(block, bool) or not isinstance(block, int) or block < 0:
             raise ValueError(MARK + f"block must be an int >= 0 or None, got {block!r}.")
         return block or None
-    return None if n <= BLOCK_ABOVE else max(16, _BLOCK_ENTRIES // n)
+    return None if n <= BLOCK_ABOVE else max(16, BLOCK_ENTRIES // n)
 
 
 def by_rows(fn, block, *rows):

@@ -36,6 +36,7 @@ import jax.numpy as jnp
 
 from ._chain_combine import chain_mode_combination
 from ._integrate import Trajectory
+from ._limits import chunk
 from ._modal import modal_projection
 from ._spectral import complex_arithmetic
 from ._spectral_clusters import initial_rhs, solve_at
@@ -228,7 +229,7 @@ def response_block(n: int, block: int | None = None) -> int:
     """Roots per block of ``rows_response``: ``block``, or ~2^24 / n (a (block, n) complex work
     array of ~256 MB; each block is a rank-2 block update of the (N, n) modal history, so larger
     blocks than the roots' ``row_block`` keep the matrix product efficient)."""
-    return block if block else max(16, 2**24 // n)
+    return block if block else chunk(n, 16)
 
 
 @complex_arithmetic

@@ -9,6 +9,7 @@ import jax.numpy as jnp
 from ._chain_modes import unchecked_chain_mode_data, unchecked_chain_modes
 from ._dampers import Dampers
 from ._errors import MARK, RESULTS, check, check_x64
+from ._limits import ROWS_ABOVE
 from ._modal import generalized_modes
 from ._operators import Diagonal, SymmetricTridiagonal
 from ._spectral import DampedModes, differentiable_roots, modal_damped_modes
@@ -37,7 +38,6 @@ def _chain_springs(system):
     return None
 
 
-ROWS_ABOVE = 4096  # chains above this size: the energy without U (128 MiB at 4096)
 
 
 def uses_rows(system) -> bool:
