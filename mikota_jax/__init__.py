@@ -3,126 +3,193 @@
 Conventions: DOFs and damper positions are 1-based, as in Weber & Zastrau (2018); arrays are
 float64 (importing the package turns on ``jax_enable_x64``; turning it off again is an error);
 trajectories are (N, d) with rows at times and columns at the requested DOFs.
+
+Every name loads its module on first use (PEP 562), so ``import mikota_jax`` and
+``python -m mikota_jax --help`` import neither JAX nor the solvers until something asks for them.
 """
+
+import os as _os
+import sys as _sys
+from typing import TYPE_CHECKING
 
 from . import _interrupt
 
 if _interrupt.is_command_line():  # Ctrl-C while JAX loads: one line, not a traceback
     _interrupt.exit_on_interrupt()
 
-import jax as _jax
-
-_jax.config.update("jax_enable_x64", True)
-
-from ._analytic import eigenfrequencies as eigenfrequencies
-from ._analytic import mode_shape as mode_shape
-from ._analytic import mode_shape_coefficients as mode_shape_coefficients
-from ._analytic import paper_mode_shape as paper_mode_shape
-from ._brute_force import SweepResult as SweepResult
-from ._brute_force import reduced_landscape as reduced_landscape
-from ._brute_force import sweep_dampers as sweep_dampers
-from ._cache import enable_compilation_cache as enable_compilation_cache
-from ._certify import PlacementResult as PlacementResult
-from ._certify import optimise_dampers as optimise_dampers
-from ._chain import branched_chain as branched_chain
-from ._chain import chain as chain
-from ._chain import mikota_chain as mikota_chain
-from ._classic import craig_bampton_basis as craig_bampton_basis
-from ._classic import damper_directions as damper_directions
-from ._classic import extend_basis as extend_basis
-from ._classic import fixed_interface_modes as fixed_interface_modes
-from ._classic import krylov_basis as krylov_basis
-from ._classic import modal_basis as modal_basis
-from ._classic import modal_static_basis as modal_static_basis
-from ._classic import static_moments as static_moments
-from ._damper_search import DamperPlacement as DamperPlacement
-from ._damper_search import place_dampers as place_dampers
-from ._dampers import GroundedDamper as GroundedDamper
-from ._dampers import RelativeDamper as RelativeDamper
-from ._design import DamperProblem as DamperProblem
-from ._enrichment import enriched_reduce as enriched_reduce
-from ._enrichment import sensitivity_snapshots as sensitivity_snapshots
-from ._estimator import ErrorBound as ErrorBound
-from ._estimator import HierarchicalEstimate as HierarchicalEstimate
-from ._estimator import HierarchicalEstimator as HierarchicalEstimator
-from ._estimator import HierarchicalGradient as HierarchicalGradient
-from ._estimator import error_bound as error_bound
-from ._exact import exact_solve as exact_solve
-from ._excitation import LoadFunction as LoadFunction
-from ._excitation import Pulse as Pulse
-from ._excitation import pulse as pulse
-from ._excitation import unit_vector as unit_vector
-from ._frequency import frequency_response as frequency_response
-from ._galerkin import ReducedModel as ReducedModel
-from ._galerkin import galerkin as galerkin
-from ._greedy import BoundFunction as BoundFunction
-from ._greedy import CertifiedSweep as CertifiedSweep
-from ._greedy import EstimateFunction as EstimateFunction
-from ._greedy import GreedyBasis as GreedyBasis
-from ._greedy import certified_sweep as certified_sweep
-from ._greedy import greedy_reduce as greedy_reduce
-from ._greedy import rank_for_bound as rank_for_bound
-from ._implicit import StructuredKvaerno5 as StructuredKvaerno5
-from ._integrate import Trajectory as Trajectory
-from ._integrate import simulate as simulate
-from ._internal_damping import ModalDamping as ModalDamping
-from ._internal_damping import Rayleigh as Rayleigh
-from ._interpolatory import IRKABasis as IRKABasis
-from ._interpolatory import band_shifts as band_shifts
-from ._interpolatory import irka_basis as irka_basis
-from ._interpolatory import rational_krylov_basis as rational_krylov_basis
-from ._io import load_matrix as load_matrix
-from ._io import save_matrix_market as save_matrix_market
-from ._metrics import phase_error as phase_error
-from ._metrics import pseudo_energy as pseudo_energy
-from ._metrics import relative_error as relative_error
-from ._modal import modal_decomposition as modal_decomposition
-from ._objectives import integrated_energy as integrated_energy
-from ._objectives import smooth_peak as smooth_peak
-from ._objectives import total_average_energy as total_average_energy
-from ._output_criteria import h2_norm as h2_norm
-from ._output_criteria import output_energy as output_energy
-from ._placement_objective import placement_objective as placement_objective
-from ._pod import POD as POD
-from ._pod import energy_fraction as energy_fraction
-from ._pod import pod as pod
-from ._pod import rank_for_energy as rank_for_energy
-from ._reduction import ReducedBasis as ReducedBasis
-from ._reduction import Reduction as Reduction
-from ._reduction import reduce as reduce
-from ._run import SceneResult as SceneResult
-from ._run import run_scene as run_scene
-from ._scene import Scene as Scene
-from ._sensitivity import SceneFunction as SceneFunction
-from ._sensitivity import Sensitivities as Sensitivities
-from ._sensitivity import scene_parameters as scene_parameters
-from ._sensitivity import sensitivities as sensitivities
-from ._solver_choice import choose_solver as choose_solver
-from ._sweep import grid as grid
-from ._sweep import sweep as sweep
-from ._system import SecondOrderSystem as SecondOrderSystem
-from ._user_matrices import system as system
-from ._viscosity import ViscosityResult as ViscosityResult
-from ._viscosity import optimise_viscosities as optimise_viscosities
+# float64 always: JAX reads this when it is first imported; if it already is, set it now
+_os.environ["JAX_ENABLE_X64"] = "1"
+if "jax" in _sys.modules:
+    _sys.modules["jax"].config.update("jax_enable_x64", True)
 
 __version__ = "0.1.0"
 
+# Each core module and the public names it defines, loaded on first use.
+_MODULES = {
+    "_analytic": "eigenfrequencies mode_shape mode_shape_coefficients paper_mode_shape",
+    "_brute_force": "SweepResult reduced_landscape sweep_dampers",
+    "_cache": "enable_compilation_cache",
+    "_certify": "PlacementResult optimise_dampers",
+    "_chain": "branched_chain chain mikota_chain",
+    "_classic": ("craig_bampton_basis damper_directions extend_basis fixed_interface_modes "
+                 "krylov_basis modal_basis modal_static_basis static_moments"),
+    "_damper_search": "DamperPlacement place_dampers",
+    "_dampers": "GroundedDamper RelativeDamper",
+    "_design": "DamperProblem",
+    "_enrichment": "enriched_reduce sensitivity_snapshots",
+    "_estimator": ("ErrorBound HierarchicalEstimate HierarchicalEstimator HierarchicalGradient "
+                   "error_bound"),
+    "_exact": "exact_solve",
+    "_excitation": "LoadFunction Pulse pulse unit_vector",
+    "_frequency": "frequency_response",
+    "_galerkin": "ReducedModel galerkin",
+    "_greedy": ("BoundFunction CertifiedSweep EstimateFunction GreedyBasis certified_sweep "
+                "greedy_reduce rank_for_bound"),
+    "_implicit": "StructuredKvaerno5",
+    "_integrate": "Trajectory simulate",
+    "_internal_damping": "ModalDamping Rayleigh",
+    "_interpolatory": "IRKABasis band_shifts irka_basis rational_krylov_basis",
+    "_io": "load_matrix save_matrix_market",
+    "_metrics": "phase_error pseudo_energy relative_error",
+    "_modal": "modal_decomposition",
+    "_objectives": "integrated_energy smooth_peak total_average_energy",
+    "_output_criteria": "h2_norm output_energy",
+    "_placement_objective": "placement_objective",
+    "_pod": "POD energy_fraction pod rank_for_energy",
+    "_reduction": "ReducedBasis Reduction reduce",
+    "_run": "SceneResult run_scene",
+    "_scene": "Scene",
+    "_sensitivity": "SceneFunction Sensitivities scene_parameters sensitivities",
+    "_solve": "AbstractMethod Auto DenseExponential ODE Spectral solve",
+    "_solver_choice": "choose_solver",
+    "_sweep": "grid sweep",
+    "_system": "SecondOrderSystem",
+    "_user_matrices": "system",
+    "_viscosity": "ViscosityResult optimise_viscosities",
+}
+_CORE_NAMES = {name: module for module, names in _MODULES.items() for name in names.split()}
+
 # Names of the application layer (``mikota_jax.app``: scene files, the paper's reproduction,
-# damper placement for a scene), imported on first use: ``import mikota_jax`` stays light (no
-# TOML parser, no figures, no progress bars), and the core never imports the app layer.
+# damper placement for a scene): the core never imports the app layer.
 _APP_NAMES = {"load_scene": "scene_file", "reproduce": "reproduction",
               "optimise_scene": "placement", "problem_from_scene": "placement"}
 
 
 def __getattr__(name: str):
-    if name in _APP_NAMES:
-        import importlib
+    import importlib
 
-        value = getattr(importlib.import_module(f"mikota_jax.app.{_APP_NAMES[name]}"), name)
-        globals()[name] = value  # later look-ups skip this hook
-        return value
-    raise AttributeError(f"module 'mikota_jax' has no attribute {name!r}")
+    if name in _CORE_NAMES:
+        module = importlib.import_module(f"mikota_jax.{_CORE_NAMES[name]}")
+    elif name in _APP_NAMES:
+        module = importlib.import_module(f"mikota_jax.app.{_APP_NAMES[name]}")
+    else:
+        raise AttributeError(f"module 'mikota_jax' has no attribute {name!r}")
+    import jax
+
+    jax.config.update("jax_enable_x64", True)  # even if JAX was imported with it off
+    value = getattr(module, name)
+    globals()[name] = value  # later look-ups skip this hook
+    return value
 
 
 def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_APP_NAMES))
+    return sorted(set(globals()) | set(_CORE_NAMES) | set(_APP_NAMES))
+
+
+if TYPE_CHECKING:  # the same names for static tools (type checkers, the API reference)
+    from ._analytic import eigenfrequencies as eigenfrequencies
+    from ._analytic import mode_shape as mode_shape
+    from ._analytic import mode_shape_coefficients as mode_shape_coefficients
+    from ._analytic import paper_mode_shape as paper_mode_shape
+    from ._brute_force import SweepResult as SweepResult
+    from ._brute_force import reduced_landscape as reduced_landscape
+    from ._brute_force import sweep_dampers as sweep_dampers
+    from ._cache import enable_compilation_cache as enable_compilation_cache
+    from ._certify import PlacementResult as PlacementResult
+    from ._certify import optimise_dampers as optimise_dampers
+    from ._chain import branched_chain as branched_chain
+    from ._chain import chain as chain
+    from ._chain import mikota_chain as mikota_chain
+    from ._classic import craig_bampton_basis as craig_bampton_basis
+    from ._classic import damper_directions as damper_directions
+    from ._classic import extend_basis as extend_basis
+    from ._classic import fixed_interface_modes as fixed_interface_modes
+    from ._classic import krylov_basis as krylov_basis
+    from ._classic import modal_basis as modal_basis
+    from ._classic import modal_static_basis as modal_static_basis
+    from ._classic import static_moments as static_moments
+    from ._damper_search import DamperPlacement as DamperPlacement
+    from ._damper_search import place_dampers as place_dampers
+    from ._dampers import GroundedDamper as GroundedDamper
+    from ._dampers import RelativeDamper as RelativeDamper
+    from ._design import DamperProblem as DamperProblem
+    from ._enrichment import enriched_reduce as enriched_reduce
+    from ._enrichment import sensitivity_snapshots as sensitivity_snapshots
+    from ._estimator import ErrorBound as ErrorBound
+    from ._estimator import HierarchicalEstimate as HierarchicalEstimate
+    from ._estimator import HierarchicalEstimator as HierarchicalEstimator
+    from ._estimator import HierarchicalGradient as HierarchicalGradient
+    from ._estimator import error_bound as error_bound
+    from ._exact import exact_solve as exact_solve
+    from ._excitation import LoadFunction as LoadFunction
+    from ._excitation import Pulse as Pulse
+    from ._excitation import pulse as pulse
+    from ._excitation import unit_vector as unit_vector
+    from ._frequency import frequency_response as frequency_response
+    from ._galerkin import ReducedModel as ReducedModel
+    from ._galerkin import galerkin as galerkin
+    from ._greedy import BoundFunction as BoundFunction
+    from ._greedy import CertifiedSweep as CertifiedSweep
+    from ._greedy import EstimateFunction as EstimateFunction
+    from ._greedy import GreedyBasis as GreedyBasis
+    from ._greedy import certified_sweep as certified_sweep
+    from ._greedy import greedy_reduce as greedy_reduce
+    from ._greedy import rank_for_bound as rank_for_bound
+    from ._implicit import StructuredKvaerno5 as StructuredKvaerno5
+    from ._integrate import Trajectory as Trajectory
+    from ._integrate import simulate as simulate
+    from ._internal_damping import ModalDamping as ModalDamping
+    from ._internal_damping import Rayleigh as Rayleigh
+    from ._interpolatory import IRKABasis as IRKABasis
+    from ._interpolatory import band_shifts as band_shifts
+    from ._interpolatory import irka_basis as irka_basis
+    from ._interpolatory import rational_krylov_basis as rational_krylov_basis
+    from ._io import load_matrix as load_matrix
+    from ._io import save_matrix_market as save_matrix_market
+    from ._metrics import phase_error as phase_error
+    from ._metrics import pseudo_energy as pseudo_energy
+    from ._metrics import relative_error as relative_error
+    from ._modal import modal_decomposition as modal_decomposition
+    from ._objectives import integrated_energy as integrated_energy
+    from ._objectives import smooth_peak as smooth_peak
+    from ._objectives import total_average_energy as total_average_energy
+    from ._output_criteria import h2_norm as h2_norm
+    from ._output_criteria import output_energy as output_energy
+    from ._placement_objective import placement_objective as placement_objective
+    from ._pod import POD as POD
+    from ._pod import energy_fraction as energy_fraction
+    from ._pod import pod as pod
+    from ._pod import rank_for_energy as rank_for_energy
+    from ._reduction import ReducedBasis as ReducedBasis
+    from ._reduction import Reduction as Reduction
+    from ._reduction import reduce as reduce
+    from ._run import SceneResult as SceneResult
+    from ._run import run_scene as run_scene
+    from ._scene import Scene as Scene
+    from ._sensitivity import SceneFunction as SceneFunction
+    from ._sensitivity import Sensitivities as Sensitivities
+    from ._sensitivity import scene_parameters as scene_parameters
+    from ._sensitivity import sensitivities as sensitivities
+    from ._solve import ODE as ODE
+    from ._solve import AbstractMethod as AbstractMethod
+    from ._solve import Auto as Auto
+    from ._solve import DenseExponential as DenseExponential
+    from ._solve import Spectral as Spectral
+    from ._solve import solve as solve
+    from ._solver_choice import choose_solver as choose_solver
+    from ._sweep import grid as grid
+    from ._sweep import sweep as sweep
+    from ._system import SecondOrderSystem as SecondOrderSystem
+    from ._user_matrices import system as system
+    from ._viscosity import ViscosityResult as ViscosityResult
+    from ._viscosity import optimise_viscosities as optimise_viscosities

@@ -82,13 +82,15 @@ class RESULTS(eqx.Enumeration):
     not_definite = ("stiffness must be positive definite (a fixed-free chain with positive "
                     "springs is).")
     max_steps_reached = (
-        "simulate stopped: max_steps = {max_steps} reached before ts[-1]. Increase max_steps, "
-        "loosen rtol/atol, or for a stiff case (large n, strong damper) use solver='kvaerno5' "
-        "(or 'auto'), or exact_solve.")
-    solver_failed = ("simulate failed inside diffrax (step size collapsed or the implicit solve "
-                     "diverged); check the inputs for non-finite values, or try another solver.")
-    non_finite_states = ("simulate produced non-finite states; check the inputs and tolerances, "
-                         "or use a stiff solver (solver='kvaerno5').")
+        "the integration stopped: max_steps = {max_steps} reached before ts[-1]. Increase "
+        "max_steps, loosen rtol/atol, or for a stiff case (large n, strong damper) use the "
+        "structured implicit solver (method=ODE(StructuredKvaerno5()), simulate's "
+        "solver='kvaerno5') or an exact method (Spectral(), DenseExponential()).")
+    solver_failed = ("the integration failed inside diffrax (step size collapsed or the "
+                     "implicit solve diverged); check the inputs for non-finite values, or try "
+                     "another solver.")
+    non_finite_states = ("the integration produced non-finite states; check the inputs and "
+                         "tolerances, or use the stiff solver StructuredKvaerno5().")
     exact_not_finite = (
         "exact_solve produced non-finite values; check the inputs for huge or non-finite values "
         "(a rate ||A|| h beyond ~1e20 is out of the matrix exponential's range: use "

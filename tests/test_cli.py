@@ -112,6 +112,21 @@ def test_help_is_plain_text_without_rest_markup(capsys):
     assert "``" not in text
 
 
+def test_help_loads_no_jax_and_run_help_lists_the_packaged_scenes():
+    # the help needs argparse and the scene folder's listing, nothing that computes
+    code = ("import sys, runpy\n"
+            "sys.argv = ['mikota_jax', 'run', '--help']\n"
+            "try:\n"
+            "    runpy.run_module('mikota_jax', run_name='__main__')\n"
+            "except SystemExit:\n"
+            "    pass\n"
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('jax', 'diffrax')))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=300, check=True)
+    assert "section4_first_mode, section4_impulse, section5_damped" in done.stdout
+    assert done.stdout.strip().splitlines()[-1] == "[]"
+
+
 def test_results_json_respects_the_umask(tmp_path):
     from mikota_jax.app.results import write_json
 

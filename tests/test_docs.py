@@ -162,12 +162,13 @@ def test_the_three_steps_run_in_sequence_and_compute_what_they_say(capsys, close
     for k, code in enumerate(snippets, 1):
         exec(compile(code, f"docs/index.md, step {k}", "exec"), namespace)
     printed = capsys.readouterr().out.splitlines()
-    assert len(printed) == 3
-    # 1: Dopri8 at its default rtol 1e-8 against the exact solution, DOF 150
+    assert len(printed) == 4
+    # 1: what the default runs there; Dopri8 at rtol 1e-8 against the exact solution, DOF 150
     fast, full = namespace["fast"], namespace["full"]
     assert float(jnp.max(jnp.abs(fast.displacement[:, 0] - full.displacement[:, 149]))) < 1e-5
     # 2: the paper's n_red = 76 (99 %) and our phase error (ratio of sums, README table)
-    assert namespace["r"] == 76 and printed[1].startswith("76 0.071")
+    assert printed[0] == "Spectral()"
+    assert namespace["r"] == 76 and printed[2].startswith("76 0.071")
     close(namespace["error"], 0.0712, rtol=1e-3)
     # 3: the gradient agrees with central differences. The exact energy carries ~1e-11 relative
     # rounding (Van Loan step and doublings), so the step is 1e-4 x scale, not sqrt(eps) x scale:

@@ -53,14 +53,28 @@ def test_the_package_face_reaches_the_app_layer_only_lazily():
     assert not [ast.unparse(n) for n in top if "app" in ast.unparse(n).split()]
 
 
-def test_import_mikota_jax_loads_neither_matplotlib_nor_toml_nor_the_app_layer():
+def test_import_mikota_jax_loads_neither_jax_nor_matplotlib_nor_toml_nor_the_app_layer():
+    # every name loads its module on first use; x64 is on for JAX imported afterwards
     code = ("import sys, mikota_jax\n"
             "print(sorted(m for m in sys.modules if m.split('.')[0] in "
-            "('matplotlib', 'tomllib', 'tqdm') or m.startswith('mikota_jax.app')))")
+            "('jax', 'diffrax', 'matplotlib', 'tomllib', 'tqdm') "
+            "or m.startswith('mikota_jax.app')))")
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
                           timeout=300, check=True)
     assert done.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize("code", [
+    "import mikota_jax\nimport jax.numpy as jnp\nprint(jnp.ones(1).dtype)",
+    "import jax\njax.config.update('jax_enable_x64', False)\nimport mikota_jax as mj\n"
+    "mj.chain\nimport jax.numpy as jnp\nprint(jnp.ones(1).dtype)"])
+def test_importing_the_package_turns_on_float64_before_or_after_jax(code):
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+    env.pop("JAX_ENABLE_X64", None)
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                          timeout=300, check=True)
+    assert done.stdout.strip() == "float64"
 
 
 def test_the_app_layers_names_are_listed_and_resolve_to_the_app():

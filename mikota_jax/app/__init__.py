@@ -17,12 +17,37 @@ from ``pymor.scripts``. One module per job:
 * ``placement``: ``problem_from_scene`` and ``optimise_scene``, damper placement for a scene.
 """
 
-from .figures import placement_landscape as placement_landscape
-from .figures import scene_figures as scene_figures
-from .placement import optimise_scene as optimise_scene
-from .placement import problem_from_scene as problem_from_scene
-from .reproduction import reproduce as reproduce
-from .results import result_dict as result_dict
-from .results import write_json as write_json
-from .scene_file import load_scene as load_scene
-from .scene_file import scene_from_dict as scene_from_dict
+from typing import TYPE_CHECKING
+
+# Each name and the module that defines it, loaded on first use (``python -m mikota_jax --help``
+# imports no more than the command line needs).
+_NAMES = {"placement_landscape": "figures", "scene_figures": "figures",
+          "optimise_scene": "placement", "problem_from_scene": "placement",
+          "reproduce": "reproduction", "result_dict": "results", "write_json": "results",
+          "load_scene": "scene_file", "scene_from_dict": "scene_file"}
+
+
+def __getattr__(name: str):
+    if name not in _NAMES:
+        raise AttributeError(f"module 'mikota_jax.app' has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(f"mikota_jax.app.{_NAMES[name]}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_NAMES))
+
+
+if TYPE_CHECKING:  # the same names for static tools
+    from .figures import placement_landscape as placement_landscape
+    from .figures import scene_figures as scene_figures
+    from .placement import optimise_scene as optimise_scene
+    from .placement import problem_from_scene as problem_from_scene
+    from .reproduction import reproduce as reproduce
+    from .results import result_dict as result_dict
+    from .results import write_json as write_json
+    from .scene_file import load_scene as load_scene
+    from .scene_file import scene_from_dict as scene_from_dict

@@ -19,6 +19,15 @@ from pathlib import Path
 from .._interrupt import MESSAGE, exit_on_interrupt
 
 
+def _packaged_scenes() -> str:
+    """The packaged paper scenes' names, read from the package's files (no JAX import)."""
+    from importlib import resources
+
+    names = sorted(p.name[:-5] for p in resources.files("mikota_jax").joinpath("scenes").iterdir()
+                   if p.name.endswith(".toml"))
+    return ", ".join(names)
+
+
 def _parser() -> argparse.ArgumentParser:
     # the docstring is reST; --help shows it as plain text (no ``literal`` markers)
     parser = argparse.ArgumentParser(prog="python -m mikota_jax",
@@ -30,13 +39,14 @@ def _parser() -> argparse.ArgumentParser:
                            help="no progress bar and no table (the exit code says whether a "
                            "reproducible number was missed)")
     run = commands.add_parser("run", help="run a scene file and write results.json")
-    run.add_argument("scene", help="a TOML scene file, or a packaged paper scene name")
+    scenes = _packaged_scenes()
+    run.add_argument("scene", help=f"a TOML scene file, or a packaged paper scene: {scenes}")
     run.add_argument("--out", required=True, help="folder for results.json and figures")
     run.add_argument("--quiet", action="store_true", help="no summary (errors only)")
     opt = commands.add_parser("optimise", help="optimise the positions and coefficients of a "
                               "scene's grounded dampers (gradients through the ROM, certified on "
                               "the full model)")
-    opt.add_argument("scene", help="a TOML scene file, or a packaged paper scene name")
+    opt.add_argument("scene", help=f"a TOML scene file, or a packaged paper scene: {scenes}")
     opt.add_argument("--out", default="placement_results", help="folder for JSON and plot")
     opt.add_argument("--search", default="rom", choices=["rom", "viscosities", "places"],
                      help="rom (default): positions and coefficients of the grounded dampers, "

@@ -301,8 +301,12 @@ def reproduce(out: str | Path | None = None, verbose: bool = True) -> dict:
         write_json(report, folder / "reproduce.json")
     if verbose:
         print(format_table(rows))
-        print(f"\n{report['missed']} missed; {len(rows)} rows; "
-              f"{report['wall_time_s']:.1f} s" + (f"; written to {folder}" if folder else ""))
+        reproduced = sum(r.status == REPRODUCED for r in rows)
+        unprintable = sum(r.status == NOT_REPRODUCED for r in rows)
+        print(f"\n{reproduced} reproduced, {unprintable} not reproducible as printed (the "
+              f"closest reading is shown; see the guide's page on the paper), "
+              f"{report['missed']} missed; {report['wall_time_s']:.1f} s"
+              + (f"; written to {folder}" if folder else ""))
     return report
 
 
