@@ -52,6 +52,7 @@ _MODULES = {
     "_io": "load_matrix save_matrix_market",
     "_metrics": "phase_error pseudo_energy relative_error",
     "_modal": "modal_decomposition",
+    "_objective_family": "AbstractObjective AverageEnergy Energy H2Norm OutputEnergy Peak",
     "_objectives": "integrated_energy smooth_peak total_average_energy",
     "_output_criteria": "h2_norm output_energy",
     "_placement_objective": "placement_objective",
@@ -160,6 +161,12 @@ if TYPE_CHECKING:  # the same names for static tools (type checkers, the API ref
     from ._metrics import pseudo_energy as pseudo_energy
     from ._metrics import relative_error as relative_error
     from ._modal import modal_decomposition as modal_decomposition
+    from ._objective_family import AbstractObjective as AbstractObjective
+    from ._objective_family import AverageEnergy as AverageEnergy
+    from ._objective_family import Energy as Energy
+    from ._objective_family import H2Norm as H2Norm
+    from ._objective_family import OutputEnergy as OutputEnergy
+    from ._objective_family import Peak as Peak
     from ._objectives import integrated_energy as integrated_energy
     from ._objectives import smooth_peak as smooth_peak
     from ._objectives import total_average_energy as total_average_energy

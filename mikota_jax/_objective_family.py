@@ -1,0 +1,133 @@
+"""The scalars a damper design minimises, as one family: ``objective(model)``.
+
+Each objective holds what it needs besides the model (a horizon, initial states, output
+matrices) and is called on a full ``SecondOrderSystem`` or a ``ReducedModel``; each is a pure
+function of the model's values, so ``jax.grad``, ``jax.vmap`` and ``mj.sweep`` pass through:
+
+    >>> import jax, mikota_jax as mj
+    >>> energy = mj.Energy(20.0, x0=mj.unit_vector(300, 3))
+    >>> jax.grad(lambda c: energy(mj.mikota_chain(300, dampers=[mj.GroundedDamper(7.0, c)])))(1.0)
+
+* ``Energy(horizon, x0, v0, load)``: int_0^T (x^T K x + x'^T M x') / 2 dt (``integrated_energy``);
+* ``AverageEnergy(lowest)``: Veselic's total average energy, the trace of the Lyapunov solution
+  (``total_average_energy``);
+* ``OutputEnergy(cx, cv, x0, v0, lowest, horizon)``: the energy of weighted outputs
+  (``output_energy``);
+* ``H2Norm(inputs, cx, cv)``: ||G||_H2 of the input-output map (``h2_norm``);
+* ``Peak(dof, ts, x0, v0, load, order, method)``: a smooth peak of one DOF's displacement
+  (``smooth_peak`` of a ``solve``).
+
+``AbstractObjective`` is the base a user subclasses (implement ``__call__``).
+"""
+
+import abc
+
+import equinox as eqx
+
+from ._custom_types import Array
+from ._solve import AbstractMethod, Auto
+
+
+class AbstractObjective(eqx.Module):
+    """A scalar of a model: ``objective(model)`` for a ``SecondOrderSystem`` or a
+    ``ReducedModel``. Subclass it and implement ``__call__``."""
+
+    @abc.abstractmethod
+    def __call__(self, model) -> Array:
+        """The objective's value at ``model``: a float64 scalar."""
+
+
+class Energy(AbstractObjective):
+    """J = int_0^T (x^T K x + x'^T M x') / 2 dt of the response from (``x0``, ``v0``) under
+    ``load`` (default: free vibration from rest, which is zero), T = ``horizon``.
+
+    ``method``: "exact" (the damped modes where they apply, else the Van Loan integral; free
+    vibration only), "spectral", "dense" or "ode" (Dopri8 with the energy as one more state,
+    any load). See ``integrated_energy``; units energy x time."""
+
+    horizon: float
+    x0: Array | None = None
+    v0: Array | None = None
+    load: object = None
+    method: str = eqx.field(static=True, default="exact")
+
+    def __call__(self, model) -> Array:
+        """J of ``model``."""
+        from ._objectives import integrated_energy
+
+        return integrated_energy(model, self.horizon, self.x0, self.v0, self.load,
+                                 method=self.method)
+
+
+class AverageEnergy(AbstractObjective):
+    """Veselic's total average energy: trace X, A^T X + X A = -Z, over the ``lowest`` modes
+    (all when None); needs no excitation, is infinite (refused) where a mode is undamped. See
+    ``total_average_energy``."""
+
+    lowest: int | None = eqx.field(static=True, default=None)
+
+    def __call__(self, model) -> Array:
+        """trace X of ``model``."""
+        from ._objectives import total_average_energy
+
+        return total_average_energy(model, self.lowest)
+
+
+class OutputEnergy(AbstractObjective):
+    """sum_i int_0^T |C_x x_i + C_v x_i'|^2 dt over the free vibrations from the columns of
+    ``x0``, ``v0`` (or the 2s unit modal states of the ``lowest`` s modes; neither: all 2n),
+    T = ``horizon`` (None: infinite). ``cx``, ``cv``: (q, n) or (n,) output matrices. See
+    ``output_energy``; units output^2 x time."""
+
+    cx: Array | None = None
+    cv: Array | None = None
+    x0: Array | None = None
+    v0: Array | None = None
+    lowest: int | None = eqx.field(static=True, default=None)
+    horizon: float | None = None
+
+    def __call__(self, model) -> Array:
+        """The output energy of ``model``."""
+        from ._output_criteria import output_energy
+
+        return output_energy(model, self.cx, self.cv, x0=self.x0, v0=self.v0,
+                             lowest=self.lowest, horizon=self.horizon)
+
+
+class H2Norm(AbstractObjective):
+    """||G||_H2 of G(s) = (C_x + s C_v)(s^2 M + s D + K)^-1 B, B = ``inputs`` ((n, m) or (n,)
+    force directions); undamped modes the inputs do not excite or the outputs do not see are
+    dropped, a seen one is refused. See ``h2_norm``."""
+
+    inputs: Array
+    cx: Array | None = None
+    cv: Array | None = None
+
+    def __call__(self, model) -> Array:
+        """||G||_H2 of ``model``."""
+        from ._output_criteria import h2_norm
+
+        return h2_norm(model, self.inputs, self.cx, self.cv)
+
+
+class Peak(AbstractObjective):
+    """A smooth peak (the order-p mean of |x_dof(t)| over ``ts``, ``smooth_peak``) of the
+    displacement of the 1-based ``dof``, from ``solve(model, ts, x0, v0, load, method=...)``;
+    in [N^(-1/p), 1] x the maximum, in displacement units."""
+
+    dof: int = eqx.field(static=True)
+    ts: Array
+    x0: Array | None = None
+    v0: Array | None = None
+    load: object = None
+    order: int = eqx.field(static=True, default=16)
+    method: AbstractMethod = Auto()
+
+    def __call__(self, model) -> Array:
+        """The smooth peak of ``model``'s response at ``dof``."""
+        from ._objectives import smooth_peak
+        from ._solve import solve
+
+        trajectory = solve(model, self.ts, self.x0, self.v0, self.load, method=self.method,
+                           dofs=[self.dof])
+        return smooth_peak(trajectory.displacement[:, 0], self.order)

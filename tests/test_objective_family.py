@@ -1,0 +1,83 @@
+"""The objectives family against closed forms of one mass (m = k = 1, grounded damper c:
+x'' + c x' + x = 0), where every objective is known exactly:
+
+* the Lyapunov solution of A = [[0, 1], [-1, -c]] with A^T X + X A = -I has trace 2 / c + c / 2;
+* with -C^T C, C = (1, 0): P = [[1 / (2c) + c / 2, 1 / 2], [1 / 2, 1 / (2c)]], so int_0^inf x^2 dt
+  is P_11 from x0 = 1 and ||G||_H2^2 = P_22 for G(s) = 1 / (s^2 + c s + 1);
+* the energy on [0, T] by mpmath quadrature of the analytic x(t) at 30 digits.
+"""
+
+import jax
+import jax.numpy as jnp
+import mpmath as mp
+import numpy as np
+import pytest
+
+import mikota_jax as mj
+
+C = 0.7
+T = 10.0
+
+
+def one_mass(c=C):
+    return mj.chain(np.ones(1), np.ones(1), [mj.GroundedDamper(1.0, c)])
+
+
+def displacement(t, c=C, lib=np):
+    """x(t) from x0 = 1, v0 = 0, underdamped (c < 2)."""
+    zeta, omega = c / 2, lib.sqrt(1 - c**2 / 4)
+    return lib.exp(-zeta * t) * (lib.cos(omega * t) + zeta / omega * lib.sin(omega * t))
+
+
+def test_energy_is_the_quadrature_of_the_analytic_response():
+    mp.mp.dps = 30
+    c = mp.mpf(C)
+
+    def integrand(t):
+        x = displacement(t, c, mp)
+        v = mp.diff(lambda s: displacement(s, c, mp), t)
+        return (x**2 + v**2) / 2
+
+    truth = float(mp.quad(integrand, [0, 2, 5, T]))  # ~1e-25: quadrature at 30 digits
+    value = mj.Energy(T, x0=jnp.ones(1))(one_mass())
+    assert float(value) == pytest.approx(truth, rel=1e-12)
+
+
+def test_average_energy_and_its_derivative_are_the_closed_forms():
+    objective = mj.AverageEnergy()
+    value, slope = jax.value_and_grad(lambda c: objective(one_mass(c)))(C)
+    assert float(value) == pytest.approx(2 / C + C / 2, rel=1e-12)
+    assert float(slope) == pytest.approx(-2 / C**2 + 0.5, rel=1e-10)
+
+
+def test_output_energy_and_h2_norm_are_the_closed_forms():
+    first = jnp.ones((1, 1))
+    out = mj.OutputEnergy(cx=first, x0=jnp.ones(1))(one_mass())
+    assert float(out) == pytest.approx(1 / (2 * C) + C / 2, rel=1e-12)
+    h2 = mj.H2Norm(jnp.ones(1), cx=first)(one_mass())
+    assert float(h2) == pytest.approx(np.sqrt(1 / (2 * C)), rel=1e-12)
+
+
+def test_peak_is_the_smooth_peak_of_the_exact_response():
+    ts = jnp.linspace(0.0, T, 201)
+    truth = np.mean(np.abs(displacement(np.asarray(ts))) ** 16) ** (1 / 16)  # float64, ~1e-16
+    value = mj.Peak(1, ts, x0=jnp.ones(1))(one_mass())
+    assert float(value) == pytest.approx(truth, rel=1e-12)
+
+
+def test_objectives_take_reduced_models_and_pass_through_vmap():
+    # a Galerkin model on all modes is the full model: the same J to rounding
+    system = mj.mikota_chain(6, dampers=[mj.GroundedDamper(2.0, 0.8)])
+    energy = mj.Energy(5.0, x0=mj.unit_vector(6, 3))
+    rom = mj.galerkin(system, mj.modal_basis(system, 6))
+    assert float(energy(rom)) == pytest.approx(float(energy(system)), rel=1e-10)
+    values = jax.vmap(lambda c: mj.AverageEnergy()(one_mass(c)))(jnp.array([0.5, 1.0, 2.0]))
+    np.testing.assert_allclose(values, [2 / c + c / 2 for c in (0.5, 1.0, 2.0)], rtol=1e-12)
+
+
+def test_a_user_objective_subclasses_the_abstract_one():
+    class Stiffest(mj.AbstractObjective):
+        def __call__(self, model):
+            return jnp.max(mj.modal_decomposition(model)[0])
+
+    assert float(Stiffest()(one_mass())) == pytest.approx(1.0, rel=1e-14)
