@@ -51,7 +51,7 @@ def _energy(system, x, v):
 
 
 def _mikota_free_vibration(m, k, ts, x0, v0):
-    modes = np.stack([np.asarray(mj.mode_shape(N, l)) for l in range(1, N + 1)], axis=1)
+    modes = np.stack([np.asarray(mj.analytic.mode_shape(N, l)) for l in range(1, N + 1)], axis=1)
     mass = m / np.arange(1, N + 1)
     weight = np.einsum("il,i,il->l", modes, mass, modes)
     a, b = (modes.T @ (mass * x0)) / weight, (modes.T @ (mass * v0)) / weight
@@ -241,7 +241,7 @@ def _parameter_rows():
                          f"x {_verdict(error, tol)}; omega {omega_error:.0e}", test))
 
     horizon = np.linspace(0.0, 1e4 / OMEGA, 2001)
-    u = np.asarray(mj.mode_shape(N, 1))
+    u = np.asarray(mj.analytic.mode_shape(N, 1))
     expected = np.cos(OMEGA * horizon)[:, None] * u
     system = mj.mikota_chain(N, M_, K_)
     exact = _rel(mj.exact_solve(system, horizon, u, velocity=True).displacement, expected)

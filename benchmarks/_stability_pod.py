@@ -54,7 +54,7 @@ def edge_rows() -> list[dict]:
 
     # a single-mode excitation: x(t) = u_1 cos t, rank 1
     n, ts = 20, np.linspace(0.0, 20.0, 2001)
-    shape = np.asarray(mj.mode_shape(n, 1))
+    shape = np.asarray(mj.analytic.mode_shape(n, 1))
     q = mj.exact_solve(mj.mikota_chain(n), ts, shape).displacement.T
     for method in ("svd", "snapshots"):
         result = mj.pod(q, method=method)

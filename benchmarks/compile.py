@@ -232,12 +232,12 @@ ENTRIES = [
                                                        atol=1e-10), "simulate_with_result"),
     Entry("exact_solve ROM", lambda c: mj.exact_solve(c["galerkin"], TS, X0, velocity=True),
           "_exact"),
-    Entry("phase_error", lambda c: mj.phase_error(
+    Entry("phase_error", lambda c: mj.metrics.phase_error(
         c["exact_solve"].displacement, c["exact_solve"].velocity,
         c["exact_solve ROM"].displacement, c["exact_solve ROM"].velocity)),
-    Entry("relative_error", lambda c: mj.relative_error(c["exact_solve"].displacement,
+    Entry("relative_error", lambda c: mj.metrics.relative_error(c["exact_solve"].displacement,
                                                         c["exact_solve ROM"].displacement)),
-    Entry("pseudo_energy", lambda c: mj.pseudo_energy(c["pod svd"].singular_values)),
+    Entry("pseudo_energy", lambda c: mj.metrics.pseudo_energy(c["pod svd"].singular_values)),
     Entry("grad ROM simulate", lambda c: grad_fn(c)(7.5, 1.0)),
     Entry("jit(grad) ROM simulate", lambda c: grad_fn(c, jitted=True)(7.5, 1.0),
           "energy_at_dof_150"),
@@ -270,7 +270,7 @@ def variations(ctx, quick: bool) -> list[tuple[str, str, list]]:
             lambda: mj.modal_decomposition(sys_a()),
             lambda: mj.modal_decomposition(mj.chain(masses * 1.1, springs * 0.9, dampers))]},
         "pseudo_energy": {"singular values": [
-            lambda: mj.pseudo_energy(np.asarray(ctx["pod svd"].singular_values) * 2)]},
+            lambda: mj.metrics.pseudo_energy(np.asarray(ctx["pod svd"].singular_values) * 2)]},
     }
 
     def solver_cases(name, call, tolerances):
@@ -311,10 +311,10 @@ def variations(ctx, quick: bool) -> list[tuple[str, str, list]]:
             "exact_solve ROM": {
                 "damper position, coefficient": [lambda: rom_exact(damped(9.5, 3.0))],
                 "basis": [lambda: rom_exact(damped(), other_basis())]},
-            "phase_error": {"trajectories": [lambda: mj.phase_error(
+            "phase_error": {"trajectories": [lambda: mj.metrics.phase_error(
                 red.displacement, red.velocity, full.displacement, full.velocity)]},
             "relative_error": {"trajectories": [
-                lambda: mj.relative_error(red.displacement, full.displacement)]},
+                lambda: mj.metrics.relative_error(red.displacement, full.displacement)]},
             "grad ROM simulate": {"damper position, coefficient": [
                 lambda: ctx["grad"](8.25, 0.5), lambda: ctx["grad"](12.0, 2.0)]},
             "jit(grad) ROM simulate": {"damper position, coefficient": [

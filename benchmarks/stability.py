@@ -28,7 +28,7 @@ from _common import (
 )
 
 import mikota_jax as mj
-from mikota_jax.testing import stiffness_rate
+from mikota_jax.testing import choose_solver, stiffness_rate
 
 T = 20.0
 
@@ -54,7 +54,7 @@ def size_rows(sizes, dopri_max):
         system = mj.mikota_chain(n)
         x0 = np.arange(1.0, n + 1) / n
         truth = np.cos(ts)[:, None] * x0[[0, n - 1]][None, :]
-        row = dict(n=n, auto=mj.choose_solver(system, ts), rho_T=stiffness_rate(system) * T)
+        row = dict(n=n, auto=choose_solver(system, ts), rho_T=stiffness_rate(system) * T)
         for solver in ("dopri8", "kvaerno5"):
             if solver == "dopri8" and n > dopri_max:
                 continue
@@ -88,7 +88,7 @@ def damper_rows(coefficients):
     for c in coefficients:
         system = mj.mikota_chain(300, dampers=[mj.GroundedDamper(7.0, c)])
         exact = np.asarray(mj.exact_solve(system, ts, x0, dofs=[3, 7, 300]).displacement)
-        row = dict(coefficient=c, auto=mj.choose_solver(system, ts))
+        row = dict(coefficient=c, auto=choose_solver(system, ts))
         for solver in ("dopri8", "kvaerno5"):
             try:
                 out, first, run = _timed_solve(lambda s=solver, system=system: mj.simulate(

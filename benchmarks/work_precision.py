@@ -283,7 +283,7 @@ def main(argv=None) -> dict:
         row(f"ROM r={rank} dopri8", "dopri8", "mikota_jax", rtol=ROM_RTOL, rank=rank,
             compile_s=sim_rom.compile_s, run_s=run_s, run_times=times,
             error=max_error(sim_result.displacement, ref_x), steps=int(sim_result.num_steps))
-        phase = {f"{label}_{aggregate}": float(mj.phase_error(
+        phase = {f"{label}_{aggregate}": float(mj.metrics.phase_error(
             ref_x, ref_v, result.displacement, result.velocity, aggregate=aggregate))
             for label, result in (("exact", exact_result), ("dopri8", sim_result))
             for aggregate in ("sum", "max")}
@@ -366,7 +366,7 @@ def main(argv=None) -> dict:
             "snapshot_window": list(window), "snapshots": int(mask.sum()),
             "outputs": "displacement at all DOFs and times; velocity too for the reference and "
                        "the reduced rows (eq. 5.4); scipy returns the whole state",
-            "rom_rtol": ROM_RTOL, "phase_error": "eq. (5.4), mj.phase_error aggregate "
+            "rom_rtol": ROM_RTOL, "phase_error": "eq. (5.4), mj.metrics.phase_error aggregate "
                                                  "'sum' (default) and 'max'",
         },
         "checks": {"rtol": CHECK_RTOL, "tolerance": CHECK_TOLERANCE,

@@ -26,7 +26,6 @@ __version__ = "0.1.0"
 
 # Each core module and the public names it defines, loaded on first use.
 _MODULES = {
-    "_analytic": "eigenfrequencies mode_shape mode_shape_coefficients paper_mode_shape",
     "_brute_force": "SweepResult reduced_landscape sweep_dampers",
     "_cache": "enable_compilation_cache",
     "_certify": "PlacementResult optimise_dampers",
@@ -49,8 +48,6 @@ _MODULES = {
     "_integrate": "Trajectory simulate",
     "_internal_damping": "ModalDamping Rayleigh",
     "_interpolatory": "IRKABasis band_shifts irka_basis rational_krylov_basis",
-    "_io": "load_matrix save_matrix_market",
-    "_metrics": "phase_error pseudo_energy relative_error",
     "_modal": "modal_decomposition",
     "_objective_family": "AbstractObjective AverageEnergy Energy H2Norm OutputEnergy Peak",
     "_objectives": "integrated_energy smooth_peak total_average_energy",
@@ -62,7 +59,6 @@ _MODULES = {
     "_scene": "Scene",
     "_sensitivity": "SceneFunction Sensitivities scene_parameters sensitivities",
     "_solve": "AbstractMethod Auto DenseExponential ODE Spectral solve",
-    "_solver_choice": "choose_solver",
     "_sweep": "grid sweep",
     "_system": "SecondOrderSystem",
     "_user_matrices": "system",
@@ -76,9 +72,15 @@ _APP_NAMES = {"load_scene": "scene_file", "reproduce": "reproduction",
               "optimise_scene": "placement", "problem_from_scene": "placement"}
 
 
+# Public submodules: Mikota's closed forms, error measures, matrix files, the application layer.
+_SUBMODULES = ("analytic", "metrics", "io", "app")
+
+
 def __getattr__(name: str):
     import importlib
 
+    if name in _SUBMODULES:
+        return importlib.import_module(f"mikota_jax.{name}")  # sets the attribute itself
     if name in _CORE_NAMES:
         module = importlib.import_module(f"mikota_jax.{_CORE_NAMES[name]}")
     elif name in _APP_NAMES:
@@ -94,14 +96,13 @@ def __getattr__(name: str):
 
 
 def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_CORE_NAMES) | set(_APP_NAMES))
+    return sorted(set(globals()) | set(_CORE_NAMES) | set(_APP_NAMES) | set(_SUBMODULES))
 
 
 if TYPE_CHECKING:  # the same names for static tools (type checkers, the API reference)
-    from ._analytic import eigenfrequencies as eigenfrequencies
-    from ._analytic import mode_shape as mode_shape
-    from ._analytic import mode_shape_coefficients as mode_shape_coefficients
-    from ._analytic import paper_mode_shape as paper_mode_shape
+    from . import analytic as analytic
+    from . import io as io
+    from . import metrics as metrics
     from ._brute_force import SweepResult as SweepResult
     from ._brute_force import reduced_landscape as reduced_landscape
     from ._brute_force import sweep_dampers as sweep_dampers
@@ -155,11 +156,6 @@ if TYPE_CHECKING:  # the same names for static tools (type checkers, the API ref
     from ._interpolatory import band_shifts as band_shifts
     from ._interpolatory import irka_basis as irka_basis
     from ._interpolatory import rational_krylov_basis as rational_krylov_basis
-    from ._io import load_matrix as load_matrix
-    from ._io import save_matrix_market as save_matrix_market
-    from ._metrics import phase_error as phase_error
-    from ._metrics import pseudo_energy as pseudo_energy
-    from ._metrics import relative_error as relative_error
     from ._modal import modal_decomposition as modal_decomposition
     from ._objective_family import AbstractObjective as AbstractObjective
     from ._objective_family import AverageEnergy as AverageEnergy
@@ -193,7 +189,6 @@ if TYPE_CHECKING:  # the same names for static tools (type checkers, the API ref
     from ._solve import DenseExponential as DenseExponential
     from ._solve import Spectral as Spectral
     from ._solve import solve as solve
-    from ._solver_choice import choose_solver as choose_solver
     from ._sweep import grid as grid
     from ._sweep import sweep as sweep
     from ._system import SecondOrderSystem as SecondOrderSystem

@@ -301,8 +301,8 @@ def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | No
     ``solver``: "dopri8" (default; explicit, the most accurate per step), "tsit5", "dopri5",
     "kvaerno5" (L-stable implicit ESDIRK whose stage equations are solved exactly in the chain's
     O(n) structure: for stiff cases, large n or a strong damper), "auto", or a diffrax solver
-    instance (diffrax's own implicit solvers factor a dense 2n x 2n Jacobian). "auto" takes what
-    ``choose_solver(model, ts, load)`` says, from the structure: the exact spectral solution
+    instance (diffrax's own implicit solvers factor a dense 2n x 2n Jacobian). "auto" runs what
+    ``Auto().select(model, ts, load)`` returns, from the structure: the exact spectral solution
     (``exact_solve(method="spectral")``: no integration error, ``num_steps`` None) for a full
     system with discrete dampers and no load or a ``Pulse`` (an error where its modes fail, a
     refusal where its memory does not fit: never another path); otherwise "kvaerno5" when the

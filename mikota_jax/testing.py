@@ -4,7 +4,8 @@ the private modules:
 
 * ``stiffness_rate(system)``: rho = max(highest eigenfrequency, fastest damper decay rate), the
   host-side bound ``choose_solver`` compares with the horizon (Gershgorin bounds for a diagonal
-  mass, exact values otherwise);
+  mass, exact values otherwise); ``choose_solver(model, ts, load)``: the rule of ``Auto().select``
+  as a name ("exact", "kvaerno5", "dopri8");
 * ``Diagonal(diagonal)``, ``Dense(matrix)``, ``Sparse(rows, cols, values, n)``: the matrix
   operators a system holds (0-based coordinate indices for ``Sparse``, both triangles stored),
   to hand ``system`` an explicit form (e.g. a dense mass operator) instead of letting it choose
@@ -23,6 +24,7 @@ from ._modal import generalized_modes as generalized_modes
 from ._operators import Dense as Dense
 from ._operators import Diagonal as Diagonal
 from ._operators import Sparse as Sparse
+from ._solver_choice import choose_solver as choose_solver
 from ._solver_choice import stiffness_rate as stiffness_rate
 from ._spectral_objectives import spectral_energy_with_result as spectral_energy_with_result
 from ._spectral_solve import spectral_solve_with_result as spectral_solve_with_result
@@ -31,4 +33,4 @@ from ._viscosity import criterion_function as criterion_function
 
 __all__ = ["Dense", "Diagonal", "Sparse", "chain_mode_data", "chain_modes", "damped_modes",
            "dense_solve_with_result", "generalized_modes", "spectral_solve_with_result",
-           "spectral_energy_with_result", "stiffness_rate", "criterion_function"]
+           "spectral_energy_with_result", "stiffness_rate", "choose_solver", "criterion_function"]

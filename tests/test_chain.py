@@ -27,7 +27,7 @@ def exact_mode_matrix(n):
     """U[i-1, l-1] = p_l(i) in exact rational arithmetic (eq. 2.5)."""
     columns = []
     for l in range(1, n + 1):
-        c = mj.mode_shape_coefficients(n, l)
+        c = mj.analytic.mode_shape_coefficients(n, l)
         p = lambda i, c=c: sum(cj * Fraction(i) ** j for j, cj in enumerate(c))
         columns.append([p(i) for i in range(1, n + 1)])
     return [[columns[l][i] for l in range(n)] for i in range(n)]
@@ -109,14 +109,14 @@ def test_scipy_generalized_eigh_agrees_with_mikotas_conjecture(n, close):
 
 
 def test_eigenfrequencies_function_returns_l_sqrt_k_over_m(close):
-    close(mj.eigenfrequencies(4), [1.0, 2.0, 3.0, 4.0], rtol=0.0)
-    close(mj.eigenfrequencies(3, 4.0, 9.0), [1.5, 3.0, 4.5], rtol=1e-15)
-    close(mj.eigenfrequencies(1, m=2.0, k=8.0), [2.0], rtol=1e-15)
+    close(mj.analytic.eigenfrequencies(4), [1.0, 2.0, 3.0, 4.0], rtol=0.0)
+    close(mj.analytic.eigenfrequencies(3, 4.0, 9.0), [1.5, 3.0, 4.5], rtol=1e-15)
+    close(mj.analytic.eigenfrequencies(1, m=2.0, k=8.0), [2.0], rtol=1e-15)
 
 
 def test_eigenfrequencies_are_differentiable_in_m_and_k(close):
     # d/dm (l sqrt(k/m)) = -l sqrt(k/m) / (2m)
-    grad_m = jax.grad(lambda m: jnp.sum(mj.eigenfrequencies(3, m, 4.0)))(1.0)
+    grad_m = jax.grad(lambda m: jnp.sum(mj.analytic.eigenfrequencies(3, m, 4.0)))(1.0)
     close(grad_m, -(1 + 2 + 3) * 2.0 / 2.0, rtol=1e-14)
 
 
@@ -133,36 +133,36 @@ def parallel(a, b):
 @pytest.mark.parametrize("n", [3, 12, 40])
 def test_paper_mode_shapes_are_eigenvectors(n, l):
     _, vectors = generalized_eigenvectors(mj.mikota_chain(n, 2.0, 5.0))
-    assert parallel(mj.paper_mode_shape(n, l), vectors[:, l - 1]) < 1e-12
+    assert parallel(mj.analytic.paper_mode_shape(n, l), vectors[:, l - 1]) < 1e-12
 
 
 def test_every_polynomial_mode_shape_of_n_12_is_an_eigenvector():
     n = 12
     _, vectors = generalized_eigenvectors(mj.mikota_chain(n))
     for l in range(1, n + 1):
-        assert parallel(mj.mode_shape(n, l), vectors[:, l - 1]) < 1e-10, l
+        assert parallel(mj.analytic.mode_shape(n, l), vectors[:, l - 1]) < 1e-10, l
 
 
 @pytest.mark.parametrize("l", [1, 4, 17, 40])
 def test_high_polynomial_mode_shapes_of_n_40_are_eigenvectors(l):
     _, vectors = generalized_eigenvectors(mj.mikota_chain(40))
-    assert parallel(mj.mode_shape(40, l), vectors[:, l - 1]) < 1e-10
+    assert parallel(mj.analytic.mode_shape(40, l), vectors[:, l - 1]) < 1e-10
 
 
 def test_mode_shape_normalizations(close):
-    raw = mj.mode_shape(12, 3, normalize=None)
-    close(raw, mj.paper_mode_shape(12, 3), rtol=1e-13)
-    close(mj.mode_shape(12, 3), raw / np.max(np.abs(raw)), rtol=1e-15)
-    assert np.max(np.abs(mj.mode_shape(12, 3))) == 1.0
-    close(mj.mode_shape(5, 1), np.arange(1, 6) / 5, rtol=1e-15)
+    raw = mj.analytic.mode_shape(12, 3, normalize=None)
+    close(raw, mj.analytic.paper_mode_shape(12, 3), rtol=1e-13)
+    close(mj.analytic.mode_shape(12, 3), raw / np.max(np.abs(raw)), rtol=1e-15)
+    assert np.max(np.abs(mj.analytic.mode_shape(12, 3))) == 1.0
+    close(mj.analytic.mode_shape(5, 1), np.arange(1, 6) / 5, rtol=1e-15)
 
 
 @pytest.mark.parametrize("n", [7, 10])
 def test_mode_shape_coefficients_match_eq_2_6_exactly(n):
     two_n_plus_1 = Fraction(2 * n + 1)
-    assert mj.mode_shape_coefficients(n, 1) == (0, 1)
-    assert mj.mode_shape_coefficients(n, 2) == (0, -two_n_plus_1 / 3, 1)
-    assert mj.mode_shape_coefficients(n, 3) == (
+    assert mj.analytic.mode_shape_coefficients(n, 1) == (0, 1)
+    assert mj.analytic.mode_shape_coefficients(n, 2) == (0, -two_n_plus_1 / 3, 1)
+    assert mj.analytic.mode_shape_coefficients(n, 3) == (
         0, (Fraction(3, 2) * n * (n + 1) + 1) / 5, -Fraction(3, 5) * two_n_plus_1, 1)
 
 
@@ -192,7 +192,7 @@ def test_modal_matrix_gram_u_t_u_is_tridiagonal_exactly():
 
 def test_modal_matrix_gram_u_t_u_is_tridiagonal_in_floating_point():
     n = 12
-    U = np.stack([np.asarray(mj.mode_shape(n, l)) for l in range(1, n + 1)], axis=1)
+    U = np.stack([np.asarray(mj.analytic.mode_shape(n, l)) for l in range(1, n + 1)], axis=1)
     gram = U.T @ U
     scale = np.sqrt(np.outer(np.diag(gram), np.diag(gram)))
     far = np.abs(np.subtract.outer(np.arange(n), np.arange(n))) > 1
@@ -220,7 +220,7 @@ def test_mode_shapes_are_m_and_k_orthogonal_exactly_eq_2_7():
 def test_mode_shapes_are_m_and_k_orthogonal_in_floating_point(close):
     n, m, k = 20, 1.5, 0.5
     M, K = mass_stiffness(mj.mikota_chain(n, m, k))
-    U = np.stack([np.asarray(mj.mode_shape(n, l)) for l in range(1, n + 1)], axis=1)
+    U = np.stack([np.asarray(mj.analytic.mode_shape(n, l)) for l in range(1, n + 1)], axis=1)
     modal_mass, modal_stiffness = U.T @ M @ U, U.T @ K @ U
     d = np.sqrt(np.diag(modal_mass))
     close(modal_mass / np.outer(d, d), np.eye(n), atol=1e-12)
@@ -236,9 +236,10 @@ def test_mikota_chain_rejects_a_bad_n(n):
         mj.mikota_chain(n)
 
 
-@pytest.mark.parametrize("fn", [mj.eigenfrequencies, lambda n: mj.mode_shape(n, 1),
-                                lambda n: mj.paper_mode_shape(n, 1),
-                                lambda n: mj.mode_shape_coefficients(n, 1)])
+@pytest.mark.parametrize("fn", [mj.analytic.eigenfrequencies,
+                                lambda n: mj.analytic.mode_shape(n, 1),
+                                lambda n: mj.analytic.paper_mode_shape(n, 1),
+                                lambda n: mj.analytic.mode_shape_coefficients(n, 1)])
 @pytest.mark.parametrize("n", [0, 2.5, True])
 def test_analytic_functions_reject_a_bad_n(fn, n):
     with pytest.raises(ValueError, match="n must be an integer"):
@@ -248,17 +249,17 @@ def test_analytic_functions_reject_a_bad_n(fn, n):
 @pytest.mark.parametrize("l", [0, 6, 1.0, True])
 def test_mode_shape_rejects_a_mode_number_outside_1_to_n(l):
     with pytest.raises(ValueError, match="mode number l"):
-        mj.mode_shape(5, l)
+        mj.analytic.mode_shape(5, l)
 
 
 def test_paper_mode_shape_only_knows_l_up_to_3():
     with pytest.raises(ValueError, match="l = 1, 2, 3 only"):
-        mj.paper_mode_shape(6, 4)
+        mj.analytic.paper_mode_shape(6, 4)
 
 
 def test_mode_shape_rejects_an_unknown_normalization():
     with pytest.raises(ValueError, match="normalize"):
-        mj.mode_shape(5, 2, normalize="l2")
+        mj.analytic.mode_shape(5, 2, normalize="l2")
 
 
 @pytest.mark.parametrize("name", ["m", "k"])
@@ -267,7 +268,7 @@ def test_mikota_chain_rejects_non_positive_or_non_finite_m_and_k(name, value):
     with pytest.raises(ValueError, match=f"{name} must be finite and > 0"):
         mj.mikota_chain(4, **{name: value})
     with pytest.raises(ValueError, match=f"{name} must be finite and > 0"):
-        mj.eigenfrequencies(4, **{name: value})
+        mj.analytic.eigenfrequencies(4, **{name: value})
 
 
 @pytest.mark.parametrize("name", ["masses", "springs"])

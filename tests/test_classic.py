@@ -15,7 +15,7 @@ def test_modal_basis_gives_the_exact_free_vibration_of_a_kept_mode():
     system = mj.mikota_chain(20)
     basis = mj.modal_basis(system, 5)
     assert np.max(np.abs(basis.T @ basis - np.eye(5))) < 1e-12
-    x0 = mj.mode_shape(20, 3)
+    x0 = mj.analytic.mode_shape(20, 3)
     ts = jnp.linspace(0.0, 10.0, 101)
     rom = mj.exact_solve(mj.galerkin(system, basis), ts, x0).displacement
     exact = np.cos(3.0 * np.asarray(ts))[:, None] * np.asarray(x0)[None, :]
@@ -54,7 +54,7 @@ def test_the_static_correction_improves_on_modal_truncation_at_a_damper():
     # damper couples every mode; 12 columns, J relative error 6.1e-2 modal, 1.7e-4 with 10 modes
     # and the two static directions (measured)
     system = mj.mikota_chain(60, dampers=[mj.GroundedDamper(45.0, 5.0)])
-    x0 = sum(mj.mode_shape(60, l) for l in (1, 2, 3))
+    x0 = sum(mj.analytic.mode_shape(60, l) for l in (1, 2, 3))
     full = float(mj.integrated_energy(system, 20.0, x0))
     errors = {}
     for name, basis in (("modal", mj.modal_basis(system, 12)),

@@ -75,7 +75,7 @@ def mikota_free_vibration(n, m, k, ts, x0, v0):
     """(x, v) of Mikota's undamped chain from its closed forms, omega_l = l sqrt(k/m) (eq. 2.4) and
     the polynomial mode shapes u_l (eq. 2.5): x = sum_l u_l (a_l cos w_l t + b_l sin w_l t / w_l).
     """
-    modes = np.stack([np.asarray(mj.mode_shape(n, l)) for l in range(1, n + 1)], axis=1)
+    modes = np.stack([np.asarray(mj.analytic.mode_shape(n, l)) for l in range(1, n + 1)], axis=1)
     mass = m / np.arange(1, n + 1)
     weight = np.einsum("il,i,il->l", modes, mass, modes)
     a, b = (modes.T @ (mass * x0)) / weight, (modes.T @ (mass * v0)) / weight
@@ -423,14 +423,14 @@ HORIZON = np.linspace(0.0, 1e4 / OMEGA, 2001)  # the shape of LONG: no new compi
 
 @pytest.mark.parametrize("l", [1, 3, N])
 def test_a_mode_shape_oscillates_as_cos_l_omega_t_in_exact_solve_up_to_1e4_over_omega(l, close):
-    u = np.asarray(mj.mode_shape(N, l))
+    u = np.asarray(mj.analytic.mode_shape(N, l))
     out = mj.exact_solve(mj.mikota_chain(N, M_, K_), HORIZON, u, velocity=True)
     close(out.displacement, np.cos(l * OMEGA * HORIZON)[:, None] * u, atol=1e-9)  # 6e-11 seen
 
 
 @pytest.mark.parametrize("l", [1, 3])
 def test_dopri8_up_to_1e4_over_omega_loses_no_more_phase_than_rtol_per_radian(l):
-    u = np.asarray(mj.mode_shape(N, l))
+    u = np.asarray(mj.analytic.mode_shape(N, l))
     out = mj.simulate(mj.mikota_chain(N, M_, K_), HORIZON, u, velocity=True)  # rtol 1e-8
     error = np.max(np.abs(np.asarray(out.displacement) - np.cos(l * OMEGA * HORIZON)[:, None] * u))
     assert error < 1e-8 * l * 1e4  # measured: 1.2e-7 (l = 1), 1.5e-5 (l = 3)

@@ -280,9 +280,9 @@ def test_a_superscript_dof_key_is_refused_naming_the_table(tmp_path, capsys):
 
 def test_a_directory_given_as_a_matrix_file_is_named_a_directory(tmp_path):
     with pytest.raises(ValueError, match="is a directory"):
-        mj.load_matrix(tmp_path)
+        mj.io.load_matrix(tmp_path)
     with pytest.raises(ValueError, match="does not exist"):
-        mj.load_matrix(tmp_path / "missing.npz")
+        mj.io.load_matrix(tmp_path / "missing.npz")
 
 
 def test_the_runtime_running_out_of_memory_is_one_line(tmp_path, capsys, monkeypatch):

@@ -35,7 +35,7 @@ def single_mode(request):
     """Snapshots of an undamped Mikota chain released from its l-th mode: x(t) = u_l cos(l t)."""
     n, l = request.param
     ts = np.linspace(0.0, 20.0, 2001)
-    shape = np.asarray(mj.mode_shape(n, l))
+    shape = np.asarray(mj.analytic.mode_shape(n, l))
     q = mj.exact_solve(mj.mikota_chain(n), ts, shape).displacement.T
     return n, l, ts, shape, q
 

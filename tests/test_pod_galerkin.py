@@ -21,7 +21,7 @@ def test_pod_recovers_a_known_svd(close):
     close(result.modes.T @ result.modes, np.eye(n), atol=1e-14)
     largest = np.asarray(result.modes)[np.argmax(np.abs(result.modes), axis=0), np.arange(n)]
     assert np.all(largest > 0)
-    close(mj.pseudo_energy(result.singular_values), np.sum(s**2), rtol=1e-13)  # eq. (3.7)
+    close(mj.metrics.pseudo_energy(result.singular_values), np.sum(s**2), rtol=1e-13)  # eq. (3.7)
 
 
 def test_pod_basis_is_the_leading_modes(close):
@@ -50,7 +50,7 @@ def test_first_mode_excitation_gives_rank_one_snapshots_with_pom_1_parallel_to_i
     # Section 4: n = 10, m = k = 1, x(0) = u_1, t in [0, 20] with dt = 0.01
     n = 10
     ts = np.linspace(0.0, 20.0, 2001)
-    q = mj.exact_solve(mj.mikota_chain(n), ts, mj.mode_shape(n, 1)).displacement.T
+    q = mj.exact_solve(mj.mikota_chain(n), ts, mj.analytic.mode_shape(n, 1)).displacement.T
     result = mj.pod(q)
     assert result.numerical_rank() == 1
     s = np.asarray(result.singular_values)
@@ -123,29 +123,30 @@ def test_phase_error_eq_5_4_by_hand(close):
     xr = jnp.array([[3.0, 1.0], [1.0, 1.0]])
     vr = jnp.array([[0.0, 4.0], [0.0, 1.0]])
     # instant 1: sqrt(1 / 25) = 0.2; instant 2: sqrt(1 / 4) = 0.5
-    close(mj.phase_error(x, v, xr, vr, aggregate="none"), [0.2, 0.5], rtol=1e-15)
-    close(mj.phase_error(x, v, xr, vr, aggregate="max"), 0.5, rtol=1e-15)
-    close(mj.phase_error(x, v, xr, vr), np.sqrt(2 / 29), rtol=1e-15)  # default: ratio of sums
-    close(mj.phase_error(x, v, xr, vr, aggregate="mean"), 0.35, rtol=1e-15)
-    close(mj.phase_error(x, v, xr, vr, aggregate="sum"), np.sqrt(2 / 29), rtol=1e-15)
-    close(mj.phase_error(x, v, x, v), 0.0, atol=0.0)
+    close(mj.metrics.phase_error(x, v, xr, vr, aggregate="none"), [0.2, 0.5], rtol=1e-15)
+    close(mj.metrics.phase_error(x, v, xr, vr, aggregate="max"), 0.5, rtol=1e-15)
+    # the default: the ratio of sums
+    close(mj.metrics.phase_error(x, v, xr, vr), np.sqrt(2 / 29), rtol=1e-15)
+    close(mj.metrics.phase_error(x, v, xr, vr, aggregate="mean"), 0.35, rtol=1e-15)
+    close(mj.metrics.phase_error(x, v, xr, vr, aggregate="sum"), np.sqrt(2 / 29), rtol=1e-15)
+    close(mj.metrics.phase_error(x, v, x, v), 0.0, atol=0.0)
 
 
 def test_relative_error_by_hand(close):
     reference = jnp.array([[3.0, 0.0], [0.0, 4.0]])
-    close(mj.relative_error(reference, reference + jnp.array([[0.0, 1.0], [0.0, 0.0]])), 0.2,
-          rtol=1e-15)
-    close(mj.relative_error(reference, 2 * reference), 1.0, rtol=1e-15)
+    close(mj.metrics.relative_error(reference, reference + jnp.array([[0.0, 1.0], [0.0, 0.0]])),
+          0.2, rtol=1e-15)
+    close(mj.metrics.relative_error(reference, 2 * reference), 1.0, rtol=1e-15)
 
 
 def test_metrics_reject_mismatched_shapes_and_aggregates():
     a = jnp.ones((3, 2))
     with pytest.raises(ValueError, match="reduced_displacement"):
-        mj.phase_error(a, a, jnp.ones((3, 3)), a)
+        mj.metrics.phase_error(a, a, jnp.ones((3, 3)), a)
     with pytest.raises(ValueError, match="aggregate must be one of"):
-        mj.phase_error(a, a, a, a, aggregate="median")
+        mj.metrics.phase_error(a, a, a, a, aggregate="median")
     with pytest.raises(ValueError, match="approximation"):
-        mj.relative_error(a, jnp.ones(2))
+        mj.metrics.relative_error(a, jnp.ones(2))
 
 
 # --- Galerkin reduction -------------------------------------------------------------------------
@@ -218,12 +219,13 @@ def test_pod_galerkin_error_in_the_snapshot_window_is_small_and_decreases_with_r
     for rank in (2, 4, 6):
         reduced = mj.galerkin(damped, result.basis(rank))
         out = mj.exact_solve(reduced, TS, x0, velocity=True)
-        errors.append(float(mj.phase_error(full.displacement, full.velocity, out.displacement,
-                                           out.velocity, aggregate="sum")))
+        errors.append(float(mj.metrics.phase_error(full.displacement, full.velocity,
+                                                   out.displacement, out.velocity,
+                                                   aggregate="sum")))
         # the displacement error can't beat the best approximation from the same span
         best = full.displacement @ result.basis(rank) @ result.basis(rank).T
-        assert (mj.relative_error(full.displacement, out.displacement)
-                >= mj.relative_error(full.displacement, best) * (1 - 1e-9))
+        assert (mj.metrics.relative_error(full.displacement, out.displacement)
+                >= mj.metrics.relative_error(full.displacement, best) * (1 - 1e-9))
     assert errors[0] > errors[1] > errors[2]
     assert errors[2] < 1e-2, errors
 

@@ -156,7 +156,7 @@ def test_a_reduced_scene_reports_rank_singular_values_and_phase_error():
     s = np.asarray(result.basis.pod.singular_values)
     assert result.rank == mj.rank_for_energy(s, 0.999) and 1 <= result.rank < 12
     full, reduced = result.full, result.reduced
-    expected = mj.phase_error(full.displacement, full.velocity, reduced.displacement,
+    expected = mj.metrics.phase_error(full.displacement, full.velocity, reduced.displacement,
                               reduced.velocity, aggregate="sum")
     phase = float(result.metrics["phase_error"])
     assert phase == pytest.approx(float(expected), rel=1e-12)

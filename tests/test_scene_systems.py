@@ -83,7 +83,7 @@ def test_custom_matrices_from_files_reproduce_mikotas_scene(files, mikota_result
     np.testing.assert_allclose(mass, M, rtol=0, atol=1e-15)
     np.testing.assert_allclose(stiffness, K, rtol=0, atol=1e-14)
     np.testing.assert_allclose(damping, D, rtol=0, atol=1e-14)
-    np.testing.assert_allclose(np.asarray(scene.x0), np.asarray(mj.mode_shape(N, 2)),
+    np.testing.assert_allclose(np.asarray(scene.x0), np.asarray(mj.analytic.mode_shape(N, 2)),
                                rtol=0, atol=1e-12)  # "mode 2": eigh, normalised as eq. (2.5)
     result = mj.run_scene(scene)
     np.testing.assert_allclose(displacement(result), mikota_result, rtol=0, atol=1e-10)
@@ -107,12 +107,12 @@ def test_inline_dense_rows_and_a_custom_chains_modes_follow_eigh():
     scene = mj.load_scene(f'[chain]\ntype = "custom"\nmass = {toml_list(1.0 / DOFS)}\n'
                           f"stiffness = {rows}\n" + REST.replace("mode 2", "mode 5"))
     np.testing.assert_array_equal(np.asarray(scene.system.dense()[2]), K)
-    np.testing.assert_allclose(np.asarray(scene.x0), np.asarray(mj.mode_shape(N, 5)),
+    np.testing.assert_allclose(np.asarray(scene.x0), np.asarray(mj.analytic.mode_shape(N, 5)),
                                rtol=0, atol=1e-12)
     chain = mj.load_scene('[chain]\ntype = "custom"\n'
                           f"masses = {toml_list(1.0 / DOFS)}\nsprings = {toml_list(SPRINGS)}\n"
                           + REST.replace("mode 2", "mode 7"))
-    np.testing.assert_allclose(np.asarray(chain.x0), np.asarray(mj.mode_shape(N, 7)),
+    np.testing.assert_allclose(np.asarray(chain.x0), np.asarray(mj.analytic.mode_shape(N, 7)),
                                rtol=0, atol=1e-12)
 
 
@@ -227,7 +227,7 @@ def test_a_rayleigh_damped_first_mode_decays_as_one_damped_oscillator():
     wd = w * np.sqrt(1 - zeta**2)
     t = np.asarray(result.times)
     envelope = np.exp(-zeta * w * t) * (np.cos(wd * t) + zeta * w / wd * np.sin(wd * t))
-    exact = envelope[:, None] * np.asarray(mj.mode_shape(N, 1))[None, :]
+    exact = envelope[:, None] * np.asarray(mj.analytic.mode_shape(N, 1))[None, :]
     np.testing.assert_allclose(displacement(result), exact, rtol=0, atol=1e-12)
 
 

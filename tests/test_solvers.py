@@ -198,7 +198,7 @@ def test_simulate_with_a_user_load_function_matches_solve_ivp(damped, close):
 
 def test_reduced_model_on_the_span_of_three_modes_is_exact_in_both_solvers(undamped, close):
     # x0 in span(u_1, u_2, u_3): the Galerkin model on that span carries the exact solution
-    U = np.stack([np.asarray(mj.mode_shape(N, l)) for l in (1, 2, 3)], axis=1)
+    U = np.stack([np.asarray(mj.analytic.mode_shape(N, l)) for l in (1, 2, 3)], axis=1)
     basis, _ = np.linalg.qr(U)
     reduced = mj.galerkin(undamped, jnp.asarray(basis))
     amplitudes = np.array([1.0, -0.5, 0.25])

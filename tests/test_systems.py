@@ -152,7 +152,7 @@ def test_mikota_chain_as_user_matrices_gives_the_same_solution(form, structure):
     system = mj.system(mass, stiffness, dampers=[DAMPER],
                        internal_damping=mj.Rayleigh(0.05, 0.002))
     assert (type(system.mass), type(system.stiffness)) == structure
-    x0 = jnp.asarray(mj.mode_shape(N, 2))
+    x0 = jnp.asarray(mj.analytic.mode_shape(N, 2))
     expected = mj.exact_solve(reference, TS, x0=x0).displacement
     np.testing.assert_allclose(mj.exact_solve(system, TS, x0=x0).displacement, expected,
                                atol=1e-12)
@@ -388,7 +388,7 @@ def test_sensitivities_of_a_custom_scene_name_the_internal_damping_parameters():
 
 def test_damper_problem_keeps_the_internal_damping():
     system = mj.mikota_chain(N, dampers=[DAMPER], internal_damping=mj.Rayleigh(0.05, 0.01))
-    x0 = jnp.asarray(mj.mode_shape(N, 1))
+    x0 = jnp.asarray(mj.analytic.mode_shape(N, 1))
     problem = mj.DamperProblem(system, TS, x0=x0)
     expected = mj.integrated_energy(system, float(TS[-1]), x0=x0)
     full = mj.placement_objective(problem)(jnp.array([3.0]), jnp.array([0.4]))

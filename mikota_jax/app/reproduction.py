@@ -21,16 +21,9 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from .. import (
-    exact_solve,
-    galerkin,
-    mikota_chain,
-    modal_decomposition,
-    mode_shape,
-    paper_mode_shape,
-    phase_error,
-    pod,
-)
+from .. import exact_solve, galerkin, mikota_chain, modal_decomposition, pod
+from ..analytic import mode_shape, paper_mode_shape
+from ..metrics import phase_error
 from . import figures
 from .results import write_json
 from .scene_file import load_scene

@@ -20,14 +20,14 @@ from .. import (
     SecondOrderSystem,
     branched_chain,
     chain,
-    load_matrix,
     mikota_chain,
     modal_decomposition,
-    mode_shape,
     system,
 )
 from .._custom_types import Vector
 from .._errors import BYTES_PER_DOF, MARK, available_bytes
+from ..analytic import mode_shape
+from ..io import load_matrix
 from .toml_checks import choice as _choice
 from .toml_checks import fail as _fail
 from .toml_checks import is_number as _is_number
