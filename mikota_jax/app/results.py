@@ -87,7 +87,8 @@ def run_summary(result: SceneResult, out: Path, figures=()) -> str:
     if stages:
         lines.append("  " + ", ".join(stages))
     lines.append(f"wrote {out / 'results.json'}"
-                 + (f" and {len(figures)} figure(s): {', '.join(figures)}" if figures else ""))
+                 + (f" and {len(figures)} figure(s): {', '.join(figures)}" if figures else
+                    " (for figures: figures = true in the scene's [output] table)"))
     return "\n".join(lines)
 
 
