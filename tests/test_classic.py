@@ -49,6 +49,7 @@ def test_modal_static_basis_holds_the_static_response_of_every_damper_direction(
     assert mj.modal_static_basis(system, 6, loads=load).shape == (30, 10)
 
 
+@pytest.mark.slow
 def test_the_static_correction_improves_on_modal_truncation_at_a_damper():
     # n = 60, c = 5 at DOF 45, started in modes 1-3 (which modal truncation holds exactly): the
     # damper couples every mode; 12 columns, J relative error 6.1e-2 modal, 1.7e-4 with 10 modes

@@ -181,6 +181,7 @@ def test_the_optimiser_finds_the_one_mass_trace_optimum_at_critical_damping(clos
     close(result.value, 2.0, rtol=1e-13)
 
 
+@pytest.mark.slow
 def test_jit_vmap_and_grad_agree_with_the_eager_values_at_the_critical_point(close):
     make, _, x0, v0 = CASES["one mass"]
     cs = jnp.array([probe("one mass", d) for d in (0.0, 1e-12, -1e-8, 1e-2)])
@@ -200,6 +201,7 @@ def test_jit_vmap_and_grad_agree_with_the_eager_values_at_the_critical_point(clo
     pytest.param(mj.chain(np.ones(4), np.ones(4), [mj.GroundedDamper(3.0, 1.0)]),
                  id="damper on a node", marks=pytest.mark.slow),
 ])
+@pytest.mark.slow
 def test_an_undamped_mode_makes_the_trace_refuse_eagerly_and_under_jit(system):
     with pytest.raises(ValueError, match="undamped"):
         mj.total_average_energy(system)
@@ -260,6 +262,7 @@ def test_a_random_oscillator_near_its_critical_point_keeps_its_exact_energy(case
     assert value == pytest.approx(truth, rel=1e-12)
 
 
+@pytest.mark.slow
 def test_the_refusal_names_the_undamped_mode_eagerly():
     # four equal masses: mode 2 has a node at DOF 3, where the damper sits
     system = mj.chain(np.ones(4), np.ones(4), [mj.GroundedDamper(3.0, 1.0)])
@@ -319,7 +322,8 @@ def test_a_mode_no_damper_reaches_is_refused_by_the_trace_and_kept_by_the_energy
     assert 0.0 < value <= T * (x0 @ k @ x0 + v0 @ m @ v0) / 2 * (1 + 1e-12)
 
 
-@pytest.mark.parametrize("c", [1.0, 10.0, 17.0, 100.0])
+@pytest.mark.parametrize("c", [17.0] + [pytest.param(c, marks=pytest.mark.slow)
+                                         for c in (1.0, 10.0, 100.0)])
 def test_a_damper_on_the_node_of_two_modes_keeps_the_exact_energy(c):
     # uniform n = 7 chain: modes 2 and 5 vanish at DOF 5, so two roots sit on their poles while
     # the Aberth sweep runs (once, a root anchored to such a mode made every root NaN); truths:

@@ -85,6 +85,7 @@ def test_a_grounded_and_a_relative_damper_moved_together_reach_the_enumerations_
     assert float(mj.total_average_energy(check, LOWEST)) == pytest.approx(found.value, rel=1e-12)
 
 
+@pytest.mark.slow
 def test_a_relative_damper_alone_moves_among_candidate_pairs():
     # it starts at (2, 3), no candidate: on the nearest one, (1, 4)
     pairs = [(1, 4), (5, 9), (6, 12), (1, 12)]
@@ -130,6 +131,7 @@ def test_fewer_candidate_pairs_than_relative_dampers_is_refused_in_one_line():
         mj.place_dampers(system, pair_candidates=[(1, 3)])
 
 
+@pytest.mark.slow
 def test_dampers_off_the_candidates_start_on_the_nearest_free_ones_and_end_on_candidates():
     # dampers at DOFs 2 and 5, candidates 3 and 4: the only placement is (3, 4); before, the
     # DOF-5 damper could not move (3 taken by the other) and came back at 5, no candidate

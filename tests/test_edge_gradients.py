@@ -34,6 +34,7 @@ def central(f, x, h):
     return (f(x + h) - f(x - h)) / (2 * h)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("coefficient", [pytest.param(0.0, marks=pytest.mark.slow), 1e-8, 1e-4])
 def test_the_coefficient_gradient_is_finite_and_right_as_the_damper_vanishes(coefficient, close):
     grad_p, grad_c = jax.grad(energy, argnums=(0, 1))(4.5, coefficient)
@@ -50,6 +51,7 @@ def test_the_coefficient_gradient_is_finite_and_right_as_the_damper_vanishes(coe
               atol=noise)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("position, side", [(1.0, 1), (float(N), -1)])
 def test_position_gradients_at_the_chain_ends_are_the_inward_one_sided_derivatives(
         position, side, close):

@@ -34,6 +34,7 @@ def case():
     return scene, mj.sensitivities(scene, "energy", wrt=WRT), mj.enriched_reduce(scene, WRT)
 
 
+@pytest.mark.slow
 def test_enriched_basis_gives_the_full_gradient_where_plain_pod_does_not(case):
     # r = 30: the plain POD ROM's J is 4e-3 off but its dJ/dp 34x and dJ/dc 55 % (measured);
     # the enriched ROM's 9.4e-5 and 5.2e-6

@@ -18,7 +18,9 @@ ROOT = Path(__file__).resolve().parent.parent
 PAGES = ["README.md", "docs/index.md", "docs/paper.md", "docs/placement.md",
          "docs/sensitivities.md", "docs/reduced_models.md", "docs/own_matrices.md",
          "docs/numerics.md", "docs/stability.md", "docs/architecture.md"]
-SLOW = {"docs/placement.md", "docs/sensitivities.md", "docs/reduced_models.md"}
+# own_matrices.md also runs, with its gradient checked, in test_systems
+SLOW = {"docs/placement.md", "docs/sensitivities.md", "docs/reduced_models.md",
+        "docs/own_matrices.md"}
 # pages whose every block another test runs, checking what it computes: page -> block count
 RUN_ELSEWHERE = {"README.md": 1, "docs/index.md": 3}  # tests/test_docs.py
 

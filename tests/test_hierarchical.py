@@ -57,6 +57,7 @@ def test_the_estimate_is_above_the_true_error_and_within_safety_times_it(case):
         assert float(e.relative) >= true / j
 
 
+@pytest.mark.slow
 def test_the_fine_space_holds_the_basis_and_the_damper_moments(case):
     x0, nominal, basis = case
     estimator = mj.HierarchicalEstimator(nominal, basis, modes=20, moments=2)
@@ -83,6 +84,7 @@ def smooth():
     return basis[:, :3] @ jnp.ones(3), nominal, basis
 
 
+@pytest.mark.slow
 def test_a_reduced_basis_with_the_dampers_moments_is_estimated_and_nested(smooth):
     x0, nominal, basis = smooth
     estimator = mj.HierarchicalEstimator(nominal, basis, modes=24, moments=3, basis_moments=2)
@@ -108,6 +110,7 @@ def test_a_reduced_basis_with_the_dampers_moments_is_estimated_and_nested(smooth
         mj.HierarchicalEstimator(nominal, basis, moments=1, basis_moments=2)
 
 
+@pytest.mark.slow
 def test_the_estimate_runs_under_jit_and_vmap_over_designs(case):
     x0, nominal, basis = case
     estimator = mj.HierarchicalEstimator(nominal, basis, modes=24)
@@ -122,6 +125,7 @@ def test_the_estimate_runs_under_jit_and_vmap_over_designs(case):
 
 # the default run takes one design (between DOFs) of one basis: each variant costs ~35 s
 # with its compile (default-run time, CI under 15 min); the four designs of both are slow
+@pytest.mark.slow
 @pytest.mark.parametrize("basis_moments, designs", [
     pytest.param(0, DESIGNS, marks=pytest.mark.slow),
     pytest.param(2, DESIGNS, marks=pytest.mark.slow), (2, DESIGNS[3:])])
@@ -221,6 +225,7 @@ def small_scene(x0, position=7.0, coefficient=1.0):
         "time": {"end": T, "step": 0.05}, "reduction": {"snapshots": [0.0, 10.0], "rank": 6}})
 
 
+@pytest.mark.slow
 def test_certified_sweep_uses_the_full_model_only_where_the_estimate_misses(smooth):
     x0, _, basis = smooth
     scene = small_scene(np.asarray(x0))

@@ -80,6 +80,7 @@ def section5():
     return scene, system, force, mj.irka_basis(system, 98, force, 20.0)
 
 
+@pytest.mark.slow
 def test_irka_settles_on_section5_and_its_model_has_the_full_j(section5):
     # measured: settles in 4 iterations; J 6.2e-5 off at r = 98 (POD: 1.8e-7; shifts spread
     # over the band without the iteration: 3.1e-2)

@@ -65,6 +65,7 @@ def test_peak_is_the_smooth_peak_of_the_exact_response():
     assert float(value) == pytest.approx(truth, rel=1e-12)
 
 
+@pytest.mark.slow
 def test_objectives_take_reduced_models_and_pass_through_vmap():
     # a Galerkin model on all modes is the full model: the same J to rounding
     system = mj.mikota_chain(6, dampers=[mj.GroundedDamper(2.0, 0.8)])

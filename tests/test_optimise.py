@@ -41,6 +41,7 @@ def full_basis(n=N):
     return jnp.eye(n)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("position", [pytest.param(4.0, marks=pytest.mark.slow),
                                       pytest.param(4.3, marks=pytest.mark.slow), 1.0,
                                       float(N)])  # 4.0, 4.3: default-run time

@@ -179,6 +179,7 @@ def test_over_wide_ranges_the_energy_integral_is_bounded_and_the_energy_never_gr
     assert np.all(np.diff(e) <= 1e-10 * e0), np.max(np.diff(e)) / e0
 
 
+@pytest.mark.slow
 @WIDE
 @given(case=wide_chains())
 def test_over_wide_ranges_the_exact_and_dopri8_energies_agree_where_both_apply(case, close):

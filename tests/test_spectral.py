@@ -229,6 +229,7 @@ def test_internal_damping_diagonal_in_modes_matches_the_refined_dense_eigenvalue
     assert_same_roots(np.asarray(modes.eigenvalues), physical_roots(system), 1e-10)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("internal", [pytest.param("rayleigh", marks=pytest.mark.slow), "modal",
                                       pytest.param("overdamped", marks=pytest.mark.slow)])
 def test_the_spectral_energy_with_internal_damping_equals_the_van_loan_energy(internal, close):
@@ -357,6 +358,7 @@ def test_the_trace_gradient_matches_central_differences(close):
         close(g, (trace(*plus) - trace(*minus)) / (2 * h), rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_a_mode_no_damper_touches_makes_the_trace_not_exist():
     system = mj.mikota_chain(60, dampers=[mj.GroundedDamper(60.0, 2.0)])
     for method in ("exact", "spectral"):
@@ -374,6 +376,7 @@ def triple_chain(n1, viscosities):
         internal_damping=mj.ModalDamping(0.02))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("d1", [10.1, pytest.param(13.6, marks=pytest.mark.slow)])
 def test_a_settled_root_whose_residual_shows_cancellation_is_accepted_and_right(d1):
     # n = 151: one real root (-1.617 at d_1 = 10.1) settles to the last bit while |phi_J| stays

@@ -56,6 +56,7 @@ def test_the_large_chain_response_equals_the_spectral_and_the_dense_one():
                 assert float(jnp.max(jnp.abs(mine - truth))) <= 1e-10 * scale
 
 
+@pytest.mark.slow
 def test_the_large_chain_response_has_the_derivatives_of_the_system():
     def output(design):
         system = chain(design[0], design[1], design[2], design[3])

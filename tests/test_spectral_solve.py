@@ -244,6 +244,7 @@ def test_gradients_match_central_differences_and_the_dense_path(position, close)
     close(grad[2][4], by_x, rtol=1e-7)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("internal", [mj.Rayleigh(0.05, 0.002),
                                       pytest.param(mj.ModalDamping(0.01), marks=pytest.mark.slow)])
 def test_internal_damping_diagonal_in_modes_takes_the_spectral_path_and_matches_dense(internal,

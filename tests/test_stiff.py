@@ -206,6 +206,7 @@ def test_a_damper_rate_beyond_the_dense_energys_range_is_refused_and_the_spectra
         assert energy > e0 * 20.0 * (1 - 1e-6), (d, energy)
 
 
+@pytest.mark.slow
 def test_the_dense_energy_is_refused_where_rounding_would_cost_it_its_digits(close):
     # issue 18: n = 30, T = 20, damper at DOF 7; the dense energy was 533.9 at d = 1e13 and 569
     # (above E0 T = 550) at 1e14, with no error

@@ -386,6 +386,7 @@ def test_sensitivities_of_a_custom_scene_name_the_internal_damping_parameters():
     np.testing.assert_allclose(result.normalised["amplitude"], 2.0, rtol=1e-12)  # J ~ a^2
 
 
+@pytest.mark.slow
 def test_damper_problem_keeps_the_internal_damping():
     system = mj.mikota_chain(N, dampers=[DAMPER], internal_damping=mj.Rayleigh(0.05, 0.01))
     x0 = jnp.asarray(mj.analytic.mode_shape(N, 1))

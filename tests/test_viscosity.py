@@ -34,6 +34,7 @@ def criterion():
     return lambda d: tuple(np.asarray(a, dtype=float) for a in function(np.asarray(d)))
 
 
+@pytest.mark.slow
 def test_the_optimum_of_a_grounded_and_a_relative_damper_is_scipys_and_the_grids(
         optimum, criterion, close):
     assert optimum.converged and optimum.relative_gradient < 1e-6, optimum.status
@@ -99,6 +100,7 @@ def test_a_damper_pinned_at_zero_is_fixed_and_the_other_reaches_its_lone_optimum
     assert nothing.coefficients.tolist() == [1.0, 2.0]
 
 
+@pytest.mark.slow
 def test_a_damper_pinned_at_zero_that_leaves_a_mode_undamped_is_one_line_not_an_optimum():
     # Mikota's n = 4 chain: DOF 3 is a node of mode 2, so with the DOF-1 damper pinned at 0 mode
     # 2 is undamped and the trace infinite: no finite optimum may be reported
@@ -201,6 +203,7 @@ def test_truhar_veselic_triple_chain_optimum_is_the_dense_lyapunov_optimum(close
     assert result.value < dense(np.log(start))
 
 
+@pytest.mark.slow
 def test_the_smooth_peak_optimum_is_the_dense_exponentials_optimum(close):
     n, dof, ts = 8, 8, np.linspace(0.0, 10.0, 201)
     x0 = np.zeros(n)
