@@ -58,22 +58,21 @@ def _validate(masses, springs):
     return masses, springs
 
 
-def _qd(masses, springs, xp=jnp):
+def _qd(masses, springs):
     """(q, e, t) of T = M^-1/2 K M^-1/2 in work order: T = L D L^T, D = diag(q), e_j = l_j^2 q_j,
-    off-diagonal t_j = l_j q_j (each entry one rounding from the data). ``xp``: jax.numpy or
-    numpy (host-side, no compile per shape)."""
+    off-diagonal t_j = l_j q_j (each entry one rounding from the data)."""
     m, k = masses[::-1], springs[::-1]
-    return k / m, k[:-1] / m[1:], -k[:-1] / xp.sqrt(m[:-1] * m[1:])
+    return k / m, k[:-1] / m[1:], -k[:-1] / jnp.sqrt(m[:-1] * m[1:])
 
 
-def _bracket(masses, springs, xp=jnp):
+def _bracket(masses, springs):
     """(lower, upper) with every eigenvalue inside: 1 / trace T^-1 and trace T, with margins.
 
     trace T^-1 = ||C^-1||_F^2 = sum_i m_i sum_{j <= i} 1 / k_j (C^-1 = M^1/2 L^-1 diag(k^-1/2),
     L^-1 all ones below the diagonal): sums of positive terms, so both bounds are accurate.
     """
-    flexibility = xp.sum(masses * xp.cumsum(1 / springs))
-    trace = xp.sum(springs / masses) + xp.sum(springs[1:] / masses[:-1])
+    flexibility = jnp.sum(masses * jnp.cumsum(1 / springs))
+    trace = jnp.sum(springs / masses) + jnp.sum(springs[1:] / masses[:-1])
     return 0.5 / flexibility, 2 * trace
 
 
@@ -406,7 +405,6 @@ def unchecked_chain_mode_data(masses: Vector, springs: Vector, rows, vectors, ch
     return _mode_data(masses, springs, rows, vectors, jnp.zeros((min(chunk, n), 0)))
 
 
-@eqx.filter_jit
 def _lowest_of_pieces(q, e, t, lower, upper, count: int):
     """Per piece (rows of the (pieces, N) qd data, padded): the ``count`` lowest eigenvalues
     and their unit eigenvectors of L D L^T, in work order."""

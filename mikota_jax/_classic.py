@@ -54,12 +54,13 @@ def _check(system, rank: int) -> None:
 
 def modal_basis(system: SecondOrderSystem, rank: int) -> Basis:
     """The r = ``rank`` lowest undamped modes of ``system`` as an (n, r) orthonormal basis. For
-    a fixed-free chain of n >= 256 O(n r): only those r modes, by bisection
-    and twisted factorisations (``held_chain_modes`` with nothing held), never the n x n ones."""
+    a fixed-free chain of n >= 256, eagerly and under ``jit``, O(n r): only those r modes, by
+    bisection and twisted factorisations (``held_chain_modes`` with nothing held), never the
+    n x n ones."""
     _check(system, rank)
     chain = _long_chain(system)
     if chain is not None:
-        modes = jnp.asarray(held_chain_modes(*chain, [], rank)[1])
+        modes = held_chain_modes(*chain, [], rank)[1]
     else:
         modes = modal_decomposition(system)[1][:, :rank]
     q, _ = jnp.linalg.qr(modes)
@@ -232,7 +233,7 @@ def fixed_interface_modes(system: SecondOrderSystem, interface, rank: int) -> jn
                          f"interface constraints), got {rank!r}.")
     chain = _long_chain(system)
     if held is not None and chain is not None:
-        return jnp.asarray(held_chain_modes(*chain, held, rank)[1])
+        return held_chain_modes(*chain, held, rank)[1]
     stiffness, mass = system.stiffness.as_matrix(), system.mass.as_matrix()
     if held is not None:
         stiffness, mass = stiffness[np.ix_(keep, keep)], mass[np.ix_(keep, keep)]
