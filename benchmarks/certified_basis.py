@@ -73,7 +73,8 @@ def state_errors(scene, basis, design) -> tuple[float, float]:
     kx = np.stack([np.asarray(system.stiffness.mv(jnp.asarray(row))) for row in ex])
     mv = ev * np.asarray(system.mass.diagonal)[None, :]
     true = float(np.sqrt(np.max(np.sum(ex * kx, axis=1) + np.sum(ev * mv, axis=1))))
-    return true, float(mj.error_bound(system, basis, float(scene.ts[-1]), scene.x0).state)
+    bound = mj.estimate(system, mj.ResidualBound(basis), float(scene.ts[-1]), scene.x0)
+    return true, float(bound.state)
 
 
 def plot(data: dict, quick: bool):
@@ -128,7 +129,7 @@ def main(argv=None) -> dict:
           f"solves, {offline:.1f} s", flush=True)
 
     points = random_designs(50 if args.quick else RANDOM)
-    bounds, bound_s = swept(mj.BoundFunction(scene, greedy.basis), points)
+    bounds, bound_s = swept(mj._greedy.BoundFunction(scene, greedy.basis), points)
     full, full_s = swept(mj.SceneFunction(scene, "energy"), points)
     relative = mj._greedy.relative_bounds(bounds)
     true = np.abs(bounds[:, 0] - full) / full
@@ -153,7 +154,8 @@ def main(argv=None) -> dict:
     for label, r in (("energy", paper_rank), ("bound", bound_rank)):
         j_r = float(mj.integrated_energy(mj.galerkin(scene.system, pod.basis(r)),
                                          float(scene.ts[-1]), scene.x0))
-        b = mj.error_bound(scene.system, pod.basis(r), float(scene.ts[-1]), scene.x0)
+        b = mj.estimate(scene.system, mj.ResidualBound(pod.basis(r)), float(scene.ts[-1]),
+                        scene.x0)
         rank_rule[label] = dict(rank=int(r), true=abs(j_r / j_full - 1),
                                 bound=finite(b.relative))
 

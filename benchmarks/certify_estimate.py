@@ -11,8 +11,8 @@ Part B: the certification step alone at n = 300 / 1000 / 3000 (Mikota chains, th
 scaled: x_3(0) = 1, horizon 20, a damper at DOF 4 with c = 70; the basis: Craig-Bampton + x0
 of the crossover's ranks): the full model's J and dJ/dc (``placement_objective`` under
 ``jax.value_and_grad``, what ``certify="full"`` runs) against building the estimator and
-estimating J and its gradient (``HierarchicalEstimator.gradient``, what ``certify="estimate"``
-runs). Compile apart (first call), then the median of repeats.
+estimating J and its gradient (``estimate(..., gradient=True)`` with ``Hierarchical``, what
+``certify="estimate"`` runs). Compile apart (first call), then the median of repeats.
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/certify_estimate.py [--quick] [--replot]
 """
@@ -86,7 +86,7 @@ def certification_step(n: int, r: int, repeats: int) -> dict:
     full = jax.jit(jax.value_and_grad(mj.placement_objective(problem), argnums=(0, 1)))
 
     def estimate():
-        return mj.HierarchicalEstimator(system, basis).gradient(system, HORIZON, x0)
+        return mj.estimate(system, mj.Hierarchical(system, basis), HORIZON, x0, gradient=True)
 
     full_cold, (value, (_, slope)) = median_seconds(lambda: full(positions, coefficients), 1)
     full_warm, _ = median_seconds(lambda: full(positions, coefficients), repeats)

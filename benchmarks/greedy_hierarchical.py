@@ -66,13 +66,13 @@ def main(argv=None) -> dict:
           f"{result.certified}, {result.full_solves} full solves, {greedy_s:.0f} s", flush=True)
     # spot check at random designs against the full model
     function = mj.SceneFunction(scene, "energy")
-    estimator = mj.HierarchicalEstimator(scene.system, result.basis, **options)
+    estimator = mj.Hierarchical(scene.system, result.basis, **options)
     rng = np.random.default_rng(SEED)
     count = 50 if args.quick else RANDOM
     rows = []
     for p, c in zip(rng.uniform(1.0, n, count), 10 ** rng.uniform(-1, 3, count), strict=True):
         system = function.system({"positions": jnp.array([p]), "coefficients": jnp.array([c])})
-        e = estimator(system, HORIZON, scene.x0)
+        e = mj.estimate(system, estimator, HORIZON, scene.x0)
         j = float(mj.integrated_energy(system, HORIZON, scene.x0))  # spectral, else dense
         rows.append(dict(position=float(p), coefficient=float(c), J=j,
                          error=abs(float(e.value) / j - 1),

@@ -1,5 +1,5 @@
 """The hierarchical estimate of the gradient's error over the Section 5 design box
-(``HierarchicalEstimator.gradient``): its effectivity at 1000
+(``estimate(..., gradient=True)`` with ``Hierarchical``): its effectivity at 1000
 random designs against the full model's gradient, no full solve.
 
 The scene, box and bases are ``hierarchical.py``'s: Mikota n = 300, x_3(0) = 1, J = the energy
@@ -87,23 +87,22 @@ def main(argv=None) -> dict:
         return jnp.concatenate([value[None], gradient])
 
     def estimate(estimator, p, c):
-        e = estimator.gradient(design(p, c), HORIZON, x0)
-        return jnp.stack([e.value, e.energy, e.gradient["coefficients"][0],
-                          e.gradient["positions"][0], e.error["coefficients"][0],
-                          e.error["positions"][0]])
+        e = mj.estimate(design(p, c), estimator, HORIZON, x0, gradient=True)
+        return jnp.stack([e.value, e.error, e.gradient["coefficients"][0],
+                          e.gradient["positions"][0], e.gradient_error["coefficients"][0],
+                          e.gradient_error["positions"][0]])
 
     def estimate_value(estimator, p, c):
-        return estimator(design(p, c), HORIZON, x0).energy
+        return mj.estimate(design(p, c), estimator, HORIZON, x0).error
 
     full = Compiled(full_gradient, 7.0, 1.0)
     states = mj.exact_solve(scene.system, scene.ts, x0, scene.v0).displacement
     pod = np.asarray(mj.reduce(states, scene.ts, scene.reduction).pod.basis(RANK))
     modes = np.asarray(mj.modal_basis(scene.system, n))
-    certified = mj.HierarchicalEstimator(
+    certified = mj.Hierarchical(
         scene.system, jnp.asarray(mj.extend_basis(pod, modes[:, :MODES])),
         modes=min(n, MODES + FINE_EXTRA), basis_moments=MOMENTS)
-    paper = mj.HierarchicalEstimator(scene.system, jnp.asarray(pod),
-                                     modes=min(n, RANK + 2 * FINE_EXTRA))
+    paper = mj.Hierarchical(scene.system, jnp.asarray(pod), modes=min(n, RANK + 2 * FINE_EXTRA))
     runs = {label: (est, Compiled(estimate, est, 7.0, 1.0))
             for label, est in (("certified", certified), ("paper", paper))}
     value_only = Compiled(estimate_value, certified, 7.0, 1.0)

@@ -36,14 +36,12 @@ _MODULES = {
     "_dampers": "GroundedDamper RelativeDamper",
     "_design": "DamperProblem",
     "_enrichment": "enriched_reduce sensitivity_snapshots",
-    "_estimator": ("ErrorBound HierarchicalEstimate HierarchicalEstimator HierarchicalGradient "
-                   "error_bound"),
+    "_estimate": "AbstractEstimator Estimate Hierarchical ResidualBound certified_sweep estimate",
     "_exact": "exact_solve",
     "_excitation": "LoadFunction Pulse pulse unit_vector",
     "_frequency": "frequency_response",
     "_galerkin": "ReducedModel galerkin",
-    "_greedy": ("BoundFunction CertifiedSweep EstimateFunction GreedyBasis certified_sweep "
-                "greedy_reduce rank_for_bound"),
+    "_greedy": "GreedyBasis greedy_reduce rank_for_bound",
     "_implicit": "StructuredKvaerno5",
     "_integrate": "Trajectory simulate",
     "_internal_damping": "ModalDamping Rayleigh",
@@ -127,11 +125,12 @@ if TYPE_CHECKING:  # the same names for static tools (type checkers, the API ref
     from ._design import DamperProblem as DamperProblem
     from ._enrichment import enriched_reduce as enriched_reduce
     from ._enrichment import sensitivity_snapshots as sensitivity_snapshots
-    from ._estimator import ErrorBound as ErrorBound
-    from ._estimator import HierarchicalEstimate as HierarchicalEstimate
-    from ._estimator import HierarchicalEstimator as HierarchicalEstimator
-    from ._estimator import HierarchicalGradient as HierarchicalGradient
-    from ._estimator import error_bound as error_bound
+    from ._estimate import AbstractEstimator as AbstractEstimator
+    from ._estimate import Estimate as Estimate
+    from ._estimate import Hierarchical as Hierarchical
+    from ._estimate import ResidualBound as ResidualBound
+    from ._estimate import certified_sweep as certified_sweep
+    from ._estimate import estimate as estimate
     from ._exact import exact_solve as exact_solve
     from ._excitation import LoadFunction as LoadFunction
     from ._excitation import Pulse as Pulse
@@ -140,11 +139,7 @@ if TYPE_CHECKING:  # the same names for static tools (type checkers, the API ref
     from ._frequency import frequency_response as frequency_response
     from ._galerkin import ReducedModel as ReducedModel
     from ._galerkin import galerkin as galerkin
-    from ._greedy import BoundFunction as BoundFunction
-    from ._greedy import CertifiedSweep as CertifiedSweep
-    from ._greedy import EstimateFunction as EstimateFunction
     from ._greedy import GreedyBasis as GreedyBasis
-    from ._greedy import certified_sweep as certified_sweep
     from ._greedy import greedy_reduce as greedy_reduce
     from ._greedy import rank_for_bound as rank_for_bound
     from ._implicit import StructuredKvaerno5 as StructuredKvaerno5

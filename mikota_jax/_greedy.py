@@ -10,9 +10,6 @@ design is certified to ``tolerance`` or the basis reaches ``max_rank``. The full
 per iteration, at the designs the bound picks; a design outside the training set is certified
 by evaluating the bound there (``bound_function``).
 
-``certified_sweep``: J over many designs through the reduced model where a ``HierarchicalEstimator``
-certifies it, by the full model only where it does not (``EstimateFunction`` for ``mj.sweep``).
-
 ``rank_for_bound``: the smallest rank r of a POD whose bound at the scene's design is within a
 requested relative accuracy in J (bisection on r; the bound is evaluated, never the full model).
 """
@@ -260,43 +257,3 @@ class EstimateFunction(eqx.Module):
         e = self.estimator(*_free_vibration(self.function, parameters))
         return jnp.stack([e.value, e.energy, e.fine])
 
-
-@dataclass(frozen=True)
-class CertifiedSweep:
-    """What ``certified_sweep`` returns, per design (S,): ``values`` J (the reduced model's
-    where ``certified``, else the full model's), ``certified`` whether the estimate met the
-    tolerance there, ``estimates`` the relative estimate of |J - J_r| / J, ``reduced`` J_r
-    everywhere; ``full_solves`` the full-model solves taken (the designs not certified)."""
-
-    values: np.ndarray
-    certified: np.ndarray
-    estimates: np.ndarray
-    reduced: np.ndarray
-    tolerance: float
-    full_solves: int
-
-
-def certified_sweep(scene: Scene, points: dict, estimator: HierarchicalEstimator,
-                    tolerance: float = 1e-4, *, batch: str = "map",
-                    progress: bool = False) -> CertifiedSweep:
-    """J of ``scene`` at every design of ``points`` (``mj.grid``), through the reduced model
-    where ``estimator`` certifies it to ``tolerance`` (relative) and by the full model (its
-    exact integral, the spectral path for chains) only where it does not: the sweep decides
-    by the estimate, not by full solves. ``batch``: as ``mj.sweep``'s. The certificate is the
-    estimator's (a saturation assumption, checked in ``benchmarks/hierarchical.py``), not a
-    proof.
-    """
-    if not (isinstance(tolerance, float | int) and 0 < tolerance < 1):
-        raise ValueError(MARK + f"tolerance must be in (0, 1), got {tolerance!r}.")
-    points, _ = _training(scene, points)
-    values = sweep(EstimateFunction(scene, estimator), points, batch=batch, progress=progress)
-    estimates = relative_bounds(values)
-    certified = estimates <= tolerance
-    result = np.array(values[:, 0])
-    missing = np.flatnonzero(~certified)
-    if missing.size:
-        subset = {name: v[missing] for name, v in points.items()}
-        result[missing] = np.asarray(sweep(SceneFunction(scene, "energy"), subset, batch=batch,
-                                           progress=progress))
-    return CertifiedSweep(result, certified, estimates, np.asarray(values[:, 0]),
-                          float(tolerance), int(missing.size))
