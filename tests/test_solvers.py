@@ -134,7 +134,7 @@ def test_exact_solve_with_a_pulse_matches_solve_ivp(damped, start, duration, clo
 
 
 def test_exact_solve_rejects_a_general_load_and_a_non_uniform_damped_grid(damped, undamped):
-    with pytest.raises(ValueError, match="exact_solve takes load=None or a Pulse"):
+    with pytest.raises(ValueError, match="take load=None or a Pulse"):
         mj.solve(undamped, TS, load=mj.LoadFunction(lambda t: jnp.zeros(N)),
                  method=mj.DenseExponential())
     with pytest.raises(ValueError, match="ts must be a uniform grid"):  # the spectral path

@@ -268,15 +268,15 @@ def test_internal_damping_diagonal_in_modes_takes_the_spectral_path_and_matches_
 
 def test_the_spectral_method_is_refused_where_it_does_not_apply_with_the_reason():
     undamped = mj.mikota_chain(5)
-    with pytest.raises(ValueError, match="method='spectral'.*undamped"):
+    with pytest.raises(ValueError, match=r"Spectral\(\).*undamped"):
         mj.solve(undamped, TS, np.ones(5), method=mj.Spectral())
     user = mj.system(np.ones(5), mj.mikota_chain(5).stiffness, 0.1 * np.eye(5),
                      dampers=[mj.GroundedDamper(2.0, 1.0)])
-    with pytest.raises(ValueError, match="method='spectral'.*damping matrix"):
+    with pytest.raises(ValueError, match=r"Spectral\(\).*damping matrix"):
         mj.solve(user, TS, np.ones(5), method=mj.Spectral())
     damped = mj.mikota_chain(5, dampers=[mj.GroundedDamper(2.0, 1.0)])
     reduced = mj.galerkin(damped, jnp.eye(5)[:, :2])
-    with pytest.raises(ValueError, match="method='spectral'.*ReducedModel"):
+    with pytest.raises(ValueError, match=r"Spectral\(\).*ReducedModel"):
         mj.solve(reduced, TS, np.ones(5), method=mj.Spectral())
     with pytest.raises(ValueError, match="method must be"):
         mj.solve(damped, TS, np.ones(5), method="modal")

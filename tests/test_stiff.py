@@ -148,7 +148,7 @@ def test_auto_needs_concrete_values_and_says_so():
     def run(k):
         return mj.solve(mj.mikota_chain(N, k=k), TS, x0, method=mj.Auto()).displacement
 
-    with pytest.raises(ValueError, match="solver='auto' needs concrete"):
+    with pytest.raises(ValueError, match=r"Auto\(\) needs concrete"):
         run(1.0)
 
 
@@ -189,11 +189,12 @@ def test_dense_methods_refuse_a_size_that_cannot_fit_in_memory():
     system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(5.0, 1.0)],
                              internal_damping=mj.Rayleigh(0.01, 0.0))
     x0 = np.ones(n)
-    with pytest.raises(ValueError, match="exact_solve works with dense matrices.*kvaerno5"):
+    with pytest.raises(ValueError,
+                       match=r"Spectral\(\) works with dense matrices.*StructuredKvaerno5"):
         mj.solve(system, np.linspace(0.0, 1.0, 3), x0, method=mj.Spectral())
-    with pytest.raises(ValueError, match="integrated_energy.*GiB.*method='ode'"):
+    with pytest.raises(ValueError, match="Energy.*GiB.*method='ode'"):
         mj.Energy(1.0, x0)(system)
-    with pytest.raises(ValueError, match="total_average_energy works with dense"):
+    with pytest.raises(ValueError, match=r"AverageEnergy\(\) works with dense"):
         mj.AverageEnergy()(system)
 
 
