@@ -202,10 +202,10 @@ def test_a_non_diagonal_mass_from_every_format_gives_the_same_solutions():
     m = m * (np.abs(np.subtract.outer(np.arange(N), np.arange(N))) <= 1)  # tridiagonal mass
     m = m + N * np.eye(N)  # still SPD
     x0 = jnp.linspace(0.0, 1.0, N)
-    reference = mj.solve(mj.system(m, k), TS, x0=x0, method=mj.Spectral()).displacement
+    reference = mj.solve(mj.system(m, k), TS, x0=x0, method=mj.DenseExponential()).displacement
     for mass in ((np.diag(m), np.diag(m, 1)), sp.csr_matrix(m)):
         system = mj.system(mass, sp.csr_matrix(k), internal_damping=mj.ModalDamping(0.05))
-        damped = mj.solve(system, TS, x0=x0, method=mj.Spectral()).displacement
+        damped = mj.solve(system, TS, x0=x0, method=mj.DenseExponential()).displacement
         simulated = mj.solve(system, TS, x0=x0, method=mj.ODE(rtol=1e-10)).displacement
         np.testing.assert_allclose(simulated, damped, atol=1e-8)
         undamped = mj.solve(mj.system(mass, sp.csr_matrix(k)), TS, x0=x0,
