@@ -65,7 +65,10 @@ class Energy(AbstractObjective):
 class AverageEnergy(AbstractObjective):
     """Veselic's total average energy: trace X, A^T X + X A = -Z (A the state matrix of eq. 3.1
     in scaled modal coordinates), over the ``lowest`` modes (all when None); needs no excitation,
-    is infinite (refused) where a mode is undamped. Its unit is time."""
+    is infinite (refused) where a mode is undamped. Its unit is time. It is Veselic's and
+    FastOptimalDamping.jl's trace: ``OutputEnergy`` with C_x = Omega U^T M, C_v = U^T M (the
+    energy norm) and the same ``lowest``; a trace of the physical (x, x') Gramian is another
+    number (the module docstring of ``_output_criteria`` compares the published definitions)."""
 
     lowest: int | None = eqx.field(static=True, default=None)
 
