@@ -78,7 +78,7 @@ def test_auto_runs_the_same_method_under_jit():
 
     assert float(jax.jit(last)(1.0)) == pytest.approx(float(last(1.0)), rel=1e-13)
     # the integrators' stiffness rule needs values: under jit it refuses, naming the way out
-    with pytest.raises(ValueError, match="name the solver"):
+    with pytest.raises(ValueError, match="name the method"):
         jax.jit(lambda c: mj.solve(mj.mikota_chain(8, internal_damping=mj.Rayleigh(c, 0.0)),
                                    TS, x0).displacement)(0.01)
 
