@@ -238,3 +238,13 @@ def max_error(displacement, reference) -> float:
 
 def elapsed(start: float) -> float:
     return time.perf_counter() - start
+
+
+def ode(solver: str, **options) -> "mj.ODE":
+    """``mj.ODE`` with the diffrax solver a benchmark names: "dopri8", "tsit5", "dopri5" or
+    "kvaerno5" (``mj.StructuredKvaerno5()``); ``options`` as ``mj.ODE``'s (rtol, atol, ...)."""
+    import diffrax
+
+    solvers = {"dopri8": diffrax.Dopri8, "tsit5": diffrax.Tsit5, "dopri5": diffrax.Dopri5,
+               "kvaerno5": mj.StructuredKvaerno5}
+    return mj.ODE(solvers[solver](), **options)

@@ -32,6 +32,14 @@ MASSES = np.logspace(-6.0, 6.0, 7)
 MIXED = MASSES[[3, 0, 5, 4, 2, 6, 1]]
 
 
+def _dense_solve(model, ts, **kwargs):
+    return mj.solve(model, ts, method=mj.DenseExponential(), **kwargs)
+
+
+def _dopri8_solve(model, ts, **kwargs):
+    return mj.solve(model, ts, method=mj.ODE(), **kwargs)
+
+
 def _dense(system):
     M, D, K = (None if a is None else np.asarray(a) for a in system.dense())
     return M, np.zeros_like(M) if D is None else D, K
@@ -119,7 +127,7 @@ def _damping_rows():
     rows = []
     undamped = mj.mikota_chain(N, M_, K_)
     long = np.linspace(0.0, 1000.0, 2001)
-    out = mj.exact_solve(undamped, long, X0, V0, velocity=True)
+    out = mj.solve(undamped, long, X0, V0, velocity=True, method=mj.DenseExponential())
     e = _energy(undamped, np.asarray(out.displacement), np.asarray(out.velocity))
     rows.append(_row(DAMPING, "d = 0, T = 1000: exact_solve energy drift",
                      _verdict(float(np.max(np.abs(e / e[0] - 1))), 1e-12),
@@ -127,7 +135,8 @@ def _damping_rows():
                      "thousand_time_units"))
     drifts = []
     for rtol in (1e-8, 1e-10):
-        out = mj.simulate(undamped, long, X0, V0, velocity=True, rtol=rtol, atol=rtol / 100)
+        out = mj.solve(undamped, long, X0, V0, velocity=True,
+                       method=mj.ODE(rtol=rtol, atol=rtol / 100))
         e = _energy(undamped, np.asarray(out.displacement), np.asarray(out.velocity))
         drifts.append(f"{np.max(np.abs(e / e[0] - 1)):.1e} at rtol {rtol:.0e}")
     rows.append(_row(DAMPING, "d = 0, T = 1000: dopri8 energy drift", ", ".join(drifts),
@@ -138,7 +147,8 @@ def _damping_rows():
     for c in (1e-8, 1.0, 1e4, 1e6):
         system = mj.mikota_chain(N, M_, K_, dampers=[mj.GroundedDamper(4, c)])
         x, _ = _expm_reference(system, TS, X0, V0)
-        errors.append(f"{c:.0e}: {_rel(mj.exact_solve(system, TS, X0, V0).displacement, x):.0e}")
+        out = mj.solve(system, TS, X0, V0, method=mj.Spectral())
+        errors.append(f"{c:.0e}: {_rel(out.displacement, x):.0e}")
     rows.append(_row(DAMPING, "grounded c = 1e-8..1e6 at DOF 4: exact_solve vs expm",
                      "; ".join(errors),
                      "test_exact_solve_matches_the_matrix_exponential_for_damper_coefficients_"
@@ -148,13 +158,13 @@ def _damping_rows():
                           ("relative c = 1e6 (3, 6)", [mj.RelativeDamper((3, 6), 1e6)])):
         system = mj.mikota_chain(N, M_, K_, dampers=dampers)
         x, _ = _expm_reference(system, TS, X0, V0)
-        error = _rel(mj.exact_solve(system, TS, X0, V0).displacement, x)
+        error = _rel(mj.solve(system, TS, X0, V0, method=mj.Spectral()).displacement, x)
         rows.append(_row(DAMPING, f"{case}: exact_solve", _verdict(error, 1e-8),
                          "test_exact_solve_with_a_very_fast_damper_mode_is_finite_and_right"))
     system = mj.mikota_chain(N, M_, K_, dampers=[mj.GroundedDamper(1, 1.0)])
     coarse = 1e5 * np.arange(TS.shape[0], dtype=float)  # the shape of TS: compiled already
     x, _ = _expm_reference(system, coarse[:3], X0, V0)
-    out = np.asarray(mj.exact_solve(system, coarse, X0, V0).displacement)[:3]
+    out = np.asarray(mj.solve(system, coarse, X0, V0, method=mj.Spectral()).displacement)[:3]
     error = np.nan if not np.all(np.isfinite(out)) else float(np.max(np.abs(out - x)))
     rows.append(_row(DAMPING, "c = 1 at DOF 1, grid step 1e5: exact_solve (vs scipy expm; "
                      "both square ~20 times)", _verdict(error, 1e-10),
@@ -162,21 +172,23 @@ def _damping_rows():
                      "right"))
 
     system = mj.mikota_chain(N, M_, K_, dampers=[mj.GroundedDamper(1, 1e6)])
-    exact = mj.exact_solve(system, TS, X0, V0)
-    out = mj.simulate(system, TS, X0, V0, solver="kvaerno5", rtol=1e-10, atol=1e-12)
+    exact = mj.solve(system, TS, X0, V0, method=mj.Spectral())
+    out = mj.solve(system, TS, X0, V0,
+                   method=mj.ODE(mj.StructuredKvaerno5(), rtol=1e-10, atol=1e-12))
     rows.append(_row(DAMPING, "c = 1e6 at DOF 1: kvaerno5 (rtol 1e-10) vs exact_solve",
                      f"{_verdict(_rel(out.displacement, exact.displacement), 5e-8)}, "
                      f"{int(out.num_steps)} steps",
                      "test_kvaerno5_with_a_1e6_damper_agrees_with_exact_solve"))
     rows.append(_row(DAMPING, "c = 1e6 at DOF 1: dopri8, max_steps = 2000",
-                     _loud(lambda: mj.simulate(system, TS, X0, V0, max_steps=2000), "max_steps"),
+                     _loud(lambda: mj.solve(system, TS, X0, V0, method=mj.ODE(max_steps=2000)),
+                           "max_steps"),
                      "test_dopri8_with_a_1e6_damper_stops_loudly_at_max_steps"))
 
     several = mj.mikota_chain(N, M_, K_, dampers=[
         mj.GroundedDamper(1, 3.0), mj.GroundedDamper(5.5, 0.7), mj.GroundedDamper(N, 2.0),
         mj.RelativeDamper((2, 7), 1.5), mj.RelativeDamper((N - 1, N), 0.4)])
     x, _ = _expm_reference(several, TS, X0, V0)
-    exact = _rel(mj.exact_solve(several, TS, X0, V0).displacement, x)
+    exact = _rel(mj.solve(several, TS, X0, V0, method=mj.Spectral()).displacement, x)
     rows.append(_row(DAMPING, "5 dampers incl. DOF 1, DOF n, 2 relative: exact_solve vs expm",
                      _verdict(exact, 1e-12),
                      "test_several_dampers_at_the_first_and_last_dof_match_the_matrix_"
@@ -186,13 +198,15 @@ def _damping_rows():
     for c in (1e-8, 1e4):
         system = mj.mikota_chain(N, M_, K_, dampers=[mj.RelativeDamper((3, 6), c)])
         x, _ = _expm_reference(system, TS, X0, V0)
-        errors.append(f"{c:.0e}: {_rel(mj.exact_solve(system, TS, X0, V0).displacement, x):.0e}")
+        out = mj.solve(system, TS, X0, V0, method=mj.Spectral())
+        errors.append(f"{c:.0e}: {_rel(out.displacement, x):.0e}")
     rows.append(_row(DAMPING, "relative (3, 6) c = 1e-8, 1e4: exact_solve vs expm",
                      "; ".join(errors),
                      "test_exact_solve_matches_the_matrix_exponential_for_relative_dampers"))
     system = mj.mikota_chain(N, M_, K_, dampers=[mj.RelativeDamper((3, 6), 1e6)])
     x, _ = _expm_reference(system, TS, X0, V0)
-    out = mj.simulate(system, TS, X0, V0, solver="kvaerno5", rtol=1e-10, atol=1e-12)
+    out = mj.solve(system, TS, X0, V0,
+                   method=mj.ODE(mj.StructuredKvaerno5(), rtol=1e-10, atol=1e-12))
     rows.append(_row(DAMPING, "relative c = 1e6 (3, 6): kvaerno5 vs expm",
                      _verdict(_rel(out.displacement, x), 5e-8),
                      "test_kvaerno5_with_a_strong_relative_damper_matches_the_matrix_"
@@ -208,8 +222,10 @@ def _parameter_rows():
     for m, k in ((1.0, 1e-6), (1.0, 1e6)):
         rate = np.sqrt(k / m)
         system = mj.mikota_chain(N, m, k)
-        exact.append(_rel(mj.exact_solve(system, tau / rate, X0, rate * V0).displacement, x))
-        sim.append(_rel(mj.simulate(system, tau / rate, X0, rate * V0).displacement, x))
+        exact.append(_rel(mj.solve(system, tau / rate, X0, rate * V0,
+                                   method=mj.DenseExponential()).displacement, x))
+        sim.append(_rel(mj.solve(system, tau / rate, X0, rate * V0,
+                                 method=mj.ODE()).displacement, x))
     rows.append(_row(PARAMETERS, "k/m = 1e-6, 1e6: x(t; k, m) = x(t sqrt(k/m); 1, 1)",
                      f"exact_solve {max(exact):.0e}, dopri8 (default tol) {max(sim):.0e}",
                      "test_exact_solve_obeys_the_time_scaling_law_for_k_over_m_from_1e_6_to_1e6"))
@@ -217,7 +233,7 @@ def _parameter_rows():
     system = mj.mikota_chain(N, M_, K_)
     errors = []
     for amplitude in (1e-6, 1e-10):
-        out = mj.simulate(system, tau, amplitude * X0, amplitude * V0)
+        out = mj.solve(system, tau, amplitude * X0, amplitude * V0, method=mj.ODE())
         error = _rel(np.asarray(out.displacement) / amplitude, x)
         errors.append(f"{amplitude:.0e}: {_verdict(error, 1e-6)}")
     rows.append(_row(PARAMETERS, "tiny amplitude, default atol (scaled): dopri8 relative error",
@@ -236,7 +252,8 @@ def _parameter_rows():
         x, omega = _bidiagonal_modal(masses, ts, X0[:7], V0[:7])
         computed, _ = mj.modal_decomposition(system)
         omega_error = float(np.max(np.abs(np.asarray(computed) - omega) / omega))
-        error = _rel(mj.exact_solve(system, ts, X0[:7], V0[:7]).displacement, x)
+        error = _rel(mj.solve(system, ts, X0[:7], V0[:7],
+                              method=mj.DenseExponential()).displacement, x)
         rows.append(_row(PARAMETERS, case,
                          f"x {_verdict(error, tol)}; omega {omega_error:.0e}", test))
 
@@ -244,8 +261,10 @@ def _parameter_rows():
     u = np.asarray(mj.analytic.mode_shape(N, 1))
     expected = np.cos(OMEGA * horizon)[:, None] * u
     system = mj.mikota_chain(N, M_, K_)
-    exact = _rel(mj.exact_solve(system, horizon, u, velocity=True).displacement, expected)
-    out = mj.simulate(system, horizon, u, velocity=True)  # shapes of the T = 1000 rows
+    exact = _rel(mj.solve(system, horizon, u, velocity=True,
+                          method=mj.DenseExponential()).displacement, expected)
+    out = mj.solve(system, horizon, u, velocity=True,
+                   method=mj.ODE())  # shapes of the T = 1000 rows
     rows.append(_row(PARAMETERS, "T = 1e4 / Omega, x0 = u_1: vs u_1 cos(Omega t)",
                      f"exact_solve {_verdict(exact, 1e-9)}; dopri8 (rtol 1e-8) "
                      f"{_rel(out.displacement, expected):.0e} in {int(out.num_steps)} steps",
@@ -274,14 +293,15 @@ def _parameter_rows():
             continue
         x = _pulse_response(system, TS, 3, 1.0 / duration, duration, start)
         rows.append(_row(PARAMETERS, f"{case}: vs closed form",
-                         f"exact_solve {attempt(mj.exact_solve, load, x, 1e-8)}; dopri8 "
-                         f"{attempt(mj.simulate, load, x, 1e-6)}", test))
+                         f"exact_solve {attempt(_dense_solve, load, x, 1e-8)}; dopri8 "
+                         f"{attempt(_dopri8_solve, load, x, 1e-6)}", test))
 
     v0 = 0.7 * np.eye(N)[2] / (M_ / 3)  # impulse 0.7 at DOF 3: v0 = M^-1 I e_3
     x_dirac, v_dirac = _mikota_free_vibration(M_, K_, TS, np.zeros(N), v0)
     durations = np.array([1e-2, 1e-3, 1e-4, 1e-5])
-    errors = np.array([np.max(np.abs(np.asarray(mj.exact_solve(
-        system, TS, load=mj.pulse(N, 3, 0.7 / tau, tau)).displacement) - x_dirac))
+    errors = np.array([np.max(np.abs(np.asarray(mj.solve(
+        system, TS, load=mj.pulse(N, 3, 0.7 / tau, tau),
+        method=mj.DenseExponential()).displacement) - x_dirac))
         for tau in durations])
     rates = np.log10(errors[:-1] / errors[1:])
     constant = errors[-1] / durations[-1] / (np.max(np.abs(v_dirac)) / 2)
@@ -305,7 +325,7 @@ def _bound_rows():
         system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(7, d)])
         for method in cells:
             try:
-                j = float(mj.integrated_energy(system, horizon, x0, method=method))
+                j = float(mj.Energy(horizon, x0, method=method)(system))
                 ok = 0 < j <= e0_t * (1 + 1e-14)
                 cells[method].append(f"{d:.0e}: {j:.6g}{'' if ok else ' (ABOVE E0 T)'}")
             except ValueError as error:
@@ -322,17 +342,18 @@ def _bound_rows():
     ts, start = np.linspace(0.0, 1.0, 11), np.eye(4)[2]
     for rtol in (1.0, 10.0, 1e300):
         rows.append(_row(BOUNDS, f"simulate dopri8 rtol = {rtol:g}",
-                         _loud(lambda r=rtol: mj.simulate(system, ts, start, solver="dopri8",
-                                                          rtol=r), "rtol"),
+                         _loud(lambda r=rtol: mj.solve(system, ts, start, method=mj.ODE(rtol=r)),
+                               "rtol"),
                          "test_unknown_solver_and_non_positive_tolerances_are_rejected"))
     far = 1e5 + 1e-3 * np.arange(1001)
-    dense = mj.exact_solve(system, far, start, method="dense").displacement
-    spectral = mj.exact_solve(system, far, start, method="spectral").displacement
+    dense = mj.solve(system, far, start, method=mj.DenseExponential()).displacement
+    spectral = mj.solve(system, far, start, method=mj.Spectral()).displacement
     rows.append(_row(BOUNDS, "uniform grid far from 0 (t = 1e5 + 1e-3 k): dense vs spectral",
                      _verdict(_rel(dense, spectral), 1e-8),
                      "test_a_uniform_grid_far_from_zero_is_uniform_to_the_rounding_of_t"))
     for case, call in (("m = 1 + 2j", lambda: mj.mikota_chain(4, m=1 + 2j)),
-                       ("dofs = [2.5]", lambda: mj.exact_solve(system, ts, start, dofs=[2.5])),
+                       ("dofs = [2.5]", lambda: mj.solve(system, ts, start, dofs=[2.5],
+                                                         method=mj.Spectral())),
                        ("RelativeDamper((2.7, 3))",
                         lambda: mj.mikota_chain(4, dampers=[mj.RelativeDamper((2.7, 3), 1.0)]))):
         rows.append(_row(BOUNDS, case, _loud(call, "must"), "tests/test_fuzz.py"))

@@ -55,7 +55,7 @@ def edge_rows() -> list[dict]:
     # a single-mode excitation: x(t) = u_1 cos t, rank 1
     n, ts = 20, np.linspace(0.0, 20.0, 2001)
     shape = np.asarray(mj.analytic.mode_shape(n, 1))
-    q = mj.exact_solve(mj.mikota_chain(n), ts, shape).displacement.T
+    q = mj.solve(mj.mikota_chain(n), ts, shape, method=mj.DenseExponential()).displacement.T
     for method in ("svd", "snapshots"):
         result = mj.pod(q, method=method)
         s = np.asarray(result.singular_values)
@@ -108,11 +108,13 @@ def edge_rows() -> list[dict]:
     n = 7
     system = mj.mikota_chain(n)
     x0 = np.linspace(0.2, 1.0, n) ** 2
-    result = mj.pod(mj.exact_solve(system, jnp.zeros(1), x0).displacement.T)
+    result = mj.pod(mj.solve(system, jnp.zeros(1), x0,
+                             method=mj.DenseExponential()).displacement.T)
     M, _, K = (np.asarray(a) for a in system.dense())
     omega = np.sqrt(x0 @ K @ x0 / (x0 @ M @ x0))
     ts = np.linspace(0.0, 10.0, 101)
-    rom = mj.exact_solve(mj.galerkin(system, result.basis(1)), ts, x0).displacement
+    rom = mj.solve(mj.galerkin(system, result.basis(1)), ts, x0,
+                   method=mj.DenseExponential()).displacement
     rom_error = np.max(np.abs(rom - np.cos(omega * ts)[:, None] * x0))
     row("one-sample window (Q is 7 x 1)",
         f"|sigma_1 - |x0|| = {abs(float(result.singular_values[0]) - np.linalg.norm(x0)):.0e}, "
@@ -123,10 +125,11 @@ def edge_rows() -> list[dict]:
     one = mj.chain([2.0], [8.0])
     ts = np.linspace(0.0, 10.0, 201)
     truth = 0.3 * np.cos(2.0 * ts)[:, None]
-    exact = mj.exact_solve(one, ts, np.array([0.3])).displacement
-    simulated = mj.simulate(one, ts, np.array([0.3]), rtol=1e-12, atol=1e-14).displacement
-    reduced = mj.exact_solve(mj.galerkin(one, mj.pod(exact.T).basis(1)), ts,
-                             np.array([0.3])).displacement
+    exact = mj.solve(one, ts, np.array([0.3]), method=mj.DenseExponential()).displacement
+    simulated = mj.solve(one, ts, np.array([0.3]),
+                         method=mj.ODE(rtol=1e-12, atol=1e-14)).displacement
+    reduced = mj.solve(mj.galerkin(one, mj.pod(exact.T).basis(1)), ts, np.array([0.3]),
+                       method=mj.DenseExponential()).displacement
     error = {name: np.max(np.abs(np.asarray(out) - truth))
              for name, out in (("exact", exact), ("simulate", simulated), ("rom", reduced))}
     row("n = 1 (m = 2, k = 8, x0 = 0.3)",
@@ -181,13 +184,14 @@ def invariant_rows(cases: int = 20, n: int = 5) -> list[dict]:
                                                      for a in (M, K)))
         worst["semidefinite"] = min(worst["semidefinite"],
                                     np.min(np.linalg.eigvalsh(D)) / np.max(np.abs(D)))
-        full = mj.exact_solve(damped, ts, x0, v0, velocity=True)
+        full = mj.solve(damped, ts, x0, v0, velocity=True, method=mj.Spectral())
         e = _energy(damped, full)
         worst["grows"] = max(worst["grows"], np.max(np.diff(e)) / e[0])
-        e = _energy(undamped, mj.exact_solve(undamped, ts, x0, v0, velocity=True))
+        e = _energy(undamped, mj.solve(undamped, ts, x0, v0, velocity=True,
+                                       method=mj.DenseExponential()))
         worst["drift"] = max(worst["drift"], np.max(np.abs(e - e[0])) / e[0])
-        reduced = mj.exact_solve(mj.galerkin(damped, jnp.asarray(_orthonormal(n, n, rng))), ts,
-                                 x0, v0, velocity=True)
+        reduced = mj.solve(mj.galerkin(damped, jnp.asarray(_orthonormal(n, n, rng))), ts, x0, v0,
+                           velocity=True, method=mj.DenseExponential())
         for quantity in ("displacement", "velocity"):
             reference = np.asarray(getattr(full, quantity))
             worst["galerkin"] = max(worst["galerkin"], np.max(np.abs(

@@ -59,6 +59,7 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
+import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -188,18 +189,18 @@ def make_objective(basis):
 
     def energy_at_dof_150(position, coefficient):
         rom = mj.galerkin(damped(position, coefficient), basis)
-        out = mj.simulate(rom, TS, X0, dofs=[DOF], rtol=1e-8, atol=1e-10)
+        out = mj.solve(rom, TS, X0, dofs=[DOF], method=mj.ODE(rtol=1e-8, atol=1e-10))
         return jnp.sum(out.displacement**2) * (TS[1] - TS[0])
 
     return energy_at_dof_150
 
 
 def jit_simulate(system, x0, rtol):
-    return mj.simulate(system, TS, x0, rtol=rtol, atol=rtol * 1e-2)
+    return mj.solve(system, TS, x0, method=mj.ODE(rtol=rtol, atol=rtol * 1e-2))
 
 
 def jit_exact_solve(system, x0):
-    return mj.exact_solve(system, TS, x0, velocity=True)
+    return mj.solve(system, TS, x0, velocity=True, method=mj.Spectral())
 
 
 def grad_fn(ctx, jitted: bool = False):
@@ -215,12 +216,15 @@ JITTED = {"jit_simulate": jax.jit(jit_simulate), "jit_exact_solve": jax.jit(jit_
 ENTRIES = [
     Entry("mikota_chain", lambda c: damped(), quick=True),
     Entry("load_scene", lambda c: mj.load_scene(SCENE)),
-    Entry("simulate dopri8", lambda c: mj.simulate(c["mikota_chain"], TS, X0, solver="dopri8",
-                                                   rtol=1e-8, atol=1e-10),
+    Entry("simulate dopri8", lambda c: mj.solve(c["mikota_chain"], TS, X0,
+                                                method=mj.ODE(rtol=1e-8, atol=1e-10)),
           "simulate_with_result", True),
-    Entry("simulate tsit5", lambda c: mj.simulate(c["mikota_chain"], TS, X0, solver="tsit5",
-                                                  rtol=1e-6, atol=1e-8), "simulate_with_result"),
-    Entry("exact_solve", lambda c: mj.exact_solve(c["mikota_chain"], TS, X0, velocity=True),
+    Entry("simulate tsit5", lambda c: mj.solve(c["mikota_chain"], TS, X0,
+                                               method=mj.ODE(diffrax.Tsit5(), rtol=1e-6,
+                                                             atol=1e-8)),
+          "simulate_with_result"),
+    Entry("exact_solve", lambda c: mj.solve(c["mikota_chain"], TS, X0, velocity=True,
+                                            method=mj.Spectral()),
           "_exact", True),
     Entry("modal_decomposition", lambda c: mj.modal_decomposition(c["mikota_chain"])),
     Entry("pod svd", lambda c: mj.pod(c["snapshots"]), "_pod_svd", True),
@@ -228,9 +232,11 @@ ENTRIES = [
           "_pod_snapshots"),
     Entry("POD.basis", lambda c: c["pod svd"].basis(RANK)),
     Entry("galerkin", lambda c: mj.galerkin(c["mikota_chain"], c["POD.basis"])),
-    Entry("simulate dopri8 ROM", lambda c: mj.simulate(c["galerkin"], TS, X0, rtol=1e-8,
-                                                       atol=1e-10), "simulate_with_result"),
-    Entry("exact_solve ROM", lambda c: mj.exact_solve(c["galerkin"], TS, X0, velocity=True),
+    Entry("simulate dopri8 ROM", lambda c: mj.solve(c["galerkin"], TS, X0,
+                                                    method=mj.ODE(rtol=1e-8, atol=1e-10)),
+          "simulate_with_result"),
+    Entry("exact_solve ROM", lambda c: mj.solve(c["galerkin"], TS, X0, velocity=True,
+                                                method=mj.DenseExponential()),
           "_exact"),
     Entry("phase_error", lambda c: mj.metrics.phase_error(
         c["exact_solve"].displacement, c["exact_solve"].velocity,
@@ -288,18 +294,19 @@ def variations(ctx, quick: bool) -> list[tuple[str, str, list]]:
                                         for r in tolerances]
 
     def sim(solver, rtol):
-        return lambda s, x0=X0, v0=None, rtol=rtol, atol=rtol * 1e-2: mj.simulate(
-            s, TS, x0, v0, solver=solver, rtol=rtol, atol=atol)
+        return lambda s, x0=X0, v0=None, rtol=rtol, atol=rtol * 1e-2: mj.solve(
+            s, TS, x0, v0, method=mj.ODE(solver, rtol=rtol, atol=atol))
 
-    solver_cases("simulate dopri8", sim("dopri8", 1e-8), (1e-6, 1e-9))
-    solver_cases("simulate tsit5", sim("tsit5", 1e-6), (1e-5, 1e-7))
-    solver_cases("exact_solve", lambda s, x0=X0, v0=None: mj.exact_solve(s, TS, x0, v0,
-                                                                         velocity=True), ())
+    solver_cases("simulate dopri8", sim(diffrax.Dopri8(), 1e-8), (1e-6, 1e-9))
+    solver_cases("simulate tsit5", sim(diffrax.Tsit5(), 1e-6), (1e-5, 1e-7))
+    solver_cases("exact_solve", lambda s, x0=X0, v0=None: mj.solve(s, TS, x0, v0, velocity=True,
+                                                                   method=mj.Spectral()), ())
     if "POD.basis" in ctx:
         basis = ctx["POD.basis"]
-        rom_sim = lambda s, b=basis, x0=X0, v0=None, rtol=1e-8: mj.simulate(
-            mj.galerkin(s, b), TS, x0, v0, rtol=rtol, atol=rtol * 1e-2)
-        rom_exact = lambda s, b=basis: mj.exact_solve(mj.galerkin(s, b), TS, X0, velocity=True)
+        rom_sim = lambda s, b=basis, x0=X0, v0=None, rtol=1e-8: mj.solve(
+            mj.galerkin(s, b), TS, x0, v0, method=mj.ODE(rtol=rtol, atol=rtol * 1e-2))
+        rom_exact = lambda s, b=basis: mj.solve(mj.galerkin(s, b), TS, X0, velocity=True,
+                                                method=mj.DenseExponential())
         full, red = ctx["exact_solve"], ctx["exact_solve ROM"]
         cases.update({
             "simulate dopri8 ROM": {

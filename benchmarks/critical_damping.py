@@ -63,18 +63,18 @@ def accuracy(quick):
     table, timing = {}, {}
     for name in names:
         make, _, x0, v0 = cases.CASES[name]
-        energy = jax.jit(lambda c, make=make, x0=x0, v0=v0: mj.integrated_energy(make(c), 10.0,
-                                                                                 x0, v0))
+        energy = jax.jit(lambda c, make=make, x0=x0, v0=v0: mj.Energy(10.0, x0, v0)(make(c)))
         grad_energy = jax.jit(jax.grad(lambda c, make=make, x0=x0, v0=v0:
-                                       mj.integrated_energy(make(c), 10.0, x0, v0)))
-        trace = jax.jit(lambda c, make=make: mj.total_average_energy(make(c)))
-        grad_trace = jax.jit(jax.grad(lambda c, make=make: mj.total_average_energy(make(c))))
+                                       mj.Energy(10.0, x0, v0)(make(c))))
+        trace = jax.jit(lambda c, make=make: mj.AverageEnergy()(make(c)))
+        grad_trace = jax.jit(jax.grad(lambda c, make=make: mj.AverageEnergy()(make(c))))
         rows = []
         for delta in deltas:
             c = cases.probe(name, delta)
             j, t, xs = cases.truths(name, c)
             dj, dt = cases.derivative_truths(name, c)
-            history = np.asarray(mj.exact_solve(make(c), cases.TS, x0, v0).displacement)
+            history = np.asarray(mj.solve(make(c), cases.TS, x0, v0,
+                                          method=mj.Spectral()).displacement)
             ours = dict(J=float(energy(c)), trace=float(trace(c)), dJ=float(grad_energy(c)),
                         dtrace=float(grad_trace(c)))
             rows.append(dict(delta=delta, c=c, J=ours["J"], trace=ours["trace"],
@@ -93,8 +93,7 @@ def accuracy(quick):
         both = {}
         for method in ("exact", "dense"):
             fn = Compiled(jax.value_and_grad(lambda c, make=make, x0=x0, v0=v0, m=method:
-                                             mj.integrated_energy(make(c), 10.0, x0, v0,
-                                                                  method=m)), c)
+                                             mj.Energy(10.0, x0, v0, method=m)(make(c))), c)
             (value, _), seconds, _ = timed(fn, c, repeats=5)
             both[method] = dict(seconds=seconds, compile_s=fn.compile_s, value=float(value))
         timing[name] = both
@@ -112,7 +111,7 @@ mode, n = sys.argv[1], int(sys.argv[2])
 x0 = np.zeros(n); x0[2] = 1.0
 def energy(c):
     system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(7.0, c)])
-    return mj.integrated_energy(system, 20.0, x0)
+    return mj.Energy(20.0, x0)(system)
 start = time.perf_counter()
 if mode == "jit":
     out = jax.jit(jax.value_and_grad(energy))(1.0)
@@ -203,11 +202,11 @@ def section5(package, n, repeats):
 
     def energy(p, c):
         system = package.mikota_chain(n, dampers=[package.GroundedDamper(p, c)])
-        return package.integrated_energy(system, 20.0, x0)
+        return package.Energy(20.0, x0)(system)
 
     def history(p, c):
         system = package.mikota_chain(n, dampers=[package.GroundedDamper(p, c)])
-        return package.exact_solve(system, ts, x0).displacement
+        return package.solve(system, ts, x0, method=package.Spectral()).displacement
 
     point = (jnp.array(7.3), jnp.array(1.0))
     out = {}

@@ -197,8 +197,7 @@ def full_query(function, parameters):
     # J rides along as jacfwd's aux: one forward pass (J computed beside jacfwd found the roots
     # twice, 1.7x the time at n = 5000; the committed results before 2026-11-27 did that)
     def energy(p):
-        value = mj.integrated_energy(function.system(p), HORIZON, function.scene.x0,
-                                     method="spectral")
+        value = mj.Energy(HORIZON, function.scene.x0, method="spectral")(function.system(p))
         return value, value
     jacobian, value = jax.jacfwd(energy, has_aux=True)(parameters)
     return value, jacobian
@@ -515,11 +514,11 @@ def measure_full(n, scene, window_scene, function, nominal, out, repeats, check_
 
     # ---- full histories: the reference (401 times) and the POD snapshots (window, 1001 times)
     ts_history = scene.ts[::HISTORY_EVERY]
-    history_exe = Compiled(lambda s, x: mj.exact_solve(s, ts_history, x, method="spectral"),
+    history_exe = Compiled(lambda s, x: mj.solve(s, ts_history, x, method=mj.Spectral()),
                            system, x0)
     history = np.asarray(history_exe(system, x0).displacement)
     ts_window = window_scene.ts
-    snapshot_exe = Compiled(lambda s, x: mj.exact_solve(s, ts_window, x, method="spectral"),
+    snapshot_exe = Compiled(lambda s, x: mj.solve(s, ts_window, x, method=mj.Spectral()),
                             system, x0)
     snapshots = snapshot_exe(system, x0).displacement
     common = (ts_window.shape[0] - 1) // HISTORY_EVERY + 1  # history times inside the window

@@ -47,8 +47,8 @@ def enumeration_function(n, g, x0):
     """designs (D, g) positions and (D, g) coefficients -> (D,) energies, compiled."""
     def one(design):
         positions, coefficients = design
-        return mj.integrated_energy(system(n, [positions[i] for i in range(g)],
-                                           [coefficients[i] for i in range(g)]), HORIZON, x0)
+        return mj.Energy(HORIZON, x0)(system(n, [positions[i] for i in range(g)],
+                                           [coefficients[i] for i in range(g)]))
 
     return jax.jit(lambda p, c: jax.lax.map(one, (p, c)))
 

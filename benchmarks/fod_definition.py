@@ -96,7 +96,7 @@ def main(argv=None):
     for name, (d, printed) in POINTS.items():
         theirs = their_trace(omega, phi, rows_of, np.asarray(d), LOWEST)
         ours_dense = our_trace_dense(omega, phi, rows_of, np.asarray(d), LOWEST)
-        ours = float(mj.total_average_energy(fod_system(n1, d), lowest=LOWEST))
+        ours = float(mj.AverageEnergy(lowest=LOWEST)(fod_system(n1, d)))
         row = dict(point=name, printed=None if args.quick else printed, theirs=theirs,
                    ours=ours, ours_dense=ours_dense, difference=theirs / ours - 1)
         rows.append(row)

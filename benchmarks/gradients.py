@@ -9,10 +9,11 @@ coefficient c),
     J(p, c) = int_0^T (x^T K x + v^T M v) / 2 dt     (trapezoid over the 2001 outputs),
 
 evaluated in reduced coordinates: x = Phi q, so x^T K x = q^T (Phi^T K Phi) q and v^T M v =
-qd^T (Phi^T M Phi) qd exactly; the solve is ``mj.simulate(rom.system, ts, Phi^T x0)`` -- the same
-ODE as ``mj.simulate(rom, ts, x0)`` without lifting 2 x 300 outputs per time (the full run checks
-that both give the same J). Design point (p, c) = (7.3, 1.0): the linear damper split has a kink at
-integer positions, where JAX returns the right-sided derivative (reported at p = 7).
+qd^T (Phi^T M Phi) qd exactly; the solve is
+``mj.solve(rom.system, ts, Phi^T x0, method=mj.ODE(...))`` -- the same ODE as
+``mj.solve(rom, ts, x0, method=mj.ODE(...))`` without lifting 2 x 300 outputs per time (the full
+run checks that both give the same J). Design point (p, c) = (7.3, 1.0): the linear damper split
+has a kink at integer positions, where JAX returns the right-sided derivative (reported at p = 7).
 
 Gradient modes, each ``jax.jit``-compiled ahead of time (``Compiled``) and timed as the median of
 repeated calls, as a ratio to one compiled forward solve of J at the same rank and tolerance
@@ -24,8 +25,8 @@ repeated calls, as a ratio to one compiled forward solve of J at the same rank a
   diffrax) and ``RecursiveCheckpointAdjoint(checkpoints=max_steps)`` (every step stored);
 * reverse mode, ``diffrax.DirectAdjoint()`` (r = 76 only, one timed call and checked at the
   timing tolerance only: it is by far the slowest);
-* ``diffrax.BacksolveAdjoint()``: tried; it refuses ``SaveAt(fn=...)``, which ``simulate`` uses;
-* the reduced model solved by ``mj.exact_solve`` (modal coordinates and a matrix exponential):
+* ``diffrax.BacksolveAdjoint()``: tried; it refuses ``SaveAt(fn=...)``, which ``mj.ODE`` uses;
+* the reduced model solved by ``mj.DenseExponential()`` (modal coordinates, a matrix exponential):
   reverse (``jax.grad``) and forward (``jax.jacfwd``), ratio to its own forward solve.
 
 Correctness first: central differences of the same objective (rtol 1e-12, steps 1e-4 in p and in
@@ -95,25 +96,26 @@ def objectives(n, ts, x0):
 
     def simulated(p, c, rtol, atol, basis, adjoint=None):
         red = reduced_system(p, c, basis)
-        out = mj.simulate(red, ts, basis.T @ x0, displacement=True, velocity=True, rtol=rtol,
-                          atol=atol, max_steps=MAX_STEPS, adjoint=adjoint)
+        out = mj.solve(red, ts, basis.T @ x0, displacement=True, velocity=True,
+                       method=mj.ODE(rtol=rtol, atol=atol, max_steps=MAX_STEPS, adjoint=adjoint))
         return reduced_energy(red, out.displacement, out.velocity, ts), out.num_steps
 
     def lifted(p, c, rtol, atol, basis):  # the same J from all 300 lifted DOFs (a check)
         system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(p, c)])
-        out = mj.simulate(mj.galerkin(system, basis), ts, x0, displacement=True, velocity=True,
-                          rtol=rtol, atol=atol, max_steps=MAX_STEPS)
+        out = mj.solve(mj.galerkin(system, basis), ts, x0, displacement=True, velocity=True,
+                       method=mj.ODE(rtol=rtol, atol=atol, max_steps=MAX_STEPS))
         return full_energy(system, out.displacement, out.velocity, ts)
 
     def exact(p, c, basis):
         red = reduced_system(p, c, basis)
-        out = mj.exact_solve(red, ts, basis.T @ x0, displacement=True, velocity=True)
+        out = mj.solve(red, ts, basis.T @ x0, displacement=True, velocity=True,
+                       method=mj.DenseExponential())
         return reduced_energy(red, out.displacement, out.velocity, ts)
 
     def full(p, c, rtol, atol, adjoint=None):
         system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(p, c)])
-        out = mj.simulate(system, ts, x0, displacement=True, velocity=True, rtol=rtol, atol=atol,
-                          max_steps=MAX_STEPS, adjoint=adjoint)
+        out = mj.solve(system, ts, x0, displacement=True, velocity=True,
+                       method=mj.ODE(rtol=rtol, atol=atol, max_steps=MAX_STEPS, adjoint=adjoint))
         return full_energy(system, out.displacement, out.velocity, ts)
 
     return simulated, lifted, exact, full
@@ -239,7 +241,8 @@ def main(argv=None) -> dict:
     window = scene.reduction.window
     mask = (ts_np >= window[0] - 1e-9) & (ts_np <= window[1] + 1e-9)
     start = time.perf_counter()
-    snapshots = np.asarray(mj.exact_solve(system, ts, x0).displacement)[mask].T  # (n, m)
+    out = mj.solve(system, ts, x0, method=mj.Spectral())
+    snapshots = np.asarray(out.displacement)[mask].T  # (n, m)
     decomposition = mj.pod(snapshots)
     offline_s = elapsed(start)
     simulated, lifted, exact, full = objectives(n, ts, x0)

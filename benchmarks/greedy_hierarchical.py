@@ -56,7 +56,8 @@ def main(argv=None) -> dict:
     options = {"modes": FINE_MODES, "basis_moments": 2}
     seed = None
     if args.seed_modes:  # the scene's own POD (as the default start) + the lowest modes
-        states = mj.exact_solve(scene.system, scene.ts, scene.x0, scene.v0).displacement
+        states = mj.solve(scene.system, scene.ts, scene.x0, scene.v0,
+                          method=mj.Spectral()).displacement
         pod = mj.reduce(states, scene.ts, scene.reduction).basis
         seed = mj.extend_basis(pod, mj.modal_basis(scene.system, args.seed_modes))
     result = mj.greedy_reduce(scene, training, TOL, basis=seed, step=STEP, hierarchical=options,
@@ -73,7 +74,7 @@ def main(argv=None) -> dict:
     for p, c in zip(rng.uniform(1.0, n, count), 10 ** rng.uniform(-1, 3, count), strict=True):
         system = function.system({"positions": jnp.array([p]), "coefficients": jnp.array([c])})
         e = mj.estimate(system, estimator, HORIZON, scene.x0)
-        j = float(mj.integrated_energy(system, HORIZON, scene.x0))  # spectral, else dense
+        j = float(mj.Energy(HORIZON, scene.x0)(system))  # spectral, else dense
         rows.append(dict(position=float(p), coefficient=float(c), J=j,
                          error=abs(float(e.value) / j - 1),
                          estimate=float(e.relative) if np.isfinite(e.relative) else None))

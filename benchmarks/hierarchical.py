@@ -73,9 +73,8 @@ def main(argv=None) -> dict:
         e = mj.estimate(design(p, c), estimator, HORIZON, x0)
         return jnp.stack([e.value, e.fine, e.error, e.relative])
 
-    full = Compiled(lambda p, c: mj.integrated_energy(design(p, c), HORIZON, x0,
-                                                      method="spectral"), 7.0, 1.0)
-    states = mj.exact_solve(scene.system, scene.ts, x0, scene.v0).displacement
+    full = Compiled(lambda p, c: mj.Energy(HORIZON, x0, method="spectral")(design(p, c)), 7.0, 1.0)
+    states = mj.solve(scene.system, scene.ts, x0, scene.v0, method=mj.Spectral()).displacement
     pod = np.asarray(mj.reduce(states, scene.ts, scene.reduction).pod.basis(RANK))
     modes = np.asarray(mj.modal_basis(scene.system, n))
     say = lambda text: print(f"[{elapsed(start):7.1f} s] {text}", flush=True)  # noqa: E731

@@ -80,7 +80,7 @@ def main(argv=None) -> dict:
                                 "coefficients": jnp.reshape(c, (1,))})
 
     def full_energy(pc):
-        return mj.integrated_energy(design(pc[0], pc[1]), HORIZON, x0, method="spectral")
+        return mj.Energy(HORIZON, x0, method="spectral")(design(pc[0], pc[1]))
 
     def full_gradient(p, c):
         value, gradient = jax.value_and_grad(full_energy)(jnp.stack([p, c]))
@@ -96,7 +96,7 @@ def main(argv=None) -> dict:
         return mj.estimate(design(p, c), estimator, HORIZON, x0).error
 
     full = Compiled(full_gradient, 7.0, 1.0)
-    states = mj.exact_solve(scene.system, scene.ts, x0, scene.v0).displacement
+    states = mj.solve(scene.system, scene.ts, x0, scene.v0, method=mj.Spectral()).displacement
     pod = np.asarray(mj.reduce(states, scene.ts, scene.reduction).pod.basis(RANK))
     modes = np.asarray(mj.modal_basis(scene.system, n))
     certified = mj.Hierarchical(

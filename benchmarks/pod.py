@@ -5,7 +5,7 @@ with a grounded damper d = 1 at DOF 7 and x_3(0) = 1, v(0) = 0:
 
 * n = 300: the Section 5 scene (``load_scene("section5_damped")``), exact (matrix-exponential)
   displacements at t = 0, 0.01, ..., 10: Q is 300 x 1001;
-* n in {1000, 3000, 10000, 30000}: the same setup, ``mj.simulate`` Dopri8 (rtol 1e-8,
+* n in {1000, 3000, 10000, 30000}: the same setup, ``mj.ODE()`` Dopri8 (rtol 1e-8,
   atol 1e-10) on the short horizon [0, 1] with 501 outputs: Q is n x 501 (the exact solver needs
   a dense 2n x 2n matrix exponential, too costly past n ~ 10^3; a short horizon keeps the explicit
   solve of the stiff large chains to a few thousand steps).
@@ -64,15 +64,15 @@ def snapshots(n: int) -> tuple[np.ndarray, dict]:
         ts = np.asarray(scene.ts)
         window = scene.reduction.window
         ts = ts[(ts >= window[0] - 1e-9) & (ts <= window[1] + 1e-9)]
-        q = mj.exact_solve(scene.system, ts, scene.x0).displacement.T
+        q = mj.solve(scene.system, ts, scene.x0, method=mj.Spectral()).displacement.T
         how = f"exact_solve, scene {SCENE}, t in [{ts[0]:g}, {ts[-1]:g}], {len(ts)} instants"
     else:
         system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(7.0, 1.0)])
         x0 = np.zeros(n)
         x0[2] = 1.0
         ts = np.linspace(0.0, HORIZON, OUTPUTS)
-        out = mj.simulate(system, ts, x0, solver="dopri8", rtol=SNAPSHOT_RTOL,
-                          atol=SNAPSHOT_ATOL, max_steps=10**6)
+        out = mj.solve(system, ts, x0,
+                       method=mj.ODE(rtol=SNAPSHOT_RTOL, atol=SNAPSHOT_ATOL, max_steps=10**6))
         q = out.displacement.T
         how = (f"simulate dopri8 rtol {SNAPSHOT_RTOL:g} atol {SNAPSHOT_ATOL:g}, t in [0, "
                f"{HORIZON:g}], {OUTPUTS} instants, {int(out.num_steps)} steps")

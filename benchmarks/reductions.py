@@ -43,7 +43,8 @@ def builders(scene):
 
     def pod(r):
         if "pod" not in cache:
-            states = mj.exact_solve(scene.system, scene.ts, scene.x0, scene.v0).displacement
+            states = mj.solve(scene.system, scene.ts, scene.x0, scene.v0,
+                              method=mj.Spectral()).displacement
             cache["pod"] = mj.reduce(states, scene.ts, scene.reduction).pod
         return cache["pod"].basis(r)
 
@@ -90,7 +91,8 @@ def main(argv=None) -> dict:
     scene = mj.load_scene(SCENE)
     start = time.perf_counter()
     full = mj.sensitivities(scene, "energy", wrt=WRT)
-    reference = np.asarray(mj.exact_solve(scene.system, scene.ts, scene.x0).displacement)
+    reference = np.asarray(mj.solve(scene.system, scene.ts, scene.x0,
+                                    method=mj.Spectral()).displacement)
     rows = []
     for method in METHODS:
         builds, cache = builders(scene)
@@ -102,8 +104,8 @@ def main(argv=None) -> dict:
             basis = jax.block_until_ready(build(r))
             offline = elapsed(t0)
             rom = mj.sensitivities(scene, "energy", wrt=WRT, model="reduced", basis=basis)
-            history = np.asarray(mj.exact_solve(mj.galerkin(scene.system, basis), scene.ts,
-                                                scene.x0).displacement)
+            history = np.asarray(mj.solve(mj.galerkin(scene.system, basis), scene.ts, scene.x0,
+                                          method=mj.DenseExponential()).displacement)
             row = dict(method=method, r=int(basis.shape[1]), offline_s=offline,
                        J=abs(float(rom.value) / float(full.value) - 1),
                        gradient=max(abs(float(rom.jacobian[k][0]) / float(full.jacobian[k][0])

@@ -13,17 +13,17 @@ Each n runs in its own Python process (so its peak memory can be read) and measu
 apart from run time (``Compiled``: ``jax.jit(f).lower(...).compile()``), run time as the median of
 repeats ended by ``block_until_ready``:
 
-* reference: ``mj.exact_solve(method="dense")`` for n <= 1000 (n x n eigh, 2n x 2n expm), else
+* reference: ``mj.DenseExponential()`` for n <= 1000 (n x n eigh, 2n x 2n expm), else
   Dopri8 at rtol 1e-12; both exist for n <= 1000, where they must agree before anything is timed;
-* full model, spectral: ``mj.exact_solve(method="spectral")`` (the default path: damped modes from
+* full model, spectral: ``mj.Spectral()`` (the default path: damped modes from
   the secular equation, O(n^2)) for n <= 3000, its error against the
   reference recorded; n = 10^4 is ``spectral_large.py``'s;
-* full model, best explicit: ``mj.simulate`` Dopri8 (tridiagonal O(n) operator) at rtol 1e-8 and
+* full model, best explicit: ``mj.ODE()`` Dopri8 (tridiagonal O(n) operator) at rtol 1e-8 and
   1e-4 (atol = 1e-2 rtol, one executable: tolerances are traced), num_steps recorded; "full at equal
   accuracy" is the loosest of the two that meets the accuracy target below;
 * full model, implicit: diffrax's own ``Kvaerno5()`` instance (it factors the dense 2n x 2n
-  Jacobian every step; ``solver="kvaerno5"`` is the structured one, see stability.py). Its cost
-  per step is measured on the short window [0, 0.02] for n <= 1000 and the whole horizon for
+  Jacobian every step; ``mj.StructuredKvaerno5()`` is the structured one, see stability.py). Its
+  cost per step is measured on the short window [0, 0.02] for n <= 1000 and the whole horizon for
   n <= 300; beyond, the total is an EXTRAPOLATION, flagged as such: the per-step cost
   (measured, or its power-law fit beyond n = 1000) times the step count measured at the largest
   whole-horizon n (a lower bound: the step count grows with n);
@@ -32,10 +32,10 @@ repeats ended by ``block_until_ready``:
 * ROM rank at a fixed accuracy: the smallest r whose lifted error at the three DOFs over all 101
   outputs is below TARGET = 1e-3 max|x_ref|, found by bisection on 1..numerical rank (the error is
   assumed to fall with r; r - 1 is checked to miss the target) with a numpy modal propagator (the
-  same algorithm as ``exact_solve``); not counted in the offline cost (a user would pick r by
-  energy); the timed ``exact_solve`` of the ROM must then meet the target;
-* ROM online: ``mj.exact_solve`` and ``mj.simulate`` Dopri8 (rtol 1e-8) of the reduced model at that
-  r, outputs lifted to the three DOFs;
+  same algorithm as ``mj.DenseExponential()``); not counted in the offline cost (a user would pick
+  r by energy); the timed ``DenseExponential()`` solve of the ROM must then meet the target;
+* ROM online: ``mj.DenseExponential()`` and ``mj.ODE()`` Dopri8 (rtol 1e-8) of the reduced model at
+  that r, outputs lifted to the three DOFs;
 * memory: the process's peak resident set (``ru_maxrss``: Python, JAX runtime, compiled code, all
   stages of that n including the reference and the snapshot matrix) and XLA's static footprint of
   each executable (``memory_analysis``: arguments + outputs + temporaries).
@@ -225,17 +225,19 @@ def measure(n: int, quick: bool) -> dict:
     say = lambda text: print(f"  n={n}: {text} ({elapsed(start):.0f} s)", flush=True)  # noqa: E731
 
     # ---- compile the full-model executables
-    full = Compiled(lambda s, x, rtol: mj.simulate(s, ts, x, dofs=dofs, solver="dopri8", rtol=rtol,
-                                                   atol=rtol * 1e-2), system, x0, RTOL)
-    snap = Compiled(lambda s, x, rtol: mj.simulate(s, ts_snap, x, solver="dopri8", rtol=rtol,
-                                                   atol=rtol * 1e-2), system, x0, RTOL)
+    full = Compiled(lambda s, x, rtol: mj.solve(s, ts, x, dofs=dofs,
+                                                method=mj.ODE(rtol=rtol, atol=rtol * 1e-2)),
+                    system, x0, RTOL)
+    snap = Compiled(lambda s, x, rtol: mj.solve(s, ts_snap, x,
+                                                method=mj.ODE(rtol=rtol, atol=rtol * 1e-2)),
+                    system, x0, RTOL)
     exact = None
     if n <= EXACT_MAX_N:
-        exact = Compiled(lambda s, x: mj.exact_solve(s, ts, x, dofs=dofs, method="dense"),
+        exact = Compiled(lambda s, x: mj.solve(s, ts, x, dofs=dofs, method=mj.DenseExponential()),
                          system, x0)
     spectral = None
     if n <= SPECTRAL_MAX_N:
-        spectral = Compiled(lambda s, x: mj.exact_solve(s, ts, x, dofs=dofs, method="spectral"),
+        spectral = Compiled(lambda s, x: mj.solve(s, ts, x, dofs=dofs, method=mj.Spectral()),
                             system, x0)
     say("compiled full-model executables")
 
@@ -337,7 +339,8 @@ def measure(n: int, quick: bool) -> dict:
     out["rom"]["offline_s"] = snap_s + pod_s + galerkin_s
 
     # ---- ROM online
-    rom_exact = Compiled(lambda mdl, x: mj.exact_solve(mdl, ts, x, dofs=dofs), model, x0)
+    rom_exact = Compiled(lambda mdl, x: mj.solve(mdl, ts, x, dofs=dofs,
+                                                 method=mj.DenseExponential()), model, x0)
     check_error = max_error(rom_exact(model, x0).displacement, reference) / scale
     if not check_error < TARGET:
         raise SystemExit(f"n={n}: exact_solve of the rank-{rank} ROM has relative error "
@@ -349,8 +352,8 @@ def measure(n: int, quick: bool) -> dict:
     if quick:  # one compile fewer per n; the online cost is exact_solve's
         out["rom"]["dopri8"] = None
         return finish(out, start)
-    rom_dopri = Compiled(lambda mdl, x, rtol: mj.simulate(mdl, ts, x, dofs=dofs, solver="dopri8",
-                                                          rtol=rtol, atol=rtol * 1e-2),
+    rom_dopri = Compiled(lambda mdl, x, rtol: mj.solve(mdl, ts, x, dofs=dofs,
+                                                       method=mj.ODE(rtol=rtol, atol=rtol * 1e-2)),
                          model, x0, RTOL)
     result, run_s, times = timed(rom_dopri, model, x0, RTOL, repeats=repeats)
     out["rom"]["dopri8"] = {"rtol": RTOL, "compile_s": rom_dopri.compile_s, "run_s": run_s,
@@ -380,8 +383,8 @@ def measure_implicit(n, quick, system, x0, dofs, reference, scale, repeats, say)
                 "why": f"dense 2n x 2n Jacobian factored every step: not run above n = {step_max}"
                        " within this budget"}
     count = reference.shape[0]
-    solve = Compiled(lambda s, x, grid, rtol: mj.simulate(
-        s, grid, x, dofs=dofs, solver=diffrax.Kvaerno5(), rtol=rtol, atol=rtol * 1e-2),
+    solve = Compiled(lambda s, x, grid, rtol: mj.solve(
+        s, grid, x, dofs=dofs, method=mj.ODE(diffrax.Kvaerno5(), rtol=rtol, atol=rtol * 1e-2)),
         system, x0, jnp.linspace(0.0, HORIZON, count), RTOL)
     window = jnp.linspace(0.0, IMPLICIT_WINDOW, count)
     result, run_s, times = timed(solve, system, x0, window, RTOL, repeats=1 if n > 300 else repeats)

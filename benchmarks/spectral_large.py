@@ -59,8 +59,8 @@ def one_size(n, ts):
     # exact_solve's memory check, which reads the machine's available memory and sees the
     # first call's freed heap as taken (n = 10^4 needs ~9 GiB of the 23)
     start = time.perf_counter()
-    spectral = np.asarray(mj.exact_solve(system, ts, x0, dofs=[DOF],
-                                         method="spectral").displacement[:, 0])
+    spectral = np.asarray(mj.solve(system, ts, x0, dofs=[DOF],
+                                   method=mj.Spectral()).displacement[:, 0])
     spectral_first = time.perf_counter() - start
     ts_j, x0_j, zeros = jnp.asarray(ts), jnp.asarray(x0), jnp.zeros(n)
     _, spectral_s, _ = timed(lambda: jax.block_until_ready(spectral_solve_with_result(
@@ -72,8 +72,7 @@ def one_size(n, ts):
     reference = None
     for rtol in (1e-10, 1e-8):
         def dopri8(rtol=rtol):
-            out = mj.simulate(system, ts, x0, dofs=[DOF], solver="dopri8", rtol=rtol,
-                              max_steps=10**6)
+            out = mj.solve(system, ts, x0, dofs=[DOF], method=mj.ODE(rtol=rtol, max_steps=10**6))
             return np.asarray(out.displacement[:, 0])
 
         x, first, median, _ = first_and_median(dopri8, 1)

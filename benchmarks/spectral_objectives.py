@@ -42,7 +42,7 @@ def section5(n):
 
     def energy(position, coefficient, method):
         system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(position, coefficient)])
-        return mj.integrated_energy(system, 20.0, x0, method=method)
+        return mj.Energy(20.0, x0, method=method)(system)
 
     return energy
 
@@ -168,7 +168,7 @@ def main(argv=None):
     reference = float(np.trace(refined))
 
     def trace(c):
-        return mj.total_average_energy(fod_system(n1, c), lowest, method="spectral")
+        return mj.AverageEnergy(lowest)(fod_system(n1, c))  # the spectral path (it applies)
 
     c0 = jnp.array(viscosities)
     value = Compiled(trace, c0)

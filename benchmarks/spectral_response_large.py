@@ -90,12 +90,12 @@ def one_size(n, dopri):
     """Part B at one n (a child process)."""
     system, ts, x0 = chain(n), jnp.asarray(TS), start(n)
     begin = time.perf_counter()
-    x = np.asarray(mj.exact_solve(system, ts, x0, method="spectral").displacement)
+    x = np.asarray(mj.solve(system, ts, x0, method=mj.Spectral()).displacement)
     first = time.perf_counter() - begin
     run_s = first  # above 10^4 one call (compile included: ~3 s of ~220 s at 3 x 10^4)
     if n <= 10_000:
         begin = time.perf_counter()
-        x = np.asarray(mj.exact_solve(system, ts, x0, method="spectral").displacement)
+        x = np.asarray(mj.solve(system, ts, x0, method=mj.Spectral()).displacement)
         run_s = time.perf_counter() - begin
     row = dict(n=n, run_s=run_s, first_call_s=first,
                compile_s=first - run_s if n <= 10_000 else None,
@@ -107,8 +107,8 @@ def one_size(n, dopri):
     if dopri:
         dofs = (1, 3, n // 2, n)
         begin = time.perf_counter()
-        reference = mj.simulate(system, ts, x0, dofs=dofs, solver="dopri8", rtol=1e-10,
-                                atol=1e-12, max_steps=10**7)
+        reference = mj.solve(system, ts, x0, dofs=dofs,
+                             method=mj.ODE(rtol=1e-10, atol=1e-12, max_steps=10**7))
         reference = np.asarray(reference.displacement)
         mine = x[:, [d - 1 for d in dofs]]
         row.update(dopri8_s=time.perf_counter() - begin, dopri8_dofs=list(dofs),

@@ -119,9 +119,9 @@ def main(argv=None) -> None:
     }
     methods = {
         "exact_solve spectral": lambda: np.asarray(
-            mj.exact_solve(system, ts, x0, method="spectral").displacement),
+            mj.solve(system, ts, x0, method=mj.Spectral()).displacement),
         "exact_solve dense": lambda: np.asarray(
-            mj.exact_solve(system, ts, x0, method="dense").displacement),
+            mj.solve(system, ts, x0, method=mj.DenseExponential()).displacement),
         "scipy expm + loop": expm_loop,
         "scipy DOP853 rtol 1e-8 (CSR)": dop853,
     }

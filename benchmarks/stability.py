@@ -19,6 +19,7 @@ from _common import (
     figure,
     legend,
     metadata,
+    ode,
     parse_args,
     print_table,
     read_json,
@@ -58,20 +59,22 @@ def size_rows(sizes, dopri_max):
         for solver in ("dopri8", "kvaerno5"):
             if solver == "dopri8" and n > dopri_max:
                 continue
-            out, first, run = _timed_solve(lambda s=solver, system=system, x0=x0, n=n: mj.simulate(
-                system, ts, x0, dofs=[1, n], solver=s, rtol=1e-8, atol=1e-12,
-                max_steps=1_000_000), repeats=1 if n >= 10_000 else 3)
+            out, first, run = _timed_solve(lambda s=solver, system=system, x0=x0, n=n: mj.solve(
+                system, ts, x0, dofs=[1, n],
+                method=ode(s, rtol=1e-8, atol=1e-12, max_steps=1_000_000)),
+                repeats=1 if n >= 10_000 else 3)
             row[solver] = dict(steps=int(out.num_steps), run_s=run, compile_s=first - run,
                                error=float(np.max(np.abs(np.asarray(out.displacement) - truth))))
         if n <= 1000:
             out, first, run = _timed_solve(
-                lambda system=system, x0=x0, n=n: mj.exact_solve(system, ts, x0, dofs=[1, n]),
+                lambda system=system, x0=x0, n=n: mj.solve(system, ts, x0, dofs=[1, n],
+                                                           method=mj.DenseExponential()),
                 repeats=3)
             row["exact"] = dict(run_s=run, compile_s=first - run, error=float(
                 np.max(np.abs(np.asarray(out.displacement) - truth))))
         else:
             try:
-                mj.exact_solve(system, ts, x0, dofs=[1, n])
+                mj.solve(system, ts, x0, dofs=[1, n], method=mj.DenseExponential())
                 row["exact"] = dict(note="ran")
             except ValueError as error:
                 row["exact"] = dict(note="refused: " + str(error).split(":")[1].split(".")[0])
@@ -87,13 +90,14 @@ def damper_rows(coefficients):
     x0 = np.eye(300)[2]
     for c in coefficients:
         system = mj.mikota_chain(300, dampers=[mj.GroundedDamper(7.0, c)])
-        exact = np.asarray(mj.exact_solve(system, ts, x0, dofs=[3, 7, 300]).displacement)
+        exact = np.asarray(mj.solve(system, ts, x0, dofs=[3, 7, 300],
+                                    method=mj.Spectral()).displacement)
         row = dict(coefficient=c, auto=choose_solver(system, ts))
         for solver in ("dopri8", "kvaerno5"):
             try:
-                out, first, run = _timed_solve(lambda s=solver, system=system: mj.simulate(
-                    system, ts, x0, dofs=[3, 7, 300], solver=s, rtol=1e-8, atol=1e-10,
-                    max_steps=100_000), repeats=1)
+                out, first, run = _timed_solve(lambda s=solver, system=system: mj.solve(
+                    system, ts, x0, dofs=[3, 7, 300],
+                    method=ode(s, rtol=1e-8, atol=1e-10, max_steps=100_000)), repeats=1)
                 row[solver] = dict(steps=int(out.num_steps), run_s=run, error=float(
                     np.max(np.abs(np.asarray(out.displacement) - exact))))
             except ValueError as error:
@@ -110,7 +114,7 @@ def precision_rows(n):
     ts = np.linspace(0.0, T, 201)
     system = mj.mikota_chain(n)
     x0 = np.eye(n)[2]
-    reference = np.asarray(mj.exact_solve(system, ts, x0).displacement)
+    reference = np.asarray(mj.solve(system, ts, x0, method=mj.DenseExponential()).displacement)
     scale = np.max(np.abs(reference))
     rows = []
     for dtype in (jnp.float32, jnp.float64):
@@ -154,7 +158,7 @@ def gradient_rows():
 
     def energy(p, c, horizon=20.0):
         system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(p, c)])
-        return mj.integrated_energy(system, horizon, x0)
+        return mj.Energy(horizon, x0)(system)
 
     def side(f, x, h):
         return float((-3 * f(x) + 4 * f(x + h) - f(x + 2 * h)) / (2 * h))
@@ -196,22 +200,23 @@ def failure_rows():
     strong = mj.mikota_chain(n, dampers=[mj.GroundedDamper(4.0, 1e6)])
     cases = [
         ("diffrax runs out of steps (c = 1e6, Dopri8, max_steps = 2000)",
-         lambda: mj.simulate(strong, ts, np.ones(n), max_steps=2000),
+         lambda: mj.solve(strong, ts, np.ones(n), method=mj.ODE(max_steps=2000)),
          "test_a_very_strong_damper_is_cheap_and_accurate_for_kvaerno5_and_stiff_for_dopri8"),
         ("the same, under jax.jit",
-         lambda: jax.jit(lambda c: mj.simulate(
+         lambda: jax.jit(lambda c: mj.solve(
              mj.mikota_chain(n, dampers=[mj.GroundedDamper(4.0, c)]), ts, np.ones(n),
-             max_steps=2000).displacement)(1e6),
+             method=mj.ODE(max_steps=2000)).displacement)(1e6),
          "test_extremes / test_solvers (jit failure tests)"),
-        ("non-finite initial state", lambda: mj.simulate(strong, ts, np.full(n, np.nan)),
+        ("non-finite initial state", lambda: mj.solve(strong, ts, np.full(n, np.nan),
+                                                      method=mj.ODE()),
          "tests/test_solvers.py"),
-        ("solver='auto' under jit", lambda: jax.jit(lambda k: mj.simulate(
-            mj.mikota_chain(n, k=k), ts, np.ones(n), solver="auto").displacement)(1.0),
+        ("solver='auto' under jit", lambda: jax.jit(lambda k: mj.solve(
+            mj.mikota_chain(n, k=k), ts, np.ones(n), method=mj.Auto()).displacement)(1.0),
          "test_auto_needs_concrete_values_and_says_so"),
-        ("exact_solve at n = 200 000 (dense)", lambda: mj.exact_solve(
-            mj.mikota_chain(200_000), ts, np.ones(200_000)),
+        ("exact_solve at n = 200 000 (dense)", lambda: mj.solve(
+            mj.mikota_chain(200_000), ts, np.ones(200_000), method=mj.DenseExponential()),
          "test_dense_methods_refuse_a_size_that_cannot_fit_in_memory"),
-        ("float32 input", lambda: mj.simulate(strong, ts, np.ones(n, np.float32)),
+        ("float32 input", lambda: mj.solve(strong, ts, np.ones(n, np.float32), method=mj.ODE()),
          "tests/test_solvers.py, test_chain.py"),
     ]
     rows = []

@@ -27,7 +27,7 @@ the operators it names (``EXPECTED``; the script stops otherwise):
   ``np.diag(m)`` array would now be recognised as ``Diagonal``; the explicit ``Dense`` operator
   keeps the modal path measurable.)
 
-Each with ``mj.simulate(solver="dopri8", rtol=1e-8)`` and ``solver="kvaerno5"`` (rtol 1e-8; the
+Each with ``mj.ODE(rtol=1e-8)`` (Dopri8) and ``mj.ODE(mj.StructuredKvaerno5())`` (rtol 1e-8; the
 structured ESDIRK: tridiagonal solve + Woodbury for the links for ``branched`` and ``scipy_csr``,
 diagonal + Woodbury for the projected damper in modal coordinates for ``dense_mass``, one dense
 Cholesky factorization of M + s D + s^2 K per step for ``sparse_coo`` and ``dense_k``). Default
@@ -38,7 +38,7 @@ max |x - x_branched| / max |x_branched| over all DOFs and times. Formats solved 
 (physical) coordinates take the same steps, so must agree to SAME_COORDINATES = 1e-10;
 ``dense_mass`` is solved in modal coordinates, where the step-size controller sees other
 components, so it agrees only to the integration error, MODAL_COORDINATES = 1e-5 (at n = 301 every
-row is also checked against ``mj.exact_solve``, EXACT_CHECK = 1e-5, which measures that error:
+row is also checked against ``mj.Spectral()``, EXACT_CHECK = 1e-5, which measures that error:
 ~1e-7 to 1e-6 at rtol 1e-8). At the smallest n the Dopri8 executables are also called at rtol 1e-11
 (the tolerance is traced: no recompile), where every format must agree with ``branched`` to
 TIGHT_CHECK = 1e-8: the modal path's gap at rtol 1e-8 is integration error, not a wrong system.
@@ -56,7 +56,7 @@ three repeats). Writes ``benchmarks/results/user_matrices[_quick].{json,png}``.
 
 # _common first: it sets OPENBLAS_NUM_THREADS before numpy and jax load.
 from _common import (  # noqa: I001
-    Compiled, elapsed, figure, fit_exponent, legend, parse_args, print_table, read_json,
+    Compiled, elapsed, figure, fit_exponent, legend, ode, parse_args, print_table, read_json,
     save_figure, subtitle, timed, write_json)
 
 import time
@@ -182,7 +182,7 @@ def check_operators(name: str, system, n: int) -> dict:
 
 def compile_solve(system, solver: str, ts, v0):
     """The solve, compiled once; rtol is traced (an argument), so ``TIGHT_RTOL`` reuses it."""
-    return Compiled(lambda s, v, rtol: mj.simulate(s, ts, None, v, solver=solver, rtol=rtol),
+    return Compiled(lambda s, v, rtol: mj.solve(s, ts, None, v, method=ode(solver, rtol=rtol)),
                     system, v0, RTOL)
 
 
@@ -218,7 +218,8 @@ def measure_size(length: int, quick: bool, budget: float, last: dict, say) -> li
         for name, f in found.items()))
     reference = None
     if n <= EXACT_MAX_N:
-        reference = np.asarray(mj.exact_solve(systems["branched"], ts, None, v0).displacement)
+        reference = np.asarray(mj.solve(systems["branched"], ts, None, v0,
+                                        method=mj.Spectral()).displacement)
     say(f"n = {n}: systems built")
 
     for solver in SOLVERS:

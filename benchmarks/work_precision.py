@@ -36,6 +36,7 @@ from _common import (  # noqa: I001  (first: it sets OPENBLAS_NUM_THREADS before
     figure,
     legend,
     max_error,
+    ode,
     parse_args,
     print_table,
     read_json,
@@ -157,13 +158,13 @@ def main(argv=None) -> dict:
 
     # ---- compile every full-model executable (compile time apart from run time); the
     # reference keeps the velocity (the phase error of eq. 5.4 reads it), the solver rows do not
-    exact_full = Compiled(lambda sys, x: mj.exact_solve(sys, ts, x, velocity=True,
-                                                        method="dense"), system, x0)
-    spectral_full = Compiled(lambda sys, x: mj.exact_solve(sys, ts, x, method="spectral"),
+    exact_full = Compiled(lambda sys, x: mj.solve(sys, ts, x, velocity=True,
+                                                  method=mj.DenseExponential()), system, x0)
+    spectral_full = Compiled(lambda sys, x: mj.solve(sys, ts, x, method=mj.Spectral()),
                              system, x0)
     compiled = {
-        solver: Compiled(lambda sys, x, rtol, solver=solver: mj.simulate(
-            sys, ts, x, solver=solver, rtol=rtol, atol=atol_for(rtol)),
+        solver: Compiled(lambda sys, x, rtol, solver=solver: mj.solve(
+            sys, ts, x, method=ode(solver, rtol=rtol, atol=atol_for(rtol))),
             system, x0, TARGET_RTOL)
         for solver in diffrax_solvers}
     compile_s = {"exact_solve": exact_full.compile_s,
@@ -270,14 +271,15 @@ def main(argv=None) -> dict:
         project = Compiled(lambda sys, phi, rank=rank: mj.galerkin(sys, phi[:, :rank]),
                            system, modes)
         model, project_s, project_times = repeated(project, system, modes, repeats=jax_repeats)
-        exact_rom = Compiled(lambda mdl, x: mj.exact_solve(mdl, ts, x, velocity=True), model, x0)
+        exact_rom = Compiled(lambda mdl, x: mj.solve(mdl, ts, x, velocity=True,
+                                                     method=mj.DenseExponential()), model, x0)
         exact_result, run_s, times = repeated(exact_rom, model, x0, repeats=jax_repeats)
         rom_x = np.asarray(exact_result.displacement)
         rom_error = max_error(rom_x, ref_x)
         row(f"ROM r={rank} exact_solve", "exact", "mikota_jax", rank=rank,
             compile_s=exact_rom.compile_s, run_s=run_s, run_times=times, error=rom_error)
-        sim_rom = Compiled(lambda mdl, x, rtol: mj.simulate(
-            mdl, ts, x, solver="dopri8", rtol=rtol, atol=atol_for(rtol), velocity=True),
+        sim_rom = Compiled(lambda mdl, x, rtol: mj.solve(
+            mdl, ts, x, velocity=True, method=mj.ODE(rtol=rtol, atol=atol_for(rtol))),
             model, x0, ROM_RTOL)
         sim_result, run_s, times = repeated(sim_rom, model, x0, ROM_RTOL, repeats=jax_repeats)
         row(f"ROM r={rank} dopri8", "dopri8", "mikota_jax", rtol=ROM_RTOL, rank=rank,

@@ -37,19 +37,16 @@ _MODULES = {
     "_design": "DamperProblem",
     "_enrichment": "enriched_reduce sensitivity_snapshots",
     "_estimate": "AbstractEstimator Estimate Hierarchical ResidualBound certified_sweep estimate",
-    "_exact": "exact_solve",
     "_excitation": "LoadFunction Pulse pulse unit_vector",
     "_frequency": "frequency_response",
     "_galerkin": "ReducedModel galerkin",
     "_greedy": "GreedyBasis greedy_reduce rank_for_bound",
     "_implicit": "StructuredKvaerno5",
-    "_integrate": "Trajectory simulate",
+    "_integrate": "Trajectory",
     "_internal_damping": "ModalDamping Rayleigh",
     "_interpolatory": "IRKABasis band_shifts irka_basis rational_krylov_basis",
     "_modal": "modal_decomposition",
     "_objective_family": "AbstractObjective AverageEnergy Energy H2Norm OutputEnergy Peak",
-    "_objectives": "integrated_energy smooth_peak total_average_energy",
-    "_output_criteria": "h2_norm output_energy",
     "_placement_objective": "placement_objective",
     "_pod": "POD energy_fraction pod rank_for_energy",
     "_reduction": "ReducedBasis Reduction reduce",
@@ -131,7 +128,6 @@ if TYPE_CHECKING:  # the same names for static tools (type checkers, the API ref
     from ._estimate import ResidualBound as ResidualBound
     from ._estimate import certified_sweep as certified_sweep
     from ._estimate import estimate as estimate
-    from ._exact import exact_solve as exact_solve
     from ._excitation import LoadFunction as LoadFunction
     from ._excitation import Pulse as Pulse
     from ._excitation import pulse as pulse
@@ -144,7 +140,6 @@ if TYPE_CHECKING:  # the same names for static tools (type checkers, the API ref
     from ._greedy import rank_for_bound as rank_for_bound
     from ._implicit import StructuredKvaerno5 as StructuredKvaerno5
     from ._integrate import Trajectory as Trajectory
-    from ._integrate import simulate as simulate
     from ._internal_damping import ModalDamping as ModalDamping
     from ._internal_damping import Rayleigh as Rayleigh
     from ._interpolatory import IRKABasis as IRKABasis
@@ -158,11 +153,6 @@ if TYPE_CHECKING:  # the same names for static tools (type checkers, the API ref
     from ._objective_family import H2Norm as H2Norm
     from ._objective_family import OutputEnergy as OutputEnergy
     from ._objective_family import Peak as Peak
-    from ._objectives import integrated_energy as integrated_energy
-    from ._objectives import smooth_peak as smooth_peak
-    from ._objectives import total_average_energy as total_average_energy
-    from ._output_criteria import h2_norm as h2_norm
-    from ._output_criteria import output_energy as output_energy
     from ._placement_objective import placement_objective as placement_objective
     from ._pod import POD as POD
     from ._pod import energy_fraction as energy_fraction

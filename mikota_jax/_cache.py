@@ -3,8 +3,8 @@
 Compiling a solve (1-5 s) costs far more than running it (0.01-0.3 s). With the cache on, a second
 process loads the compiled executables from disk instead. Only executables without host callbacks
 can be stored: the solvers therefore return a ``RESULTS`` code and raise outside the compiled code
-(``simulate``'s executable still holds diffrax's own check of ``SaveAt(ts)``, so it is recompiled
-in each process).
+(the ``ODE`` method's executable still holds diffrax's own check of ``SaveAt(ts)``, so it is
+recompiled in each process).
 Importing mikota_jax changes no global setting; the CLI calls ``enable_compilation_cache`` unless
 ``MIKOTA_JAX_CACHE=0``.
 """

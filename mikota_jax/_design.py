@@ -181,7 +181,7 @@ class DamperProblem(eqx.Module):
     displacements build the POD basis, ``energy`` the pseudo-energy fraction that sets its rank
     (eq. 3.7; ``criterion`` as in ``rank_for_energy``) unless ``rank`` is given.
 
-    Shapes: ``ts`` (N,), ``x0``, ``v0`` (n,), ``load`` as in ``simulate``; the design is
+    Shapes: ``ts`` (N,), ``x0``, ``v0`` (n,), ``load`` as in ``solve``; the design is
     ``positions`` (g,), 1-based in [1, n], and ``coefficients`` (g,), >= 0 in force * time per
     length, for g grounded dampers. ``objective``: "energy", "average_energy" (``lowest`` modes)
     or "peak" (of the 1-based ``dof``, order-``order`` mean, ``smooth_peak``); stored as the

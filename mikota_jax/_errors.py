@@ -84,29 +84,29 @@ class RESULTS(eqx.Enumeration):
     max_steps_reached = (
         "the integration stopped: max_steps = {max_steps} reached before ts[-1]. Increase "
         "max_steps, loosen rtol/atol, or for a stiff case (large n, strong damper) use the "
-        "structured implicit solver (method=ODE(StructuredKvaerno5()), simulate's "
-        "solver='kvaerno5') or an exact method (Spectral(), DenseExponential()).")
+        "structured implicit solver (method=ODE(StructuredKvaerno5())) or an exact method "
+        "(Spectral(), DenseExponential()).")
     solver_failed = ("the integration failed inside diffrax (step size collapsed or the "
                      "implicit solve diverged); check the inputs for non-finite values, or try "
                      "another solver.")
     non_finite_states = ("the integration produced non-finite states; check the inputs and "
                          "tolerances, or use the stiff solver StructuredKvaerno5().")
     exact_not_finite = (
-        "exact_solve produced non-finite values; check the inputs for huge or non-finite values "
-        "(a rate ||A|| h beyond ~1e20 is out of the matrix exponential's range: use "
-        "simulate(..., solver='kvaerno5')).")
+        "the exact solution produced non-finite values; check the inputs for huge or non-finite "
+        "values (a rate ||A|| h beyond ~1e20 is out of the matrix exponential's range: use "
+        "solve(..., method=ODE(StructuredKvaerno5()))).")
     pulse_too_short = (
-        "exact_solve: the pulse duration is too short for the piecewise-constant formula, which "
-        "loses digits as eps / (omega_1 duration) (more than 1e-6 here); use its Dirac limit "
-        "v0 = M^-1 (amplitude duration) e_dof, or simulate.")
+        "DenseExponential(): the pulse duration is too short for the piecewise-constant "
+        "formula, which loses digits as eps / (omega_1 duration) (more than 1e-6 here); use its "
+        "Dirac limit v0 = M^-1 (amplitude duration) e_dof, or method=ODE().")
     out_of_range = (
-        "integrated_energy: the fastest rate times the horizon (||A|| T) exceeds 4.5e11, beyond "
+        "Energy: the fastest rate times the horizon (||A|| T) exceeds 4.5e11, beyond "
         "which the dense (Van Loan) energy loses more than ~1e-5 to rounding (or the result is "
         "not finite); a full system with discrete dampers takes the spectral path "
         "(method='exact'), which has no such limit; else shorten the horizon, or model a DOF "
         "that a strong damper pins as fixed.")
     not_damped = (
-        "total_average_energy: some mode is undamped (the Lyapunov solution does not exist); "
+        "AverageEnergy: some mode is undamped (the Lyapunov solution does not exist); "
         "place a damper where every mode moves, or restrict Z with lowest=s (called outside jit, "
         "the refusal names the undamped modes).")
     spectral_failed = (
@@ -217,7 +217,7 @@ def check_dense_memory(size: int, matrices: float, what: str) -> None:
         raise ValueError(
             MARK + f"{what} works with dense matrices: at n = {size} it needs about "
             f"{need / 2**30:.1f} GiB, more than the {available / 2**30:.1f} GiB available. Use "
-            "simulate(..., solver='kvaerno5') or integrated_energy(..., method='ode') (O(n) "
+            "solve(..., method=ODE(StructuredKvaerno5())) or Energy(..., method='ode') (O(n) "
             "memory), or a reduced model.")
 
 

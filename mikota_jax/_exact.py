@@ -197,14 +197,15 @@ def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = 
     if method not in METHODS:
         raise ValueError(MARK + f"method must be 'auto', 'spectral' or 'dense', got {method!r}.")
     if isinstance(load, LoadFunction) or (load is not None and not isinstance(load, Pulse)):
-        raise ValueError(MARK + "exact_solve takes load=None or a Pulse (piecewise constant); "
-                         "integrate a general f(t) with simulate.")
+        raise ValueError(MARK + "the exact methods (Spectral(), DenseExponential()) take "
+                         "load=None or a Pulse (piecewise constant); integrate a general f(t) "
+                         "with solve(..., method=ODE()).")
     if not (displacement or velocity):
         raise ValueError(MARK + "ask for displacement and/or velocity; nothing would be saved.")
     refusal = spectral_applies(model)
     if method == "spectral" and refusal is not None:
-        raise ValueError(MARK + f"method='spectral' does not apply: {refusal}; use "
-                         "method='dense'.")
+        raise ValueError(MARK + f"Spectral() does not apply: {refusal}; use "
+                         "DenseExponential().")
     spectral = refusal is None and method != "dense"
     ts = check_times(ts)
     system = model.system if isinstance(model, ReducedModel) else model
@@ -212,18 +213,18 @@ def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = 
         xp = array_module(ts)
         gaps = xp.diff(ts)
         ts = check(ts, xp.max(xp.abs(gaps - gaps[0])) > _step_tolerance(ts, gaps[0], xp),
-                   "ts must be a uniform grid for exact_solve of a damped system; use simulate "
-                   "for other grids.")
+                   "ts must be a uniform grid for DenseExponential() of a damped system; use "
+                   "method=ODE() for other grids.")
     x0, v0, load = check_problem(model, x0, v0, load)
     damped = system.damped
     if not (spectral and uses_rows(system)):  # a large chain's spectral path: O(n (N + block))
         check_dense_memory(system.size, (SPECTRAL_MATRICES if spectral else 32) if damped else 6,
-                           "exact_solve")
+                           "DenseExponential()" if not spectral else "Spectral()")
     options = dict(dofs=check_dofs(dofs, model.size), displacement=displacement,
                    velocity=velocity)
     # the outputs and the (N, n) complex coefficient tables of the modal sums
     check_output_memory(ts.shape[0], len(options["dofs"]) * (displacement + velocity)
-                        + 4 * system.size, "exact_solve")
+                        + 4 * system.size, "the exact solution")
     if not spectral:
         trajectory, result = _exact(model, ts, x0, v0, load, **options)
         return raise_result(trajectory, result)

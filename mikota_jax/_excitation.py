@@ -34,8 +34,8 @@ class Pulse(eqx.Module):
     """Rectangular pulse f(t) = direction on [start, start + duration], else zero (eq. 4.3).
 
     ``direction``: the (n,) force vector while the pulse is on (force units); ``start``,
-    ``duration``: scalars in time units. Build the paper's with ``pulse``. ``simulate`` stops
-    its steps at the two jumps; ``exact_solve`` treats the load as piecewise constant.
+    ``duration``: scalars in time units. Build the paper's with ``pulse``. ``solve``'s ``ODE``
+    stops its steps at the two jumps; the exact methods treat the load as piecewise constant.
     """
 
     direction: Vector
@@ -91,7 +91,8 @@ class LoadFunction(eqx.Module):
     """Any load f(t) given by the user (eq. 3.1): ``function`` maps a scalar t to an (n,) force.
 
     ``basis``: None, or the (n, r) basis of a reduced model, which then applies basis^T f(t)
-    (eq. 3.4). ``simulate`` wraps a plain callable ``load`` in one; ``exact_solve`` refuses it.
+    (eq. 3.4). ``solve``'s ``ODE`` wraps a plain callable ``load`` in one; the exact methods
+    refuse it.
     """
 
     function: Callable

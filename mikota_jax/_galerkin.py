@@ -26,7 +26,7 @@ class ReducedModel(eqx.Module):
 
     ``system``: the projected ``SecondOrderSystem`` M_red, D_red, K_red of eq. (3.4) (dense r x r
     mass and stiffness, low-rank dampers); ``basis``: Phi, (n, r) with orthonormal columns
-    (eq. 3.8). ``simulate`` and ``exact_solve`` take it like a full system: initial states and
+    (eq. 3.8). ``solve`` takes it like a full system: initial states and
     loads in full coordinates, outputs lifted back to the 1-based full DOFs. Build with
     ``galerkin``.
     """

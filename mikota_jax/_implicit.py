@@ -165,8 +165,8 @@ def shifted_solver(system, s):
 class StructuredKvaerno5(diffrax.AbstractSolver):
     """Kvaerno's L-stable 5/4 ESDIRK (diffrax's tableau) with exact, structured stage solves.
 
-    Use it as ``simulate(..., solver="kvaerno5")`` for stiff cases: large n (highest
-    eigenfrequency n sqrt(k/m)) or a strong damper. ``simulate`` binds the system and load; a
+    Use it as ``solve(..., method=ODE(StructuredKvaerno5()))`` for stiff cases: large n (highest
+    eigenfrequency n sqrt(k/m)) or a strong damper. ``ODE`` binds the system and load; a
     stage costs one O(n) tridiagonal solve instead of Newton iterations on a dense Jacobian.
     The methods below are diffrax's ``AbstractSolver`` interface; the state is y = (x, v), (2n,).
     """
@@ -178,7 +178,7 @@ class StructuredKvaerno5(diffrax.AbstractSolver):
     interpolation_cls: ClassVar = diffrax.ThirdOrderHermitePolynomialInterpolation.from_k
 
     def bind(self, system, load) -> "StructuredKvaerno5":
-        """This solver for one system (diagonal-mass coordinates) and load; ``simulate`` binds."""
+        """This solver for one system (diagonal-mass coordinates) and load; ``ODE`` binds."""
         return StructuredKvaerno5(system, load)
 
     def order(self, terms):
@@ -188,7 +188,8 @@ class StructuredKvaerno5(diffrax.AbstractSolver):
     def init(self, terms, t0, t1, y0, args):
         """No solver state; raises unless bound to a system."""
         if self.system is None:
-            raise ValueError("StructuredKvaerno5 must be bound to a system; use simulate().")
+            raise ValueError("StructuredKvaerno5 must be bound to a system; use it as "
+                             "solve(..., method=ODE(StructuredKvaerno5())).")
         return None
 
     def func(self, terms, t0, y0, args):

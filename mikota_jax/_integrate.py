@@ -50,11 +50,11 @@ SOLVERS = {
 
 
 class Trajectory(eqx.Module):
-    """The saved outputs of ``simulate``/``exact_solve``: rows are times, columns requested DOFs.
+    """The saved outputs of ``solve``: rows are times, columns requested DOFs.
 
     ``ts``: (N,) times; ``displacement`` x, ``velocity`` x': (N, d), column j for the 1-based DOF
     ``dofs[j]`` (d = len(dofs); all n DOFs by default), None when not requested; ``num_steps``:
-    the integrator's step count (``simulate``; None for ``exact_solve``). A reduced model's
+    the integrator's step count (``ODE``; None for an exact method). A reduced model's
     outputs are lifted to the full DOFs (eq. 3.2).
     """
 
@@ -328,7 +328,7 @@ def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | No
     rtol, atol, adjoint = check_solve_options(rtol, atol, max_steps, adjoint)
     checked_dofs = check_dofs(dofs, model.size)
     check_output_memory(ts.shape[0], len(checked_dofs) * (displacement + velocity)
-                        + 2 * model.size, "simulate")
+                        + 2 * model.size, "ODE()")
     if solver == "auto":
         solver = choose_solver(model, ts, load)
         if solver == "exact":

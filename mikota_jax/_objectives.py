@@ -252,7 +252,7 @@ def integrated_energy(model, horizon: float, x0: Vector | None = None,
             method = "spectral"
         else:
             check_dense_memory(_modal_size(model), 100 if not takes_spectral(model) else 12,
-                               "integrated_energy(method='exact')")
+                               "Energy(method='exact')")
         value, result = integrated_energy_exact_with_result(model, horizon, x0, v0, method)
         return raise_result(value, result)
     rtol, atol, adjoint = check_solve_options(rtol, atol, max_steps, adjoint)
@@ -312,7 +312,7 @@ def total_average_energy(model, lowest: int | None = None, *,
     check_lowest(lowest, modal_size)
     _check_spectral(model, method)
     check_dense_memory(_modal_size(model), 100 if not takes_spectral(model) else 12,
-                       "total_average_energy")
+                       "AverageEnergy()")
     value, result = total_average_energy_with_result(model, lowest=lowest, method=method)
     _name_undamped_modes(model, result, lowest)
     return raise_result(value, result)
@@ -335,7 +335,7 @@ def _name_undamped_modes(model, result, lowest):
         shown = ", ".join(map(str, numbers[:8])) + (", ..." if len(numbers) > 8 else "")
         which = (f"mode {shown} (1-based, by frequency) is" if len(numbers) == 1 else
                  f"modes {shown} (1-based, by frequency) are")
-        raise ValueError(MARK + f"total_average_energy: {which} undamped (no damper moves "
+        raise ValueError(MARK + f"AverageEnergy: {which} undamped (no damper moves "
                          f"{'it' if len(numbers) == 1 else 'them'}), so the Lyapunov solution "
                          "does not exist; place a damper where every mode moves, or restrict Z "
                          f"with lowest=s (s < {numbers[0]}).")
@@ -345,7 +345,7 @@ def smooth_peak(values, order: int = 16) -> Float[Array, ""]:
     """(mean_k values_k^order)^(1/order): a smooth peak of |values|, in [N^(-1/order), 1] x max.
 
     ``values``: any float64 array of N entries (flattened), e.g. the (N, 1) ``displacement`` of
-    ``simulate(..., dofs=[d])``; a scalar in the units of ``values``. ``order`` an
+    ``solve(..., dofs=[d])``; a scalar in the units of ``values``. ``order`` an
     even integer >= 2 (higher: closer to the max, less smooth). Scaled by the max, which carries
     no derivative of its own, so large orders do not overflow.
     """

@@ -36,7 +36,7 @@ class Scene(eqx.Module):
     ``system``: the chain or system (n DOFs); ``ts``: (N,) output times; ``x0``, ``v0``: (n,)
     initial state or None (zero); ``load``: a ``Pulse`` (eq. 4.3) or None; ``reduction``: the
     snapshot window, rank rule and POD method (eqs. 3.5-3.8), or None; ``output``: 1-based DOFs and
-    quantities; ``solver``: "exact" (``exact_solve``) or a ``simulate`` solver with ``rtol``,
+    quantities; ``solver``: "exact" (``solve``'s exact methods) or an ``ODE`` solver with ``rtol``,
     ``atol``, ``max_steps``. Consistent units, as in the paper's dimensionless scenes.
     """
 

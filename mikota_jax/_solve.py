@@ -4,11 +4,11 @@ The methods (``AbstractMethod`` and its concrete, final subclasses, in the style
 solvers and lineax's ``AutoLinearSolver``):
 
 * ``Spectral()``: the exact solution from the damped modes of a full system with discrete
-  dampers (``exact_solve(method="spectral")``), no integration error, any grid;
+  dampers (``_exact.exact_solve(method="spectral")``), no integration error, any grid;
 * ``DenseExponential()``: the exact solution from modal coordinates and a matrix exponential
-  (``exact_solve(method="dense")``), any damping, reduced models included, a uniform grid when
-  damped;
-* ``ODE(solver, rtol, atol, ...)``: a diffrax integration (``simulate``), any load; the
+  (``_exact.exact_solve(method="dense")``), any damping, reduced models included, a uniform grid
+  when damped;
+* ``ODE(solver, rtol, atol, ...)``: a diffrax integration (``_integrate.simulate``), any load; the
   structured implicit ``StructuredKvaerno5()`` for stiff cases;
 * ``Auto()``: what ``Auto().select(model, ts, load)`` returns, a pure function of the structure
   (the system's operator types, its dampers' kind and the load's type) and, for the integrators'
@@ -39,7 +39,7 @@ class AbstractMethod(eqx.Module):
 
 class Spectral(AbstractMethod):
     """The exact solution by the damped modes: x(t) = Re sum_j a_j exp(lambda_j t) U y_j over the
-    2n roots of the secular equation (Veselic 2011; ``exact_solve(method="spectral")``).
+    2n roots of the secular equation (Veselic 2011).
 
     Applies to a full ``SecondOrderSystem`` whose damping is discrete dampers, with or without
     internal damping diagonal in modal coordinates, and no load or a ``Pulse``; any increasing
@@ -55,10 +55,10 @@ class Spectral(AbstractMethod):
 
 
 class DenseExponential(AbstractMethod):
-    """The exact solution in modal coordinates with one 2n x 2n matrix exponential
-    (``exact_solve(method="dense")``): any damping matrix, reduced models, no load or a
-    ``Pulse``; a uniform grid when damped, any increasing grid when undamped. O(n^3) once, O(n^2)
-    per time step, some 32 n x n arrays of memory."""
+    """The exact solution in modal coordinates with one 2n x 2n matrix exponential: any
+    damping matrix, reduced models, no load or a ``Pulse``; a uniform grid when damped, any
+    increasing grid when undamped. O(n^3) once, O(n^2) per time step, some 32 n x n arrays of
+    memory."""
 
     def solve(self, model, ts, x0, v0, load, *, dofs, displacement, velocity):
         """The ``Trajectory`` by the matrix exponential (``solve``'s arguments)."""
@@ -69,14 +69,16 @@ class DenseExponential(AbstractMethod):
 
 
 class ODE(AbstractMethod):
-    """A diffrax integration of the first-order form (``simulate``): any load (a ``Pulse``, a
+    """A diffrax integration of the first-order form: any load (a ``Pulse``, a
     ``LoadFunction`` or a callable t -> (n,)), any model, any grid.
 
     ``solver``: a diffrax solver (default ``diffrax.Dopri8()``, explicit, the most accurate per
     step), or ``StructuredKvaerno5()`` (L-stable, its stage equations solved in the chain's O(n)
     structure: for stiff cases); ``rtol``, ``atol`` (default 1e-2 rtol times the excitation's
     scale), ``max_steps``, ``progress`` (a progress bar) and ``adjoint`` (how derivatives pass
-    through the solve; default ``diffrax.RecursiveCheckpointAdjoint()``) as ``simulate``'s."""
+    through the solve; default ``diffrax.RecursiveCheckpointAdjoint()``, for reverse mode; use
+    ``diffrax.ForwardMode()`` under ``jax.jvp``/``jax.jacfwd``). Tolerances are traced: changing
+    them does not recompile."""
 
     solver: diffrax.AbstractSolver = diffrax.Dopri8()
     rtol: float = 1e-8

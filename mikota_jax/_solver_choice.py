@@ -90,7 +90,7 @@ def choose_solver(model, ts, load=None) -> str:
         return "exact"
     leaves = jax.tree.leaves(model) + [ts]
     if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
-        raise ValueError(MARK + "solver='auto' needs concrete system values and times; under "
-                         "jit/vmap name the solver ('dopri8', or 'kvaerno5' for stiff cases).")
+        raise ValueError(MARK + "Auto() needs concrete system values and times; under jit/vmap "
+                         "name the method (ODE(), or ODE(StructuredKvaerno5()) for stiff cases).")
     span = float(np.asarray(ts)[-1] - np.asarray(ts)[0])
     return "kvaerno5" if stiffness_rate(model) * span > STIFF_THRESHOLD else "dopri8"

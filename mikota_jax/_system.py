@@ -23,7 +23,7 @@ class SecondOrderSystem(eqx.Module):
     matrices; ``damping`` is the discrete dampers' operator (low rank once projected), ``internal``
     the rest of D (a user's matrix, Rayleigh, modal damping), each ``None`` when absent; D (force *
     time per length) is their sum. Build with ``mikota_chain``, ``chain``, ``branched_chain`` or
-    ``system``; ``simulate`` and ``exact_solve`` solve it.
+    ``system``; ``solve`` solves it.
     """
 
     mass: Operator

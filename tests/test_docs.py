@@ -39,10 +39,10 @@ EQUATIONS = {
     "analytic.mode_shape_coefficients": "2.5", "analytic.paper_mode_shape": "2.6", "chain": "2.2",
     "mikota_chain": "2.3", "SecondOrderSystem": "3.1",
     "modal_decomposition": "2.4", "GroundedDamper": "5.1", "RelativeDamper": "3.1",
-    "simulate": "3.1", "exact_solve": "3.1", "Trajectory": "3.2", "Pulse": "4.3", "pulse": "4.3",
+    "solve": "3.1", "Trajectory": "3.2", "Pulse": "4.3", "pulse": "4.3",
     "LoadFunction": "3.1", "galerkin": "3.4", "ReducedModel": "3.3", "POD": "3.6", "pod": "3.5",
     "energy_fraction": "3.7", "rank_for_energy": "3.7", "metrics.pseudo_energy": "3.7",
-    "metrics.phase_error": "5.4", "integrated_energy": "3.1", "total_average_energy": "3.1",
+    "metrics.phase_error": "5.4", "Energy": "3.1", "AverageEnergy": "3.1",
     "Scene": "4.3", "run_scene": "5.4", "reproduce": "5.4",
     "DamperProblem": "3.7", "optimise_dampers": "3.4", "placement_objective": "3.4",
 }
@@ -51,10 +51,9 @@ EQUATIONS = {
 SHAPED = [
     "analytic.eigenfrequencies", "analytic.mode_shape", "analytic.paper_mode_shape", "chain",
     "modal_decomposition",
-    "unit_vector", "Pulse", "pulse", "LoadFunction", "simulate", "exact_solve", "Trajectory",
+    "unit_vector", "Pulse", "pulse", "LoadFunction", "solve", "Trajectory",
     "ReducedModel", "galerkin", "POD", "pod", "energy_fraction", "rank_for_energy",
-    "metrics.pseudo_energy", "metrics.phase_error", "metrics.relative_error", "integrated_energy",
-    "smooth_peak",
+    "metrics.pseudo_energy", "metrics.phase_error", "metrics.relative_error", "Energy", "Peak",
     "Scene", "DamperProblem", "PlacementResult", "SweepResult",
     "placement_objective", "reduced_landscape", "sweep_dampers", "POD.basis",
     "POD.energy_fraction", "ReducedModel.lift", "ReducedModel.reduce_state",
@@ -62,7 +61,7 @@ SHAPED = [
 ]
 SHAPE = re.compile(r"\((?:[nNrmkdgPCS]|\d+)(?:, ?(?:[nNrmkdgPCS]|\d+))*,?\)")
 ONE_BASED = ["unit_vector", "pulse", "analytic.mode_shape", "GroundedDamper", "RelativeDamper",
-             "simulate", "exact_solve", "Trajectory", "DamperProblem", "placement_objective",
+             "solve", "Trajectory", "DamperProblem", "placement_objective",
              "sweep_dampers"]
 UNITS = {"analytic.eigenfrequencies": "rad per unit time", "mikota_chain": "force per length",
          "chain": "force per length", "GroundedDamper": "force * time per length",

@@ -5,6 +5,7 @@ one-sided behaviour at integer positions (the linear split has a kink there) is 
 convention of ``GroundedDamper``: JAX returns the right-sided derivative, the left-sided one at n.
 """
 
+import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -19,9 +20,10 @@ X0 = np.eye(N)[2]  # x_3(0) = 1, as in Section 5
 def energy(position, coefficient, horizon=20.0, solver="exact"):
     system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(position, coefficient)])
     if solver == "exact":
-        return mj.integrated_energy(system, horizon, X0)
-    out = mj.simulate(system, jnp.array([0.0, horizon]), X0, dofs=[3], velocity=True,
-                      solver=solver, rtol=1e-12, atol=1e-14, max_steps=200_000)
+        return mj.Energy(horizon, X0)(system)
+    solver = diffrax.Dopri8() if solver == "dopri8" else mj.StructuredKvaerno5()
+    out = mj.solve(system, jnp.array([0.0, horizon]), X0, dofs=[3], velocity=True,
+                   method=mj.ODE(solver, rtol=1e-12, atol=1e-14, max_steps=200_000))
     return out.displacement[-1, 0]
 
 

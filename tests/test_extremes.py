@@ -15,6 +15,7 @@ arithmetic and the SVD of the chain's bidiagonal factor (relative accuracy). A t
 
 from decimal import Decimal, localcontext
 
+import diffrax
 import numpy as np
 import pytest
 import scipy.linalg as sl
@@ -28,6 +29,8 @@ TS = np.linspace(0.0, 20.0, 201)
 RNG = np.random.default_rng(7)
 X0, V0 = RNG.standard_normal(N), RNG.standard_normal(N)
 MASS = M_ / np.arange(1, N + 1)  # m_i = m / i (eq. 2.3)
+
+ODE_SOLVERS = {"dopri8": diffrax.Dopri8(), "kvaerno5": mj.StructuredKvaerno5()}
 
 
 # --- references (numpy / scipy / decimal only) ---------------------------------------------------
@@ -164,9 +167,10 @@ LONG = np.linspace(0.0, 1000.0, 2001)
 @pytest.mark.parametrize("dampers", [(), (mj.GroundedDamper(3, 0.0),)], ids=["none", "zero"])
 def test_exact_solve_conserves_the_energy_of_an_undamped_chain_over_a_thousand_time_units(
         dampers, close):
-    # damping=None takes the rotation path, a zero damper the matrix-exponential path
+    # damping=None takes the rotation path (DenseExponential), a zero damper the damped modes
     system = mj.mikota_chain(N, M_, K_, dampers=dampers)
-    out = mj.exact_solve(system, LONG, X0, V0, velocity=True)
+    method = mj.Spectral() if dampers else mj.DenseExponential()
+    out = mj.solve(system, LONG, X0, V0, velocity=True, method=method)
     e = energy(system, np.asarray(out.displacement), np.asarray(out.velocity))
     close(e, np.full_like(e, e[0]), rtol=1e-12)
     x, v = mikota_free_vibration(N, M_, K_, LONG, X0, V0)
@@ -177,7 +181,7 @@ def test_exact_solve_conserves_the_energy_of_an_undamped_chain_over_a_thousand_t
 @pytest.mark.parametrize("rtol", [1e-8, 1e-10])
 def test_dopri8_energy_drift_over_a_thousand_time_units_stays_within_horizon_times_rtol(rtol):
     system = mj.mikota_chain(N, M_, K_)
-    out = mj.simulate(system, LONG, X0, V0, velocity=True, rtol=rtol, atol=rtol / 100)
+    out = mj.solve(system, LONG, X0, V0, velocity=True, method=mj.ODE(rtol=rtol, atol=rtol / 100))
     e = energy(system, np.asarray(out.displacement), np.asarray(out.velocity))
     drift = np.max(np.abs(e / e[0] - 1))  # measured: 2.1e-6 at rtol 1e-8, 2.0e-8 at 1e-10
     assert drift < LONG[-1] * rtol
@@ -188,8 +192,8 @@ def test_dopri8_energy_drift_over_a_thousand_time_units_stays_within_horizon_tim
 def test_integrated_energy_of_an_undamped_chain_is_its_energy_times_the_horizon(close):
     system = mj.mikota_chain(N, M_, K_)
     e0 = energy(system, X0[None], V0[None])[0]
-    close(mj.integrated_energy(system, 1000.0, X0, V0), 1000.0 * e0, rtol=1e-11)
-    ode = mj.integrated_energy(system, 1000.0, X0, V0, method="ode")  # rtol 1e-9: 8e-8 measured
+    close(mj.Energy(1000.0, X0, V0)(system), 1000.0 * e0, rtol=1e-11)
+    ode = mj.Energy(1000.0, X0, V0, method="ode")(system)  # rtol 1e-9: 8e-8 measured
     close(ode, 1000.0 * e0, rtol=1e-6)
 
 
@@ -212,7 +216,7 @@ def test_exact_solve_matches_the_matrix_exponential_for_damper_coefficients_1e_8
         coefficient, dof, close):
     system = mj.mikota_chain(N, M_, K_, dampers=[mj.GroundedDamper(dof, coefficient)])
     x, v = expm_reference(system, TS, X0, V0)
-    out = mj.exact_solve(system, TS, X0, V0, velocity=True)
+    out = mj.solve(system, TS, X0, V0, velocity=True, method=mj.Spectral())
     tol = stiff_tolerance(coefficient, dof)  # measured: <= 5e-13 up to c = 100, 1.1e-9 at 1e6
     close(out.displacement, x, atol=tol * np.max(np.abs(x)))
     close(out.velocity, v, atol=tol * np.max(np.abs(v)))
@@ -227,7 +231,7 @@ def test_exact_solve_with_a_very_fast_damper_mode_is_finite_and_right(dampers, c
     # rate c / m_n = 7.7e6 (or c (1/m_3 + 1/m_6) = 6.9e6) times the grid step 0.1
     system = mj.mikota_chain(N, M_, K_, dampers=dampers)
     x, _ = expm_reference(system, TS, X0, V0)
-    out = mj.exact_solve(system, TS, X0, V0, velocity=True)
+    out = mj.solve(system, TS, X0, V0, velocity=True, method=mj.Spectral())
     close(out.displacement, x, atol=1e-8 * np.max(np.abs(x)))
 
 
@@ -235,7 +239,7 @@ def test_exact_solve_on_a_very_coarse_grid_of_a_damped_chain_is_finite_and_right
     system = mj.mikota_chain(N, M_, K_, dampers=[mj.GroundedDamper(1, 1.0)])
     ts = 1e5 * np.arange(float(TS.shape[0]))  # step h = 1e5: ||A h||_1 is about 1e6
     x, _ = expm_reference(system, ts[:3], X0, V0)
-    out = mj.exact_solve(system, ts, X0, V0, velocity=True)
+    out = mj.solve(system, ts, X0, V0, velocity=True, method=mj.Spectral())
     # both sides square ~20 times (||A h|| ~ 1e6): rounding grows like 2^20 eps, here ~1e-11
     close(out.displacement[:3], x, atol=1e-10 * np.max(np.abs(X0)))
 
@@ -243,9 +247,9 @@ def test_exact_solve_on_a_very_coarse_grid_of_a_damped_chain_is_finite_and_right
 @pytest.mark.parametrize("dof", [1, 4])
 def test_kvaerno5_with_a_1e6_damper_agrees_with_exact_solve(dof, close):
     system = mj.mikota_chain(N, M_, K_, dampers=[mj.GroundedDamper(dof, 1e6)])
-    exact = mj.exact_solve(system, TS, X0, V0, velocity=True)
-    out = mj.simulate(system, TS, X0, V0, velocity=True, solver="kvaerno5", rtol=1e-10,
-                      atol=1e-12)
+    exact = mj.solve(system, TS, X0, V0, velocity=True, method=mj.Spectral())
+    out = mj.solve(system, TS, X0, V0, velocity=True,
+                   method=mj.ODE(mj.StructuredKvaerno5(), rtol=1e-10, atol=1e-12))
     # measured: 4.5e-9 (x) and 2.8e-8 (v) relative, in about 4000 steps
     close(out.displacement, exact.displacement, atol=5e-8 * np.max(np.abs(exact.displacement)))
     close(out.velocity, exact.velocity, atol=1e-7 * np.max(np.abs(exact.velocity)))
@@ -254,7 +258,7 @@ def test_kvaerno5_with_a_1e6_damper_agrees_with_exact_solve(dof, close):
 def test_dopri8_with_a_1e6_damper_stops_loudly_at_max_steps():
     system = mj.mikota_chain(N, M_, K_, dampers=[mj.GroundedDamper(1, 1e6)])
     with pytest.raises(ValueError, match="max_steps"):
-        mj.simulate(system, TS, X0, V0, max_steps=2000)
+        mj.solve(system, TS, X0, V0, method=mj.ODE(max_steps=2000))
 
 
 SEVERAL = (mj.GroundedDamper(1, 3.0), mj.GroundedDamper(5.5, 0.7), mj.GroundedDamper(N, 2.0),
@@ -268,10 +272,10 @@ def test_several_dampers_at_the_first_and_last_dof_match_the_matrix_exponential(
     system = mj.mikota_chain(N, M_, K_, dampers=SEVERAL)
     x, v = expm_reference(system, TS, X0, V0)
     if solver == "exact":
-        out = mj.exact_solve(system, TS, X0, V0, velocity=True)
+        out = mj.solve(system, TS, X0, V0, velocity=True, method=mj.Spectral())
     else:
-        out = mj.simulate(system, TS, X0, V0, velocity=True, solver=solver, rtol=1e-10,
-                          atol=1e-12)
+        out = mj.solve(system, TS, X0, V0, velocity=True,
+                       method=mj.ODE(ODE_SOLVERS[solver], rtol=1e-10, atol=1e-12))
     close(out.displacement, x, atol=tol * np.max(np.abs(x)))
     close(out.velocity, v, atol=tol * np.max(np.abs(v)))
 
@@ -284,7 +288,7 @@ def test_exact_solve_matches_the_matrix_exponential_for_relative_dampers(dofs, c
                                                                          close):
     system = mj.mikota_chain(N, M_, K_, dampers=[mj.RelativeDamper(dofs, coefficient)])
     x, v = expm_reference(system, TS, X0, V0)
-    out = mj.exact_solve(system, TS, X0, V0, velocity=True)
+    out = mj.solve(system, TS, X0, V0, velocity=True, method=mj.Spectral())
     rate = coefficient * (dofs[0] + dofs[1]) / M_  # c (1/m_i + 1/m_j)
     tol = 1e-12 + 2e-15 * rate  # measured: 7.2e-10 for c = 1e5 between DOFs 9 and 10
     close(out.displacement, x, atol=tol * np.max(np.abs(x)))
@@ -294,8 +298,8 @@ def test_exact_solve_matches_the_matrix_exponential_for_relative_dampers(dofs, c
 def test_kvaerno5_with_a_strong_relative_damper_matches_the_matrix_exponential(close):
     system = mj.mikota_chain(N, M_, K_, dampers=[mj.RelativeDamper((3, 6), 1e6)])
     x, v = expm_reference(system, TS, X0, V0)
-    out = mj.simulate(system, TS, X0, V0, velocity=True, solver="kvaerno5", rtol=1e-10,
-                      atol=1e-12)
+    out = mj.solve(system, TS, X0, V0, velocity=True,
+                   method=mj.ODE(mj.StructuredKvaerno5(), rtol=1e-10, atol=1e-12))
     close(out.displacement, x, atol=5e-8 * np.max(np.abs(x)))  # measured 3.7e-9
     close(out.velocity, v, atol=5e-8 * np.max(np.abs(v)))
 
@@ -308,7 +312,7 @@ def test_integrated_energy_matches_the_eigen_expansion_for_weak_and_strong_dampe
                                                                                      close):
     system = mj.mikota_chain(N, M_, K_, dampers=dampers)
     expected = energy_integral_reference(system, 20.0, X0, V0)
-    close(mj.integrated_energy(system, 20.0, X0, V0), expected, rtol=1e-8)  # measured <= 3e-10
+    close(mj.Energy(20.0, X0, V0)(system), expected, rtol=1e-8)  # measured <= 3e-10
 
 
 # --- parameter extremes: k/m from 1e-6 to 1e6 ---------------------------------------------------
@@ -321,7 +325,8 @@ TAU = np.linspace(0.0, 20.0, 201)  # dimensionless time t sqrt(k/m)
 def test_exact_solve_obeys_the_time_scaling_law_for_k_over_m_from_1e_6_to_1e6(m, k, close):
     rate = np.sqrt(k / m)
     x, v = mikota_free_vibration(N, 1.0, 1.0, TAU, X0, V0)  # x(t; k, m) = x(t rate; 1, 1)
-    out = mj.exact_solve(mj.mikota_chain(N, m, k), TAU / rate, X0, rate * V0, velocity=True)
+    out = mj.solve(mj.mikota_chain(N, m, k), TAU / rate, X0, rate * V0, velocity=True,
+                   method=mj.DenseExponential())
     close(out.displacement, x, atol=1e-12 * np.max(np.abs(x)))
     close(np.asarray(out.velocity) / rate, v, atol=1e-12 * np.max(np.abs(v)))
 
@@ -330,7 +335,8 @@ def test_exact_solve_obeys_the_time_scaling_law_for_k_over_m_from_1e_6_to_1e6(m,
 def test_simulate_obeys_the_time_scaling_law_at_default_tolerances(m, k):
     rate = np.sqrt(k / m)
     x, v = mikota_free_vibration(N, 1.0, 1.0, TAU, X0, V0)
-    out = mj.simulate(mj.mikota_chain(N, m, k), TAU / rate, X0, rate * V0, velocity=True)
+    out = mj.solve(mj.mikota_chain(N, m, k), TAU / rate, X0, rate * V0, velocity=True,
+                   method=mj.ODE())
     # measured: x 1.6e-7, v 3.2e-7 (rate 1e-3); x 7.7e-8, v 1.6e-7 (rate 1e3)
     assert relative_error(out.displacement, x) < 1e-6
     assert relative_error(np.asarray(out.velocity) / rate, v) < 1e-5
@@ -339,16 +345,16 @@ def test_simulate_obeys_the_time_scaling_law_at_default_tolerances(m, k):
 @pytest.mark.parametrize("amplitude", [1e6, 1e12])
 def test_simulate_keeps_relative_accuracy_for_huge_amplitudes(amplitude):
     x, _ = mikota_free_vibration(N, M_, K_, TAU, X0, V0)
-    out = mj.simulate(mj.mikota_chain(N, M_, K_), TAU, amplitude * X0, amplitude * V0,
-                      velocity=True)
+    out = mj.solve(mj.mikota_chain(N, M_, K_), TAU, amplitude * X0, amplitude * V0, velocity=True,
+                   method=mj.ODE())
     assert relative_error(np.asarray(out.displacement) / amplitude, x) < 1e-6
 
 
 @pytest.mark.parametrize("amplitude", [1e-6, 1e-10])
 def test_simulate_with_atol_scaled_to_a_tiny_amplitude_keeps_relative_accuracy(amplitude):
     x, _ = mikota_free_vibration(N, M_, K_, TAU, X0, V0)
-    out = mj.simulate(mj.mikota_chain(N, M_, K_), TAU, amplitude * X0, amplitude * V0,
-                      velocity=True, atol=1e-10 * amplitude)
+    out = mj.solve(mj.mikota_chain(N, M_, K_), TAU, amplitude * X0, amplitude * V0, velocity=True,
+                   method=mj.ODE(atol=1e-10 * amplitude))
     assert relative_error(np.asarray(out.displacement) / amplitude, x) < 1e-6
 
 
@@ -356,8 +362,8 @@ def test_simulate_with_atol_scaled_to_a_tiny_amplitude_keeps_relative_accuracy(a
 def test_simulate_with_default_tolerances_keeps_relative_accuracy_for_tiny_amplitudes(amplitude):
     # a fixed default atol = 1e-10 gave 3.5e-4 (amplitude 1e-6) and 120 % (1e-10) errors
     x, _ = mikota_free_vibration(N, M_, K_, TAU, X0, V0)
-    out = mj.simulate(mj.mikota_chain(N, M_, K_), TAU, amplitude * X0, amplitude * V0,
-                      velocity=True)
+    out = mj.solve(mj.mikota_chain(N, M_, K_), TAU, amplitude * X0, amplitude * V0, velocity=True,
+                   method=mj.ODE())
     assert relative_error(np.asarray(out.displacement) / amplitude, x) < 1e-6
 
 
@@ -389,7 +395,7 @@ def test_exact_solve_with_masses_from_1e_6_to_1e6_in_monotone_order_matches_the_
     x0, v0 = X0[:7], V0[:7]
     ts = np.linspace(0.0, 1e4, 501)  # the slowest period is 1.6e4, the fastest 4.4e-3
     x = modal_free_vibration(masses, SPRINGS, ts, x0, v0)
-    out = mj.exact_solve(system, ts, x0, v0)
+    out = mj.solve(system, ts, x0, v0, method=mj.DenseExponential())
     close(out.displacement, x, atol=1e-11 * np.max(np.abs(x)))  # measured 1.2e-13 / 4.5e-12
 
 
@@ -397,7 +403,7 @@ def test_exact_solve_with_masses_from_1e_6_to_1e6_in_monotone_order_matches_the_
 def test_simulate_with_masses_in_mixed_order_matches_the_modal_solution(masses):
     ts = np.linspace(0.0, 10.0, 101)
     x = modal_free_vibration(masses, SPRINGS, ts, X0[:7], V0[:7])
-    out = mj.simulate(mj.chain(masses, SPRINGS), ts, X0[:7], V0[:7])
+    out = mj.solve(mj.chain(masses, SPRINGS), ts, X0[:7], V0[:7], method=mj.ODE())
     assert relative_error(out.displacement, x) < 1e-5  # measured 1.1e-6 / 3.6e-7 in ~25 000 steps
 
 
@@ -412,7 +418,7 @@ def test_exact_solve_with_masses_in_mixed_order_matches_the_modal_solution_at_t_
                                                                                     close):
     ts = np.linspace(0.0, 1e4, 501)
     x = modal_free_vibration(masses, SPRINGS, ts, X0[:7], V0[:7])
-    out = mj.exact_solve(mj.chain(masses, SPRINGS), ts, X0[:7], V0[:7])
+    out = mj.solve(mj.chain(masses, SPRINGS), ts, X0[:7], V0[:7], method=mj.DenseExponential())
     close(out.displacement, x, atol=1e-9 * np.max(np.abs(x)))
 
 
@@ -424,14 +430,16 @@ HORIZON = np.linspace(0.0, 1e4 / OMEGA, 2001)  # the shape of LONG: no new compi
 @pytest.mark.parametrize("l", [1, 3, N])
 def test_a_mode_shape_oscillates_as_cos_l_omega_t_in_exact_solve_up_to_1e4_over_omega(l, close):
     u = np.asarray(mj.analytic.mode_shape(N, l))
-    out = mj.exact_solve(mj.mikota_chain(N, M_, K_), HORIZON, u, velocity=True)
+    out = mj.solve(mj.mikota_chain(N, M_, K_), HORIZON, u, velocity=True,
+                   method=mj.DenseExponential())
     close(out.displacement, np.cos(l * OMEGA * HORIZON)[:, None] * u, atol=1e-9)  # 6e-11 seen
 
 
 @pytest.mark.parametrize("l", [1, 3])
 def test_dopri8_up_to_1e4_over_omega_loses_no_more_phase_than_rtol_per_radian(l):
     u = np.asarray(mj.analytic.mode_shape(N, l))
-    out = mj.simulate(mj.mikota_chain(N, M_, K_), HORIZON, u, velocity=True)  # rtol 1e-8
+    out = mj.solve(mj.mikota_chain(N, M_, K_), HORIZON, u, velocity=True,
+                   method=mj.ODE())  # rtol 1e-8
     error = np.max(np.abs(np.asarray(out.displacement) - np.cos(l * OMEGA * HORIZON)[:, None] * u))
     assert error < 1e-8 * l * 1e4  # measured: 1.2e-7 (l = 1), 1.5e-5 (l = 3)
 
@@ -444,7 +452,7 @@ def test_a_pulse_of_duration_1e_6_matches_the_closed_form_in_exact_solve(start, 
     system = mj.mikota_chain(N, M_, K_)
     load = mj.pulse(N, 3, 1e6, 1e-6, start)  # impulse 1
     x, v = pulse_response(system, TS, 3, 1e6, 1e-6, start)
-    out = mj.exact_solve(system, TS, load=load, velocity=True)
+    out = mj.solve(system, TS, load=load, velocity=True, method=mj.DenseExponential())
     close(out.displacement, x, atol=1e-9 * np.max(np.abs(x)))  # measured 1.3e-10: eps / tau
     close(out.velocity, v, atol=1e-9 * np.max(np.abs(v)))
 
@@ -455,7 +463,7 @@ def test_a_very_short_pulse_matches_the_closed_form_in_simulate(solver, start, d
     system = mj.mikota_chain(N, M_, K_)
     load = mj.pulse(N, 3, 1.0 / duration, duration, start)
     x, v = pulse_response(system, TS, 3, 1.0 / duration, duration, start)
-    out = mj.simulate(system, TS, load=load, velocity=True, solver=solver)
+    out = mj.solve(system, TS, load=load, velocity=True, method=mj.ODE(ODE_SOLVERS[solver]))
     # measured at rtol 1e-8: x <= 3.6e-7, v <= 1.2e-6 (kvaerno5; dopri8 <= 2.5e-7)
     assert relative_error(out.displacement, x) < 1e-6
     assert relative_error(out.velocity, v) < 5e-6
@@ -466,9 +474,9 @@ def test_a_pulse_too_short_for_exact_solves_formula_is_refused_with_the_dirac_re
     # measured 9e-5 at tau = 1e-12 and 1e-2 at 1e-14 before the check; simulate stays right
     system = mj.mikota_chain(N, M_, K_)
     with pytest.raises(ValueError, match="pulse duration is too short.*Dirac limit"):
-        mj.exact_solve(system, TS, load=mj.pulse(N, 3, 1e12, 1e-12))
+        mj.solve(system, TS, load=mj.pulse(N, 3, 1e12, 1e-12), method=mj.DenseExponential())
     x, _ = pulse_response(system, TS, 3, 1e12, 1e-12)
-    out = mj.simulate(system, TS, load=mj.pulse(N, 3, 1e12, 1e-12))
+    out = mj.solve(system, TS, load=mj.pulse(N, 3, 1e12, 1e-12), method=mj.ODE())
     assert relative_error(out.displacement, x) < 1e-6
 
 
@@ -476,7 +484,8 @@ def test_a_pulse_too_short_for_its_start_time_is_integrated_right_or_refused():
     system = mj.mikota_chain(N, M_, K_)
     x, _ = pulse_response(system, TS, 3, 1e12, 1e-12, 1.234)
     try:
-        out = mj.simulate(system, TS, load=mj.pulse(N, 3, 1e12, 1e-12, 1.234), velocity=True)
+        out = mj.solve(system, TS, load=mj.pulse(N, 3, 1e12, 1e-12, 1.234), velocity=True,
+                       method=mj.ODE())
     except ValueError as error:  # loud is right too
         assert "duration" in str(error)
         return
@@ -493,14 +502,16 @@ def test_a_pulse_converges_at_first_order_to_its_dirac_limit_the_initial_velocit
     system = mj.mikota_chain(N, M_, K_)
     v0 = impulse * np.eye(N)[dof - 1] / MASS
     x_dirac, v_dirac = mikota_free_vibration(N, M_, K_, TS, np.zeros(N), v0)
-    close(mj.exact_solve(system, TS, None, v0, velocity=True).displacement, x_dirac, atol=1e-12)
+    out = mj.solve(system, TS, None, v0, velocity=True, method=mj.DenseExponential())
+    close(out.displacement, x_dirac, atol=1e-12)
     errors = []
     for tau in DURATIONS:
         load = mj.pulse(N, dof, impulse / tau, tau)
         if solve == "exact_solve":
-            out = mj.exact_solve(system, TS, load=load, velocity=True)
+            out = mj.solve(system, TS, load=load, velocity=True, method=mj.DenseExponential())
         else:
-            out = mj.simulate(system, TS, load=load, velocity=True, rtol=1e-11, atol=1e-13)
+            out = mj.solve(system, TS, load=load, velocity=True,
+                           method=mj.ODE(rtol=1e-11, atol=1e-13))
         errors.append(np.max(np.abs(np.asarray(out.displacement) - x_dirac)))
     rates = np.log10(np.array(errors[:-1]) / np.array(errors[1:]))
     close(rates, np.ones_like(rates), atol=0.02)  # error O(tau): measured 0.999 .. 1.001

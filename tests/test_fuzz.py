@@ -209,14 +209,15 @@ def api_calls():
                   ("k", lambda b=bad: mj.mikota_chain(4, k=b), "k"),
                   ("masses", lambda b=bad: mj.chain([1.0, b], [1.0, 1.0]), "masses"),
                   ("springs", lambda b=bad: mj.chain([1.0, 1.0], [b, 1.0]), "springs"),
-                  ("rtol", lambda b=bad: mj.simulate(SYSTEM, TS, X0, solver="dopri8", rtol=b),
+                  ("rtol", lambda b=bad: mj.solve(SYSTEM, TS, X0, method=mj.ODE(rtol=b)),
                    "rtol")]
         if bad != 0.0:  # a zero coefficient is a switched-off damper
             calls.append(("coefficient", lambda b=bad: mj.mikota_chain(
                 4, dampers=[mj.GroundedDamper(2.0, b)]), "coefficient"))
     for bad in (0.5, 0.0, 4.5, NAN, INF):
-        calls.append(("position", lambda b=bad: mj.simulate(
-            mj.mikota_chain(4, dampers=[mj.GroundedDamper(b, 0.5)]), TS, X0), "position"))
+        calls.append(("position", lambda b=bad: mj.solve(
+            mj.mikota_chain(4, dampers=[mj.GroundedDamper(b, 0.5)]), TS, X0, method=mj.ODE()),
+            "position"))
     for bad in (NAN, INF, -INF):  # refused when the pulse is built, not blamed on the system
         calls += [("amplitude", lambda b=bad: mj.pulse(4, 1, amplitude=b),
                    r"^mikota_jax: pulse amplitude must be finite\.$"),
@@ -225,18 +226,19 @@ def api_calls():
                   ("duration", lambda b=bad: mj.pulse(4, 1, duration=b),
                    r"^mikota_jax: pulse duration must be finite and > 0\.$")]
     for bad in BAD_NUMBERS:
-        calls.append(("horizon", lambda b=bad: mj.integrated_energy(SYSTEM, b, X0),
+        calls.append(("horizon", lambda b=bad: mj.Energy(b, X0)(SYSTEM),
                       r"^mikota_jax: horizon must be finite and > 0\.$"))
     for bad in ([0], [5], [1.5], [-1]):
-        calls.append(("dofs", lambda b=bad: mj.exact_solve(SYSTEM, TS, X0, dofs=b), "dofs"))
+        calls.append(("dofs", lambda b=bad: mj.solve(SYSTEM, TS, X0, dofs=b, method=mj.Spectral()),
+                      "dofs"))
     for bad in (0, -1, 2.5, True):
         calls.append(("n", lambda b=bad: mj.mikota_chain(b), "n"))
-    calls += [("x0", lambda: mj.exact_solve(SYSTEM, TS, jnp.full(4, NAN)), "x0"),
-              ("x0", lambda: mj.exact_solve(SYSTEM, TS, jnp.zeros(3)), "x0"),
-              ("ts", lambda: mj.exact_solve(SYSTEM, TS[::-1], X0), "ts"),
-              ("ts", lambda: mj.exact_solve(SYSTEM, TS.at[3].set(NAN), X0), "ts"),
-              ("rtol", lambda: mj.simulate(SYSTEM, TS, X0, solver="dopri8", rtol=1.0), "rtol"),
-              ("method", lambda: mj.exact_solve(SYSTEM, TS, X0, method="fast"), "method"),
+    calls += [("x0", lambda: mj.solve(SYSTEM, TS, jnp.full(4, NAN), method=mj.Spectral()), "x0"),
+              ("x0", lambda: mj.solve(SYSTEM, TS, jnp.zeros(3), method=mj.Spectral()), "x0"),
+              ("ts", lambda: mj.solve(SYSTEM, TS[::-1], X0, method=mj.Spectral()), "ts"),
+              ("ts", lambda: mj.solve(SYSTEM, TS.at[3].set(NAN), X0, method=mj.Spectral()), "ts"),
+              ("rtol", lambda: mj.solve(SYSTEM, TS, X0, method=mj.ODE(rtol=1.0)), "rtol"),
+              ("method", lambda: mj.solve(SYSTEM, TS, X0, method="fast"), "method"),
               ("dampers", lambda: mj.mikota_chain(4, dampers=3), "dampers must be a list"),
               ("lower", lambda: mj.optimise_viscosities(SYSTEM, lower=[0.0, 0.0]),
                r"lower must be one number \(one per damper coefficient"),
@@ -302,7 +304,8 @@ def test_outputs_that_cannot_fit_in_memory_are_refused_before_compiling(monkeypa
 
     monkeypatch.setattr(_errors, "available_bytes", lambda: 2.0**20)  # 1 MiB left
     ts = jnp.linspace(0.0, 1.0, 100_001)  # ~10 MB of outputs and tables
-    for call in (lambda: mj.simulate(SYSTEM, ts, X0), lambda: mj.exact_solve(SYSTEM, ts, X0)):
+    for call in (lambda: mj.solve(SYSTEM, ts, X0, method=mj.ODE()),
+                 lambda: mj.solve(SYSTEM, ts, X0, method=mj.Spectral())):
         with pytest.raises(ValueError, match="output times x .* GiB, more than"):
             call()
 

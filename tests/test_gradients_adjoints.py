@@ -20,7 +20,7 @@ X0 = mj.unit_vector(N, 3)
 def basis():
     """POD of exact snapshots on [0, 2.5], damper d = 1 at DOF 7; held fixed, not differentiated."""
     system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(7.0, 1.0)])
-    snapshots = mj.exact_solve(system, TS, X0).displacement[TS <= SNAPSHOT_END].T
+    snapshots = mj.solve(system, TS, X0, method=mj.Spectral()).displacement[TS <= SNAPSHOT_END].T
     return jax.lax.stop_gradient(mj.pod(snapshots).basis(RANK))
 
 
@@ -30,8 +30,8 @@ def objective(basis, adjoint=None):
     def energy(position, coefficient):
         system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(position, coefficient)])
         reduced = mj.galerkin(system, basis).system
-        out = mj.simulate(reduced, TS, basis.T @ X0, displacement=True, velocity=True,
-                          rtol=RTOL, atol=ATOL, adjoint=adjoint)
+        out = mj.solve(reduced, TS, basis.T @ X0, displacement=True, velocity=True,
+                       method=mj.ODE(rtol=RTOL, atol=ATOL, adjoint=adjoint))
         q, qd = out.displacement, out.velocity
         k, m = reduced.stiffness.as_matrix(), reduced.mass.as_matrix()
         return jnp.trapezoid(0.5 * (jnp.sum((q @ k) * q, axis=1) + jnp.sum((qd @ m) * qd, axis=1)),

@@ -89,11 +89,11 @@ def test_irka_settles_on_section5_and_its_model_has_the_full_j(section5):
     assert result.basis.shape == (300, 98)
     assert np.max(np.abs(result.basis.T @ result.basis - np.eye(98))) < 1e-10
     x0, v0 = scene.x0, jnp.zeros(300)
-    full = float(mj.integrated_energy(system, 20.0, x0, v0))
-    reduced = float(mj.integrated_energy(mj.galerkin(system, result.basis), 20.0, x0, v0))
+    full = float(mj.Energy(20.0, x0, v0)(system))
+    reduced = float(mj.Energy(20.0, x0, v0)(mj.galerkin(system, result.basis)))
     assert abs(reduced / full - 1) < 1e-3
     band = mj.rational_krylov_basis(system, mj.band_shifts(system, 49, force), force)
-    banded = float(mj.integrated_energy(mj.galerkin(system, band[:, :98]), 20.0, x0, v0))
+    banded = float(mj.Energy(20.0, x0, v0)(mj.galerkin(system, band[:, :98])))
     assert abs(banded / full - 1) > 10 * abs(reduced / full - 1)
     # a fixed point: the final shifts are the reflected dominant poles of the final model
     poles, dominance = _reduced_poles(system, result.basis, jnp.asarray(force)[:, None], 20.0)

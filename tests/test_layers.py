@@ -123,7 +123,7 @@ MODULE_COLUMN = 16  # where a module's name starts on a line of the page's diagr
 def loaded_imports(path: Path) -> set[Path]:
     """The files of the package that ``path`` imports when it is loaded (not inside functions):
     ``from . import _x`` and ``from ._x import y`` -> ``_x.py``; a name taken from a package
-    (``from .. import simulate``) -> its ``__init__.py``."""
+    (``from .. import solve``) -> its ``__init__.py``."""
     package = path.parent
     found = set()
 

@@ -10,6 +10,7 @@ record no event at all. ``benchmarks/compile.py`` does the same for every entry 
 
 import contextlib
 
+import diffrax
 import jax
 import numpy as np
 
@@ -80,14 +81,14 @@ def solver_changes(call, tolerances=True) -> dict:
 
 def test_simulate_full_model_traces_once():
     def call(system, x0=X0, v0=None, rtol=1e-8, atol=1e-10):
-        return mj.simulate(system, TS, x0, v0, dofs=[2, 5, 11], rtol=rtol, atol=atol)
+        return mj.solve(system, TS, x0, v0, dofs=[2, 5, 11], method=mj.ODE(rtol=rtol, atol=atol))
 
     assert_traced_once(lambda: call(chain()), "simulate_with_result", solver_changes(call))
 
 
 def test_exact_solve_full_model_traces_once():
     def call(system, x0=X0, v0=None):
-        return mj.exact_solve(system, TS, x0, v0, dofs=[3, 17], velocity=True)
+        return mj.solve(system, TS, x0, v0, dofs=[3, 17], velocity=True, method=mj.Spectral())
 
     # a chain with a damper takes the spectral path
     assert_traced_once(lambda: call(chain()), "spectral_solve_with_result",
@@ -96,7 +97,8 @@ def test_exact_solve_full_model_traces_once():
 
 def test_exact_solve_dense_path_traces_once():
     def call(system, x0=X0, v0=None):
-        return mj.exact_solve(system, TS, x0, v0, dofs=[4, 18], velocity=True, method="dense")
+        return mj.solve(system, TS, x0, v0, dofs=[4, 18], velocity=True,
+                        method=mj.DenseExponential())
 
     assert_traced_once(lambda: call(chain()), "_exact", solver_changes(call, tolerances=False))
 
@@ -109,8 +111,8 @@ def test_reduced_model_and_pod_trace_once():
     other = mj.pod(q[:, ::-1] + 0.1 * q).basis(6)
 
     def call(system, b=basis, x0=X0, v0=None, rtol=1e-8, atol=1e-10):
-        return mj.simulate(mj.galerkin(system, b), TS, x0, v0, dofs=[4, 9], solver="tsit5",
-                           rtol=rtol, atol=atol)
+        return mj.solve(mj.galerkin(system, b), TS, x0, v0, dofs=[4, 9],
+                        method=mj.ODE(diffrax.Tsit5(), rtol=rtol, atol=atol))
 
     changes = solver_changes(call)
     changes["basis"] = lambda: call(chain(), b=other)

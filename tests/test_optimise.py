@@ -34,7 +34,7 @@ def problem(n=N, position=4.0, coefficient=0.8, **kwargs):
 def full_energy(n, position, coefficient):
     """Independent truth: the exact integrated energy of the full chain (matrix exponentials)."""
     system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(position, coefficient)])
-    return float(mj.integrated_energy(system, HORIZON, jnp.zeros(n).at[2].set(1.0)))
+    return float(mj.Energy(HORIZON, jnp.zeros(n).at[2].set(1.0))(system))
 
 
 def full_basis(n=N):
@@ -79,7 +79,8 @@ def test_gradient_near_zero_coefficient_is_finite_and_matches_differences():
 @pytest.mark.slow  # 21 s in CI
 def test_truncated_basis_gradient_differs_from_the_full_one_by_the_rom_error():
     p = problem()
-    snapshots = mj.simulate(p.system(p.positions, p.coefficients), p.ts, p.x0).displacement
+    snapshots = mj.solve(p.system(p.positions, p.coefficients), p.ts, p.x0,
+                         method=mj.ODE()).displacement
     basis = mj.pod(snapshots.T).basis(6)
     reduced = jax.grad(mj.placement_objective(p, basis), argnums=1)(p.positions, p.coefficients)
     full = jax.grad(mj.placement_objective(p), argnums=1)(p.positions, p.coefficients)
@@ -196,8 +197,8 @@ def test_certification_enriches_a_poor_basis_until_the_models_agree(capsys):
         assert phase in printed, phase
     assert result.certified, result.status
     assert result.rom_error <= 1e-6 and result.gradient_error <= 1e-6
-    first_rank = mj.pod(mj.simulate(p.system(p.positions, p.coefficients), p.ts,
-                                    p.x0).displacement.T).rank_for_energy(0.9)
+    first_rank = mj.pod(mj.solve(p.system(p.positions, p.coefficients), p.ts, p.x0,
+                                 method=mj.ODE()).displacement.T).rank_for_energy(0.9)
     assert result.rank > first_rank
 
 
@@ -214,9 +215,8 @@ def test_certification_by_the_estimate_takes_no_full_solve_and_never_under_estim
     error = abs(result.objective - truth) / truth  # the objective reported is J_r
     assert error <= result.rom_error <= 1e-6  # the estimate holds the true error
     # and the log-sensitivity's (the full dJ/dc by reverse mode through the exact J)
-    slope = jax.grad(lambda c: mj.integrated_energy(
-        mj.mikota_chain(20, dampers=[mj.GroundedDamper(position, c)]), HORIZON,
-        jnp.zeros(20).at[2].set(1.0)))(coefficient)
+    slope = jax.grad(lambda c: mj.Energy(HORIZON, jnp.zeros(20).at[2].set(1.0))(
+        mj.mikota_chain(20, dampers=[mj.GroundedDamper(position, c)])))(coefficient)
     true_gradient_error = coefficient * abs(float(result.gradient[0]) - float(slope)) / truth
     assert true_gradient_error <= result.gradient_error <= 1e-6
     assert result.ranking is not None
@@ -239,7 +239,7 @@ def test_two_dampers_are_placed_at_dofs():
 def test_average_energy_objective_is_certified():
     p = problem(objective="average_energy", lowest=3)
     objective = mj.placement_objective(p, full_basis())
-    truth = mj.total_average_energy(p.system(p.positions, p.coefficients), lowest=3)
+    truth = mj.AverageEnergy(lowest=3)(p.system(p.positions, p.coefficients))
     assert float(objective(p.positions, p.coefficients)) == pytest.approx(float(truth), rel=1e-8)
     result = mj.optimise_dampers(p, starts=2, iterations=15)
     assert result.certified and np.isfinite(result.objective)

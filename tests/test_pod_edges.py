@@ -36,7 +36,7 @@ def single_mode(request):
     n, l = request.param
     ts = np.linspace(0.0, 20.0, 2001)
     shape = np.asarray(mj.analytic.mode_shape(n, l))
-    q = mj.exact_solve(mj.mikota_chain(n), ts, shape).displacement.T
+    q = mj.solve(mj.mikota_chain(n), ts, shape, method=mj.DenseExponential()).displacement.T
     return n, l, ts, shape, q
 
 
@@ -128,7 +128,8 @@ def test_a_one_sample_window_gives_one_pom_and_the_rayleigh_quotient_rom(method,
     n = 7
     system = mj.mikota_chain(n)
     x0 = np.linspace(0.2, 1.0, n) ** 2  # not a mode shape
-    sample = mj.exact_solve(system, jnp.zeros(1), x0).displacement.T  # Q is n x 1
+    sample = mj.solve(system, jnp.zeros(1), x0,
+                      method=mj.DenseExponential()).displacement.T  # Q is n x 1
     assert sample.shape == (n, 1)
     result = mj.pod(sample, method=method)
     close(result.singular_values, [np.linalg.norm(x0)], rtol=1e-14)
@@ -140,7 +141,7 @@ def test_a_one_sample_window_gives_one_pom_and_the_rayleigh_quotient_rom(method,
     M, _, K = (np.asarray(a) for a in system.dense())
     omega = np.sqrt(x0 @ K @ x0 / (x0 @ M @ x0))
     ts = np.linspace(0.0, 10.0, 101)
-    out = mj.exact_solve(mj.galerkin(system, result.basis(1)), ts, x0)
+    out = mj.solve(mj.galerkin(system, result.basis(1)), ts, x0, method=mj.DenseExponential())
     close(out.displacement, np.cos(omega * ts)[:, None] * x0[None, :], atol=1e-13)
 
 
@@ -149,15 +150,16 @@ def test_a_one_mass_chain_is_simulated_solved_reduced_and_agrees_with_the_cosine
     system = mj.chain([m], [k])
     ts = np.linspace(0.0, 10.0, 201)
     analytic = x0 * np.cos(np.sqrt(k / m) * ts)[:, None]
-    exact = mj.exact_solve(system, ts, np.array([x0]))
+    exact = mj.solve(system, ts, np.array([x0]), method=mj.DenseExponential())
     close(exact.displacement, analytic, atol=1e-14)
-    simulated = mj.simulate(system, ts, np.array([x0]), rtol=1e-12, atol=1e-14)
+    simulated = mj.solve(system, ts, np.array([x0]), method=mj.ODE(rtol=1e-12, atol=1e-14))
     close(simulated.displacement, analytic, atol=1e-9 * x0)
     result = mj.pod(exact.displacement.T)
     close(result.singular_values, [np.linalg.norm(analytic)], rtol=1e-13)
     close(result.modes, [[1.0]], rtol=1e-15)
     reduced = mj.galerkin(system, result.basis(1))
-    close(mj.exact_solve(reduced, ts, np.array([x0])).displacement, analytic, atol=1e-14)
+    close(mj.solve(reduced, ts, np.array([x0]), method=mj.DenseExponential()).displacement,
+          analytic, atol=1e-14)
 
 
 def test_a_damped_one_mass_chain_follows_the_damped_oscillator(close):
@@ -169,7 +171,8 @@ def test_a_damped_one_mass_chain_follows_the_damped_oscillator(close):
     damped = omega * np.sqrt(1 - zeta**2)
     analytic = x0 * np.exp(-zeta * omega * ts) * (np.cos(damped * ts)
                                                    + zeta * omega / damped * np.sin(damped * ts))
-    close(mj.exact_solve(system, ts, np.array([x0])).displacement[:, 0], analytic, atol=1e-14)
+    close(mj.solve(system, ts, np.array([x0]), method=mj.Spectral()).displacement[:, 0], analytic,
+          atol=1e-14)
 
 
 # --- bases the Galerkin projection must refuse --------------------------------------------------

@@ -1,5 +1,7 @@
 """POD (eqs. 3.5-3.8), Galerkin reduction (eq. 3.4) and the error measures (eq. 5.4)."""
 
+from functools import partial
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -50,7 +52,8 @@ def test_first_mode_excitation_gives_rank_one_snapshots_with_pom_1_parallel_to_i
     # Section 4: n = 10, m = k = 1, x(0) = u_1, t in [0, 20] with dt = 0.01
     n = 10
     ts = np.linspace(0.0, 20.0, 2001)
-    q = mj.exact_solve(mj.mikota_chain(n), ts, mj.analytic.mode_shape(n, 1)).displacement.T
+    q = mj.solve(mj.mikota_chain(n), ts, mj.analytic.mode_shape(n, 1),
+                 method=mj.DenseExponential()).displacement.T
     result = mj.pod(q)
     assert result.numerical_rank() == 1
     s = np.asarray(result.singular_values)
@@ -173,12 +176,12 @@ def test_full_rank_galerkin_with_a_random_orthonormal_basis_is_the_full_model(da
     basis = orthonormal(N, N, 8)
     reduced = mj.galerkin(damped, jnp.asarray(basis))
     assert reduced.rank == N and reduced.size == N
-    full = mj.exact_solve(damped, TS, x0, velocity=True)
-    exact = mj.exact_solve(reduced, TS, x0, velocity=True)
+    full = mj.solve(damped, TS, x0, velocity=True, method=mj.Spectral())
+    exact = mj.solve(reduced, TS, x0, velocity=True, method=mj.DenseExponential())
     scale = np.max(np.abs(full.displacement))
     close(exact.displacement, full.displacement, atol=1e-9 * scale)
     close(exact.velocity, full.velocity, atol=1e-9 * np.max(np.abs(full.velocity)))
-    lifted = mj.simulate(reduced, TS, x0, velocity=True, rtol=1e-11, atol=1e-13)
+    lifted = mj.solve(reduced, TS, x0, velocity=True, method=mj.ODE(rtol=1e-11, atol=1e-13))
     close(lifted.displacement, full.displacement, atol=1e-8 * scale)
 
 
@@ -208,7 +211,7 @@ def test_galerkin_rejects_bad_bases(damped):
 
 @pytest.fixture(scope="module")
 def snapshot_run(damped, x0):
-    full = mj.exact_solve(damped, TS, x0, velocity=True)
+    full = mj.solve(damped, TS, x0, velocity=True, method=mj.Spectral())
     return full, mj.pod(full.displacement.T)
 
 
@@ -218,7 +221,7 @@ def test_pod_galerkin_error_in_the_snapshot_window_is_small_and_decreases_with_r
     errors = []
     for rank in (2, 4, 6):
         reduced = mj.galerkin(damped, result.basis(rank))
-        out = mj.exact_solve(reduced, TS, x0, velocity=True)
+        out = mj.solve(reduced, TS, x0, velocity=True, method=mj.DenseExponential())
         errors.append(float(mj.metrics.phase_error(full.displacement, full.velocity,
                                                    out.displacement, out.velocity,
                                                    aggregate="sum")))
@@ -240,10 +243,10 @@ def basis(snapshot_run):
     return jax.lax.stop_gradient(snapshot_run[1].basis(RANK))
 
 
-def make_objective(solve, basis, x0, **kwargs):
+def make_objective(solve, basis, x0):
     def objective(position, coefficient):
         system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(position, coefficient)])
-        out = solve(mj.galerkin(system, basis), TS, x0, dofs=[DOF], **kwargs)
+        out = solve(mj.galerkin(system, basis), TS, x0, dofs=[DOF])
         return jnp.sum(out.displacement**2)
 
     return objective
@@ -255,7 +258,7 @@ def central(f, p, c, h_p, h_c):
 
 
 def test_gradient_of_an_exact_rom_objective_matches_central_differences(basis, x0, close):
-    f = make_objective(mj.exact_solve, basis, x0)
+    f = make_objective(partial(mj.solve, method=mj.DenseExponential()), basis, x0)
     p, c = 6.4, 0.8
     grad = jax.jit(jax.grad(f, argnums=(0, 1)))(p, c)
     f = jax.jit(f)
@@ -267,7 +270,7 @@ def test_gradient_of_an_exact_rom_objective_matches_central_differences(basis, x
 
 @pytest.mark.slow  # ~15 s; CI time (the exact-solve variants stay in the default run)
 def test_gradient_of_a_simulated_rom_objective_matches_central_differences(basis, x0, close):
-    f = make_objective(mj.simulate, basis, x0, rtol=1e-12, atol=1e-14)
+    f = make_objective(partial(mj.solve, method=mj.ODE(rtol=1e-12, atol=1e-14)), basis, x0)
     p, c = 6.4, 0.8
     grad = jax.grad(f, argnums=(0, 1))(p, c)
     fd = central(f, p, c, 1e-6 * p, 1e-6 * c)
@@ -276,7 +279,7 @@ def test_gradient_of_a_simulated_rom_objective_matches_central_differences(basis
 
 
 def test_vmap_over_damper_coefficients_equals_a_loop(basis, x0, close):
-    f = make_objective(mj.exact_solve, basis, x0)
+    f = make_objective(partial(mj.solve, method=mj.DenseExponential()), basis, x0)
     coefficients = jnp.array([0.2, 0.8, 3.0])
     batched = jax.vmap(lambda c: f(6.4, c))(coefficients)
     loop = [f(6.4, c) for c in coefficients]

@@ -19,6 +19,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 import mikota_jax as mj
+from mikota_jax._objectives import integrated_energy
 
 SIZES = (1, 2, 3, 5, 8)
 SOLVED_SIZES = (1, 2, 5)  # each size compiles every solve once more: ~3 s each on a laptop core
@@ -99,7 +100,7 @@ def test_mass_and_stiffness_are_definite_and_damping_semidefinite(case, y, close
 @given(case=chains(sizes=SOLVED_SIZES))
 def test_energy_never_grows_in_damped_free_vibration(case):
     system, *_, x0, v0 = case
-    e = energy(system, mj.exact_solve(system, TS, x0, v0, velocity=True))
+    e = energy(system, mj.solve(system, TS, x0, v0, velocity=True, method=mj.Spectral()))
     assert np.all(np.diff(e) <= 1e-10 * e[0]), np.max(np.diff(e)) / e[0]
 
 
@@ -107,7 +108,7 @@ def test_energy_never_grows_in_damped_free_vibration(case):
 @given(case=chains(damped=False, sizes=SOLVED_SIZES))
 def test_energy_is_constant_in_undamped_free_vibration(case, close):
     system, *_, x0, v0 = case
-    e = energy(system, mj.exact_solve(system, TS, x0, v0, velocity=True))
+    e = energy(system, mj.solve(system, TS, x0, v0, velocity=True, method=mj.DenseExponential()))
     close(e, np.full_like(e, e[0]), rtol=1e-10)
 
 
@@ -117,8 +118,9 @@ def test_energy_is_constant_in_undamped_free_vibration(case, close):
 def test_galerkin_with_a_full_orthonormal_basis_is_the_full_model(case, seed, close):
     system, masses, *_, x0, v0 = case
     basis = orthonormal(masses.size, masses.size, seed)
-    full = mj.exact_solve(system, TS, x0, v0, velocity=True)
-    reduced = mj.exact_solve(mj.galerkin(system, jnp.asarray(basis)), TS, x0, v0, velocity=True)
+    full = mj.solve(system, TS, x0, v0, velocity=True, method=mj.Spectral())
+    reduced = mj.solve(mj.galerkin(system, jnp.asarray(basis)), TS, x0, v0, velocity=True,
+                       method=mj.DenseExponential())
     for quantity in ("displacement", "velocity"):
         reference = np.asarray(getattr(full, quantity))
         close(getattr(reduced, quantity), reference, atol=1e-9 * np.max(np.abs(reference)))
@@ -170,11 +172,11 @@ def test_over_wide_ranges_the_energy_integral_is_bounded_and_the_energy_never_gr
     assume(np.any(x0 != 0) or np.any(v0 != 0))
     M, _, K = (np.asarray(a) for a in system.dense())
     e0 = (x0 @ K @ x0 + v0 @ M @ v0) / 2
-    j = float(mj.integrated_energy(system, horizon, x0, v0))
+    j = float(mj.Energy(horizon, x0, v0)(system))
     # a damped free chain dissipates: 0 < J <= E0 T (equality only without damping)
     assert 0 < j <= e0 * horizon * (1 + 1e-12), (j, e0 * horizon)
     ts = np.linspace(0.0, horizon, 41)
-    e = energy(system, mj.exact_solve(system, ts, x0, v0, velocity=True))
+    e = energy(system, mj.solve(system, ts, x0, v0, velocity=True, method=mj.Spectral()))
     assert np.all(np.isfinite(e)) and abs(e[0] / e0 - 1) < 1e-10
     assert np.all(np.diff(e) <= 1e-10 * e0), np.max(np.diff(e)) / e0
 
@@ -186,6 +188,6 @@ def test_over_wide_ranges_the_exact_and_dopri8_energies_agree_where_both_apply(c
     system, x0, v0, horizon, d, ratio = case
     assume(d <= 1e2)  # stiffer: Dopri8 needs ~d steps; the bound test above covers those
     assume(np.any(x0 != 0) or np.any(v0 != 0))
-    exact = mj.integrated_energy(system, horizon, x0, v0)
-    ode = mj.integrated_energy(system, horizon, x0, v0, method="ode", rtol=1e-11, atol=1e-14)
+    exact = mj.Energy(horizon, x0, v0)(system)
+    ode = integrated_energy(system, horizon, x0, v0, method="ode", rtol=1e-11, atol=1e-14)
     close(ode, exact, rtol=1e-8)

@@ -78,7 +78,7 @@ def test_auto_runs_the_same_method_under_jit():
 
     assert float(jax.jit(last)(1.0)) == pytest.approx(float(last(1.0)), rel=1e-13)
     # the integrators' stiffness rule needs values: under jit it refuses, naming the way out
-    with pytest.raises(ValueError, match="name the solver"):
+    with pytest.raises(ValueError, match="name the method"):
         jax.jit(lambda c: mj.solve(mj.mikota_chain(8, internal_damping=mj.Rayleigh(c, 0.0)),
                                    TS, x0).displacement)(0.01)
 
@@ -103,5 +103,5 @@ def test_a_bad_method_is_refused_in_one_line(method, message):
 
 
 def test_spectral_refuses_what_it_cannot_solve():
-    with pytest.raises(ValueError, match="method='spectral' does not apply"):
+    with pytest.raises(ValueError, match=r"Spectral\(\) does not apply"):
         mj.solve(mj.mikota_chain(8), TS, jnp.ones(8), method=mj.Spectral())

@@ -10,6 +10,7 @@ import scipy.optimize as so
 from _helpers import lyapunov_trace
 
 import mikota_jax as mj
+from mikota_jax._objectives import total_average_energy
 from mikota_jax._spectral_clusters import NEAR_COINCIDENT
 from mikota_jax._spectral_objectives import spectral_energy_with_result
 from mikota_jax._spectral_system import damped_modes
@@ -18,11 +19,11 @@ T = 20.0
 
 
 def spectral_energy(system, horizon, x0=None, v0=None, method="spectral"):
-    return mj.integrated_energy(system, horizon, x0, v0, method=method)
+    return mj.Energy(horizon, x0, v0, method=method)(system)
 
 
 def dense_energy(system, horizon, x0=None, v0=None):
-    return mj.integrated_energy(system, horizon, x0, v0, method="dense")
+    return mj.Energy(horizon, x0, v0, method="dense")(system)
 
 
 def unit(n, i):
@@ -110,7 +111,8 @@ def test_two_grounded_and_one_relative_damper_match_the_refined_dense_eigenvalue
 def test_the_traced_fallback_at_the_exceptional_point_is_the_dense_value(close):
     system = mj.mikota_chain(1, dampers=[mj.GroundedDamper(1.0, 2.0)])
     x0 = np.array([1.0])
-    close(jax.jit(mj.integrated_energy)(system, T, x0), dense_energy(system, T, x0), rtol=1e-12)
+    energy = jax.jit(lambda s, horizon, x: mj.Energy(horizon, x)(s))
+    close(energy(system, T, x0), dense_energy(system, T, x0), rtol=1e-12)
 
 
 def test_the_exceptional_point_of_one_dof_is_one_cluster_and_the_energy_is_exact(close):
@@ -128,7 +130,7 @@ def test_the_exceptional_point_of_one_dof_is_one_cluster_and_the_energy_is_exact
     assert bool(ok)
     truth = 0.75 - np.exp(-2 * T) * (T**2 + 2 * T + 1.5) / 2
     close(value, truth, rtol=1e-14)
-    close(mj.integrated_energy(system, T, x0), truth, rtol=1e-14)
+    close(mj.Energy(T, x0)(system), truth, rtol=1e-14)
 
 
 @pytest.mark.parametrize("coefficient", [pytest.param(1e-8, marks=pytest.mark.slow),
@@ -267,7 +269,7 @@ def test_a_mode_at_critical_internal_damping_is_flagged_and_the_energy_falls_bac
     assert float(modes.separation) < NEAR_COINCIDENT
     value, ok = spectral_energy_with_result(system, T, unit(n, n), np.zeros(n))
     assert not bool(ok)
-    close(mj.integrated_energy(system, T, unit(n, n)), dense_energy(system, T, unit(n, n)),
+    close(mj.Energy(T, unit(n, n))(system), dense_energy(system, T, unit(n, n)),
           rtol=1e-10)
 
 
@@ -303,10 +305,10 @@ def test_systems_outside_the_slice_are_refused_with_the_argument_named():
     with pytest.raises(ValueError, match="does not apply: the system is undamped"):
         spectral_energy(mj.mikota_chain(5), 1.0, unit(5, 1))
     with pytest.raises(ValueError, match="method='spectral' does not apply: the spectral path"):
-        mj.total_average_energy(mj.system(np.ones(n), mj.mikota_chain(n).stiffness,
+        total_average_energy(mj.system(np.ones(n), mj.mikota_chain(n).stiffness,
                                           0.1 * np.eye(n)), method="spectral")
     with pytest.raises(ValueError, match="method must be"):
-        mj.total_average_energy(mj.mikota_chain(5, dampers=[mj.GroundedDamper(2.0, 1.0)]),
+        total_average_energy(mj.mikota_chain(5, dampers=[mj.GroundedDamper(2.0, 1.0)]),
                                 method="fast")
 
 
@@ -333,9 +335,9 @@ def test_the_spectral_trace_equals_scipys_lyapunov_trace(name, lowest, close):
     n = 24
     system = TRACE_SYSTEMS[name](n)
     expected = lyapunov_trace(system, lowest)
-    close(mj.total_average_energy(system, lowest, method="spectral"), expected, rtol=1e-11)
+    close(total_average_energy(system, lowest, method="spectral"), expected, rtol=1e-11)
     # the doubling's own error is larger where a mode barely decays (rate 7e-7 here: 1.3e-9)
-    close(mj.total_average_energy(system, lowest, method="dense"), expected, rtol=1e-8)
+    close(total_average_energy(system, lowest, method="dense"), expected, rtol=1e-8)
 
 
 @pytest.mark.slow  # 39 s in CI; the spectral energy's gradient check stays in the default run
@@ -347,7 +349,7 @@ def test_the_trace_gradient_matches_central_differences(close):
         system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(position, coefficient),
                                              mj.RelativeDamper((2, 11), 0.5 * coefficient)],
                                  internal_damping=mj.ModalDamping(zeta))
-        return mj.total_average_energy(system, 6, method="spectral")
+        return total_average_energy(system, 6, method="spectral")
 
     args = (jnp.array(5.6), jnp.array(2.0), jnp.array(0.01))
     grads = jax.grad(trace, argnums=(0, 1, 2))(*args)
@@ -363,7 +365,7 @@ def test_a_mode_no_damper_touches_makes_the_trace_not_exist():
     system = mj.mikota_chain(60, dampers=[mj.GroundedDamper(60.0, 2.0)])
     for method in ("exact", "spectral"):
         with pytest.raises(ValueError, match="undamped"):
-            mj.total_average_energy(system, method=method)
+            total_average_energy(system, method=method)
 
 
 def triple_chain(n1, viscosities):
@@ -392,8 +394,8 @@ def test_a_settled_root_whose_residual_shows_cancellation_is_accepted_and_right(
                   [-np.linalg.solve(m, k), -np.linalg.solve(m, d)]])
     assert_same_roots(ours, np.linalg.eigvals(a), 1e-9)
     lowest = 20
-    spectral = float(mj.total_average_energy(system, lowest, method="spectral"))
-    dense = float(mj.total_average_energy(system, lowest, method="dense"))
+    spectral = float(total_average_energy(system, lowest, method="spectral"))
+    dense = float(total_average_energy(system, lowest, method="dense"))
     assert spectral == pytest.approx(dense, rel=1e-9)
 
 
@@ -412,6 +414,6 @@ def test_a_missing_far_root_is_restarted_from_the_trace(d1):
     a = np.block([[np.zeros((n, n)), np.eye(n)],
                   [-np.linalg.solve(m, k), -np.linalg.solve(m, d)]])
     assert_same_roots(np.asarray(modes.eigenvalues), np.linalg.eigvals(a), 1e-9)
-    spectral = float(mj.total_average_energy(system, 20, method="spectral"))
-    dense = float(mj.total_average_energy(system, 20, method="dense"))
+    spectral = float(total_average_energy(system, 20, method="spectral"))
+    dense = float(total_average_energy(system, 20, method="dense"))
     assert spectral == pytest.approx(dense, rel=1e-9)

@@ -48,8 +48,8 @@ def test_the_large_chain_response_equals_the_spectral_and_the_dense_one():
             x, v, ok = response(chain(), load, dofs, 7)
             x_u, v_u, ok_u = response(chain(), load, dofs, 0)
             assert bool(ok) and bool(ok_u)
-            dense = mj.exact_solve(chain(), TS, X0, V0, load, dofs=dofs, velocity=True,
-                                   method="dense")
+            dense = mj.solve(chain(), TS, X0, V0, load, dofs=dofs, velocity=True,
+                             method=mj.DenseExponential())
             for mine, same, truth in ((x, x_u, dense.displacement), (v, v_u, dense.velocity)):
                 scale = float(jnp.max(jnp.abs(truth)))
                 assert float(jnp.max(jnp.abs(mine - same))) <= 1e-13 * scale
@@ -99,17 +99,18 @@ def test_exact_solve_and_the_energy_take_the_large_chain_path_above_the_threshol
     n, ts = 37, jnp.linspace(0.0, 3.0, 23)
     system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(7.0, 2.0)])
     x0 = jnp.zeros(n).at[2].set(1.0)
-    dense = mj.exact_solve(system, ts, x0, dofs=(1, 3, 37), method="dense")
+    dense = mj.solve(system, ts, x0, dofs=(1, 3, 37), method=mj.DenseExponential())
     monkeypatch.setattr(spectral_system, "ROWS_ABOVE", 32)
     assert spectral_system.uses_rows(system)
-    mine = mj.exact_solve(system, ts, x0, dofs=(1, 3, 37), method="spectral")
+    mine = mj.solve(system, ts, x0, dofs=(1, 3, 37), method=mj.Spectral())
     np.testing.assert_allclose(np.asarray(mine.displacement), np.asarray(dense.displacement),
                                atol=1e-11)
     # under jit too, with no dense fallback compiled (it could not run at such a size)
-    jitted = jax.jit(lambda x: mj.exact_solve(system, ts, x, dofs=(1, 3, 37)).displacement)
+    jitted = jax.jit(lambda x: mj.solve(system, ts, x, dofs=(1, 3, 37),
+                                        method=mj.Spectral()).displacement)
     np.testing.assert_allclose(np.asarray(jitted(x0)), np.asarray(dense.displacement),
                                atol=1e-11)
     # the energy's default method takes the same O(n)-memory path there (no dense fallback)
-    np.testing.assert_allclose(float(mj.integrated_energy(system, 20.0, x0)),
-                               float(mj.integrated_energy(system, 20.0, x0, method="dense")),
+    np.testing.assert_allclose(float(mj.Energy(20.0, x0)(system)),
+                               float(mj.Energy(20.0, x0, method="dense")(system)),
                                rtol=1e-10)

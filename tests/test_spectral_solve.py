@@ -1,4 +1,4 @@
-"""exact_solve's spectral path (responses from the damped modes) against independent truths.
+"""solve's Spectral() method (responses from the damped modes) against independent truths.
 
 Truths: scipy's expm of the physical first-order matrix at every time (any grid), a 60-digit
 decimal matrix exponential (strong dampers, where the dense path itself loses eps * rate), the
@@ -86,7 +86,7 @@ def chain(*dampers, n=N):
 
 
 def spectral(system, ts, x0, v0=None, load=None, **kwargs):
-    return mj.exact_solve(system, ts, x0, v0, load, method="spectral", **kwargs)
+    return mj.solve(system, ts, x0, v0, load, method=mj.Spectral(), **kwargs)
 
 
 # --- against the matrix exponential and the dense path -------------------------------------------
@@ -111,7 +111,7 @@ def test_the_spectral_path_agrees_with_the_dense_path_within_the_dense_paths_own
     # 60-digit truth it is 7e-7 at d = 1e8, the spectral path's 1e-13): 1e-12 plus that
     for position in POSITIONS:
         system = chain(mj.GroundedDamper(position, coefficient))
-        dense = mj.exact_solve(system, TS, X0, V0, velocity=True, method="dense")
+        dense = mj.solve(system, TS, X0, V0, velocity=True, method=mj.DenseExponential())
         out = spectral(system, TS, X0, V0, velocity=True)
         tol = 1e-12 + 2e-15 * coefficient * np.ceil(position) / M_
         assert relative(out.displacement, dense.displacement) < tol, position
@@ -139,7 +139,7 @@ def test_a_strong_damper_is_right_to_1e_12_against_a_60_digit_matrix_exponential
     ids=["relative 1e-8", "relative 1", "relative 1e2 ends", "several"])
 def test_relative_and_several_dampers_agree_with_the_dense_path(dampers):
     system = chain(*dampers)
-    dense = mj.exact_solve(system, TS, X0, V0, velocity=True, method="dense")
+    dense = mj.solve(system, TS, X0, V0, velocity=True, method=mj.DenseExponential())
     out = spectral(system, TS, X0, V0, velocity=True)
     assert relative(out.displacement, dense.displacement) < 1e-12
     assert relative(out.velocity, dense.velocity) < 1e-12
@@ -151,7 +151,7 @@ def test_a_pulse_agrees_with_the_dense_path(start, duration):
     # (-1, 1.5): on at ts[0], off at 0.5; (-2, 1): over before ts[0], only the free vibration
     system = chain(mj.GroundedDamper(7.3, 0.5))
     load = mj.pulse(N, 4, 2.0, duration, start)
-    dense = mj.exact_solve(system, TS, X0, V0, load, velocity=True, method="dense")
+    dense = mj.solve(system, TS, X0, V0, load, velocity=True, method=mj.DenseExponential())
     out = spectral(system, TS, X0, V0, load, velocity=True)
     assert relative(out.displacement, dense.displacement) < 1e-12
     assert relative(out.velocity, dense.velocity) < 1e-12
@@ -169,7 +169,7 @@ def test_auto_takes_the_spectral_path_on_any_grid_and_a_strong_damper_never_over
     ts = np.concatenate([[0.0], np.geomspace(1e-3, 1e4, 100)])
     system = chain(mj.GroundedDamper(N, 1e8))
     x, _ = expm_reference(system, ts[:40], X0, V0)
-    out = mj.exact_solve(system, ts, X0, V0, velocity=True)
+    out = mj.solve(system, ts, X0, V0, velocity=True, method=mj.Spectral())
     assert np.all(np.isfinite(np.asarray(out.displacement)))
     assert relative(out.displacement[:40], x) < 1e-6  # expm's own eps * rate
     M, _, K = (np.asarray(m) for m in system.dense())
@@ -196,8 +196,8 @@ def test_a_critically_damped_dof_is_one_cluster_and_exact(ts, close):
                                        None, dofs=(1,), displacement=True, velocity=False)
     assert bool(ok)
     expected = ((1 + ts) * np.exp(-ts))[:, None]
-    close(mj.exact_solve(system, ts, x0).displacement, expected, atol=1e-15)
-    jitted = jax.jit(lambda t, x: mj.exact_solve(system, t, x).displacement)
+    close(mj.solve(system, ts, x0, method=mj.Spectral()).displacement, expected, atol=1e-15)
+    jitted = jax.jit(lambda t, x: mj.solve(system, t, x, method=mj.Spectral()).displacement)
     close(jitted(ts, x0), expected, atol=1e-15)
 
 
@@ -210,7 +210,7 @@ def test_jit_and_vmap_over_coefficients_give_the_eager_results(close):
 
     def tip(c):
         system = chain(mj.GroundedDamper(7.3, c))
-        return mj.exact_solve(system, TS, X0, V0, dofs=[N]).displacement[:, 0]
+        return mj.solve(system, TS, X0, V0, dofs=[N], method=mj.Spectral()).displacement[:, 0]
 
     eager = np.stack([np.asarray(tip(c)) for c in coefficients])
     close(jax.jit(tip)(coefficients[1]), eager[1], atol=1e-14)
@@ -219,7 +219,8 @@ def test_jit_and_vmap_over_coefficients_give_the_eager_results(close):
 
 def tip_energy(position, coefficient, x0, method="spectral", n=10):
     system = mj.mikota_chain(n, M_, K_, dampers=[mj.GroundedDamper(position, coefficient)])
-    out = mj.exact_solve(system, TS, x0, dofs=[n, 3], velocity=True, method=method)
+    method = mj.Spectral() if method == "spectral" else mj.DenseExponential()
+    out = mj.solve(system, TS, x0, dofs=[n, 3], velocity=True, method=method)
     return jnp.sum(out.displacement**2) + jnp.sum(out.velocity**2)
 
 
@@ -255,8 +256,8 @@ def test_internal_damping_diagonal_in_modes_takes_the_spectral_path_and_matches_
                              internal_damping=internal)
     x0 = np.linspace(-1.0, 1.0, n)
     ts = np.linspace(0.0, 20.0, 401)
-    spectral = mj.exact_solve(system, ts, x0, velocity=True, method="spectral")
-    dense = mj.exact_solve(system, ts, x0, velocity=True, method="dense")
+    spectral = mj.solve(system, ts, x0, velocity=True, method=mj.Spectral())
+    dense = mj.solve(system, ts, x0, velocity=True, method=mj.DenseExponential())
     scale = np.max(np.abs(dense.displacement))
     close(spectral.displacement, dense.displacement, atol=1e-12 * scale, rtol=0)
     close(spectral.velocity, dense.velocity, atol=1e-11 * np.max(np.abs(dense.velocity)), rtol=0)
@@ -267,33 +268,33 @@ def test_internal_damping_diagonal_in_modes_takes_the_spectral_path_and_matches_
 
 def test_the_spectral_method_is_refused_where_it_does_not_apply_with_the_reason():
     undamped = mj.mikota_chain(5)
-    with pytest.raises(ValueError, match="method='spectral'.*undamped"):
-        mj.exact_solve(undamped, TS, np.ones(5), method="spectral")
+    with pytest.raises(ValueError, match=r"Spectral\(\).*undamped"):
+        mj.solve(undamped, TS, np.ones(5), method=mj.Spectral())
     user = mj.system(np.ones(5), mj.mikota_chain(5).stiffness, 0.1 * np.eye(5),
                      dampers=[mj.GroundedDamper(2.0, 1.0)])
-    with pytest.raises(ValueError, match="method='spectral'.*damping matrix"):
-        mj.exact_solve(user, TS, np.ones(5), method="spectral")
+    with pytest.raises(ValueError, match=r"Spectral\(\).*damping matrix"):
+        mj.solve(user, TS, np.ones(5), method=mj.Spectral())
     damped = mj.mikota_chain(5, dampers=[mj.GroundedDamper(2.0, 1.0)])
     reduced = mj.galerkin(damped, jnp.eye(5)[:, :2])
-    with pytest.raises(ValueError, match="method='spectral'.*ReducedModel"):
-        mj.exact_solve(reduced, TS, np.ones(5), method="spectral")
+    with pytest.raises(ValueError, match=r"Spectral\(\).*ReducedModel"):
+        mj.solve(reduced, TS, np.ones(5), method=mj.Spectral())
     with pytest.raises(ValueError, match="method must be"):
-        mj.exact_solve(damped, TS, np.ones(5), method="modal")
+        mj.solve(damped, TS, np.ones(5), method="modal")
 
 
-# --- simulate(solver="auto") and the optimiser's certification take the spectral path ------------
+# --- solve's Auto() and the optimiser's certification take the spectral path ---------------------
 
 
 def test_simulate_auto_takes_the_exact_spectral_solution_where_it_applies(close):
     system = chain(mj.GroundedDamper(7.3, 0.5))
-    exact = mj.exact_solve(system, TS, X0, V0, velocity=True, method="dense")
-    auto = mj.simulate(system, TS, X0, V0, velocity=True, solver="auto")
+    exact = mj.solve(system, TS, X0, V0, velocity=True, method=mj.DenseExponential())
+    auto = mj.solve(system, TS, X0, V0, velocity=True, method=mj.Auto())
     assert auto.num_steps is None  # no integration: the modal expansion
     for got, want in ((auto.displacement, exact.displacement), (auto.velocity, exact.velocity)):
         close(got, want, rtol=0, atol=1e-12 * float(np.max(np.abs(np.asarray(want)))))
     # a general load is integrated (Dopri8 here: rho T is small), to its tolerance
     load = lambda t: jnp.zeros(N).at[0].set(jnp.sin(t))  # noqa: E731
-    ode = mj.simulate(system, TS, X0, V0, load, solver="auto")
+    ode = mj.solve(system, TS, X0, V0, load, method=mj.Auto())
     assert ode.num_steps is not None and int(ode.num_steps) > 0
 
 
@@ -303,7 +304,7 @@ def test_the_full_energy_the_optimiser_certifies_with_is_the_exact_one(close):
     problem = mj.DamperProblem(system, jnp.linspace(0.0, 20.0, 11), X0, V0)
     objective = mj.placement_objective(problem)  # the full model
     value = objective(jnp.array([4.0]), jnp.array([0.8]))
-    close(value, mj.integrated_energy(system, 20.0, X0, V0, method="dense"), rtol=1e-11)
+    close(value, mj.Energy(20.0, X0, V0, method="dense")(system), rtol=1e-11)
     gradient = jax.grad(objective, argnums=1)(jnp.array([4.0]), jnp.array([0.8]))
     h = 1e-5
     central = (objective(jnp.array([4.0]), jnp.array([0.8 + h]))
@@ -317,7 +318,7 @@ def test_a_uniform_grid_far_from_zero_is_uniform_to_the_rounding_of_t(close):
     shifted = 1e5 + 1e-3 * np.arange(201)
     at_zero = 1e-3 * np.arange(201)
     x0 = X0[:4]
-    for method in ("dense", "spectral"):
-        far = mj.exact_solve(system, shifted, x0, method=method).displacement
-        near = mj.exact_solve(system, at_zero, x0, method=method).displacement
+    for method in (mj.DenseExponential(), mj.Spectral()):
+        far = mj.solve(system, shifted, x0, method=method).displacement
+        near = mj.solve(system, at_zero, x0, method=method).displacement
         close(far, near, rtol=0, atol=1e-9 * float(np.max(np.abs(np.asarray(near)))))

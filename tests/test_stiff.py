@@ -33,9 +33,9 @@ def test_kvaerno5_agrees_with_the_exact_solution_with_relative_dampers_and_a_pul
     system = mj.mikota_chain(N, 1.3, 0.9, dampers=DAMPERS)
     x0, v0 = state(N)
     load = mj.pulse(N, 5, amplitude=2.0, duration=0.7, start=0.4)
-    exact = mj.exact_solve(system, TS, x0, v0, load, velocity=True)
-    out = mj.simulate(system, TS, x0, v0, load, velocity=True, solver="kvaerno5", rtol=1e-10,
-                      atol=1e-12)
+    exact = mj.solve(system, TS, x0, v0, load, velocity=True, method=mj.Spectral())
+    out = mj.solve(system, TS, x0, v0, load, velocity=True,
+                   method=mj.ODE(mj.StructuredKvaerno5(), rtol=1e-10, atol=1e-12))
     close(out.displacement, exact.displacement, atol=1e-7 * scale(exact.displacement))
     close(out.velocity, exact.velocity, atol=1e-7 * scale(exact.velocity))
 
@@ -45,8 +45,9 @@ def test_kvaerno5_solves_a_reduced_model_in_its_modal_structure(close):
     x0, v0 = state(N, 1)
     basis, _ = np.linalg.qr(np.random.default_rng(2).standard_normal((N, 7)))
     reduced = mj.galerkin(system, jnp.asarray(basis))
-    exact = mj.exact_solve(reduced, TS, x0, v0)
-    out = mj.simulate(reduced, TS, x0, v0, solver="kvaerno5", rtol=1e-10, atol=1e-12)
+    exact = mj.solve(reduced, TS, x0, v0, method=mj.DenseExponential())
+    out = mj.solve(reduced, TS, x0, v0,
+                   method=mj.ODE(mj.StructuredKvaerno5(), rtol=1e-10, atol=1e-12))
     close(out.displacement, exact.displacement, atol=1e-7 * scale(exact.displacement))
 
 
@@ -55,12 +56,13 @@ def test_a_very_strong_damper_is_cheap_and_accurate_for_kvaerno5_and_stiff_for_d
     # c / M_jj = 1e6 * 4: an eigenvalue near -4e6, far beyond the chain's highest frequency 12
     system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(4.0, 1e6)])
     x0, v0 = state(N, 3)
-    exact = mj.exact_solve(system, TS, x0, v0)
-    out = mj.simulate(system, TS, x0, v0, solver="kvaerno5", rtol=1e-9, atol=1e-11)
+    exact = mj.solve(system, TS, x0, v0, method=mj.Spectral())
+    out = mj.solve(system, TS, x0, v0,
+                   method=mj.ODE(mj.StructuredKvaerno5(), rtol=1e-9, atol=1e-11))
     close(out.displacement, exact.displacement, atol=1e-6 * scale(exact.displacement))
     assert int(out.num_steps) < 2000
     with pytest.raises(ValueError, match="max_steps = 2000 reached.*kvaerno5"):
-        mj.simulate(system, TS, x0, v0, solver="dopri8", max_steps=2000)
+        mj.solve(system, TS, x0, v0, method=mj.ODE(max_steps=2000))
 
 
 def test_kvaerno5_at_ten_thousand_dofs_keeps_the_analytic_mode_shape_solution(close):
@@ -69,8 +71,10 @@ def test_kvaerno5_at_ten_thousand_dofs_keeps_the_analytic_mode_shape_solution(cl
     u1 = np.asarray(mj.analytic.paper_mode_shape(n, 1)) / n
     u2 = np.asarray(mj.analytic.mode_shape(n, 2))
     x0 = u1 + u2
-    out = mj.simulate(mj.mikota_chain(n), ts, x0, dofs=[1, n // 2, n], solver="auto",
-                      rtol=1e-9, atol=1e-12)
+    picked = mj.Auto().select(mj.mikota_chain(n), ts)
+    assert isinstance(picked, mj.ODE) and isinstance(picked.solver, mj.StructuredKvaerno5)
+    out = mj.solve(mj.mikota_chain(n), ts, x0, dofs=[1, n // 2, n],
+                   method=mj.ODE(picked.solver, rtol=1e-9, atol=1e-12))
     rows = np.array([0, n // 2 - 1, n - 1])
     truth = (np.cos(omega * ts)[:, None] * u1[rows] + np.cos(2 * omega * ts)[:, None] * u2[rows])
     close(out.displacement, truth, atol=1e-6)
@@ -82,8 +86,8 @@ def test_kvaerno5_at_a_hundred_thousand_dofs_keeps_the_analytic_first_mode(close
     n = 100_000
     ts = np.linspace(0.0, 20.0, 11)
     x0 = np.arange(1.0, n + 1) / n  # p_1(i) = i: the first mode, frequency sqrt(k/m) = 1
-    out = mj.simulate(mj.mikota_chain(n), ts, x0, dofs=[1, n], solver="kvaerno5", rtol=1e-8,
-                      atol=1e-12)
+    out = mj.solve(mj.mikota_chain(n), ts, x0, dofs=[1, n],
+                   method=mj.ODE(mj.StructuredKvaerno5(), rtol=1e-8, atol=1e-12))
     close(out.displacement, np.cos(ts)[:, None] * np.array([1.0 / n, 1.0]), atol=1e-6)
 
 
@@ -94,8 +98,9 @@ def test_gradients_pass_through_the_structured_solves(close):
 
     def response(c, p):
         system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(p, c)])
-        out = mj.simulate(system, ts, x0, v0, dofs=[2], solver="kvaerno5", rtol=1e-11,
-                          atol=1e-13, max_steps=4096)
+        out = mj.solve(system, ts, x0, v0, dofs=[2],
+                       method=mj.ODE(mj.StructuredKvaerno5(), rtol=1e-11, atol=1e-13,
+                                     max_steps=4096))
         return out.displacement[-1, 0]
 
     c, p = 0.9, 5.3
@@ -114,8 +119,9 @@ def test_kvaerno5_runs_under_vmap_over_damper_coefficients(close):
 
     def final(c):
         system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(2.0, c)])
-        return mj.simulate(system, ts, x0, v0, dofs=[1], solver="kvaerno5", rtol=1e-10,
-                           atol=1e-12).displacement[-1, 0]
+        out = mj.solve(system, ts, x0, v0, dofs=[1],
+                       method=mj.ODE(mj.StructuredKvaerno5(), rtol=1e-10, atol=1e-12))
+        return out.displacement[-1, 0]
 
     cs = jnp.array([0.0, 1.0, 1e4])
     close(jax.vmap(final)(cs), np.array([final(c) for c in cs]), rtol=1e-9)
@@ -140,9 +146,9 @@ def test_auto_needs_concrete_values_and_says_so():
 
     @jax.jit
     def run(k):
-        return mj.simulate(mj.mikota_chain(N, k=k), TS, x0, solver="auto").displacement
+        return mj.solve(mj.mikota_chain(N, k=k), TS, x0, method=mj.Auto()).displacement
 
-    with pytest.raises(ValueError, match="solver='auto' needs concrete"):
+    with pytest.raises(ValueError, match=r"Auto\(\) needs concrete"):
         run(1.0)
 
 
@@ -159,11 +165,11 @@ def test_auto_chooses_the_exact_path_from_the_structure_also_under_jit(close):
     @jax.jit
     def run(c):
         system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(2.0, c)])
-        return mj.simulate(system, TS, x0, solver="auto")
+        return mj.solve(system, TS, x0, method=mj.Auto())
 
     out = run(0.5)
     assert out.num_steps is None
-    close(out.displacement, mj.exact_solve(damped, TS, x0, method="dense").displacement,
+    close(out.displacement, mj.solve(damped, TS, x0, method=mj.DenseExponential()).displacement,
           rtol=0, atol=1e-12)
 
 
@@ -171,8 +177,8 @@ def test_auto_chooses_the_exact_path_from_the_structure_also_under_jit(close):
 def test_diffrax_solver_instances_are_still_accepted(close):
     system = mj.mikota_chain(4, dampers=[mj.GroundedDamper(2.0, 0.5)])
     x0, v0 = state(4, 6)
-    exact = mj.exact_solve(system, TS, x0, v0)
-    out = mj.simulate(system, TS, x0, v0, solver=diffrax.Kvaerno5(), rtol=1e-9, atol=1e-11)
+    exact = mj.solve(system, TS, x0, v0, method=mj.Spectral())
+    out = mj.solve(system, TS, x0, v0, method=mj.ODE(diffrax.Kvaerno5(), rtol=1e-9, atol=1e-11))
     close(out.displacement, exact.displacement, atol=1e-6 * scale(exact.displacement))
 
 
@@ -183,25 +189,26 @@ def test_dense_methods_refuse_a_size_that_cannot_fit_in_memory():
     system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(5.0, 1.0)],
                              internal_damping=mj.Rayleigh(0.01, 0.0))
     x0 = np.ones(n)
-    with pytest.raises(ValueError, match="exact_solve works with dense matrices.*kvaerno5"):
-        mj.exact_solve(system, np.linspace(0.0, 1.0, 3), x0)
-    with pytest.raises(ValueError, match="integrated_energy.*GiB.*method='ode'"):
-        mj.integrated_energy(system, 1.0, x0)
-    with pytest.raises(ValueError, match="total_average_energy works with dense"):
-        mj.total_average_energy(system)
+    with pytest.raises(ValueError,
+                       match=r"Spectral\(\) works with dense matrices.*StructuredKvaerno5"):
+        mj.solve(system, np.linspace(0.0, 1.0, 3), x0, method=mj.Spectral())
+    with pytest.raises(ValueError, match="Energy.*GiB.*method='ode'"):
+        mj.Energy(1.0, x0)(system)
+    with pytest.raises(ValueError, match=r"AverageEnergy\(\) works with dense"):
+        mj.AverageEnergy()(system)
 
 
 def test_a_damper_rate_beyond_the_dense_energys_range_is_refused_and_the_spectral_path_holds():
     system = mj.mikota_chain(4, dampers=[mj.GroundedDamper(2.0, 1e19)])
     start = np.eye(4)[2]  # the damped DOF displaced: as d grows it is pinned, nothing dissipates
     with pytest.raises(ValueError, match="beyond which the dense .* energy loses"):
-        mj.integrated_energy(system, 20.0, start, method="dense")
+        mj.Energy(20.0, start, method="dense")(system)
     # the spectral path (the default here) stays inside the physical bound 0 < J <= E0 T and
     # tends to E0 T from below as d grows
     e0 = 0.5 * float(start @ np.asarray(system.stiffness.as_matrix()) @ start)
     for d in (1e8, 1e12, 1e16, 1e19):
         strong = mj.mikota_chain(4, dampers=[mj.GroundedDamper(2.0, d)])
-        energy = float(mj.integrated_energy(strong, 20.0, start))
+        energy = float(mj.Energy(20.0, start)(strong))
         assert 0.0 < energy <= e0 * 20.0 * (1 + 1e-14), (d, energy)
         assert energy > e0 * 20.0 * (1 - 1e-6), (d, energy)
 
@@ -213,10 +220,10 @@ def test_the_dense_energy_is_refused_where_rounding_would_cost_it_its_digits(clo
     start = np.eye(30)[2]
     for d, refused in ((1e8, False), (1e12, True), (1e14, True)):
         system = mj.mikota_chain(30, dampers=[mj.GroundedDamper(7.0, d)])
-        exact = float(mj.integrated_energy(system, 20.0, start))
+        exact = float(mj.Energy(20.0, start)(system))
         assert 0 < exact <= 550.0 * (1 + 1e-14)
         if refused:
             with pytest.raises(ValueError, match="spectral path"):
-                mj.integrated_energy(system, 20.0, start, method="dense")
+                mj.Energy(20.0, start, method="dense")(system)
         else:
-            close(mj.integrated_energy(system, 20.0, start, method="dense"), exact, rtol=1e-6)
+            close(mj.Energy(20.0, start, method="dense")(system), exact, rtol=1e-6)

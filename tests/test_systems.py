@@ -6,6 +6,7 @@ hand-assembled stiffness and scipy's eigh for branched chains; dense solutions f
 sparse formats; central differences for gradients.
 """
 
+import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -14,6 +15,7 @@ import scipy.linalg
 import scipy.sparse as sp
 
 import mikota_jax as mj
+from mikota_jax._objectives import integrated_energy
 from mikota_jax._operators import Dense, Diagonal, Sparse, SymmetricBanded, SymmetricTridiagonal
 
 N = 8
@@ -153,10 +155,10 @@ def test_mikota_chain_as_user_matrices_gives_the_same_solution(form, structure):
                        internal_damping=mj.Rayleigh(0.05, 0.002))
     assert (type(system.mass), type(system.stiffness)) == structure
     x0 = jnp.asarray(mj.analytic.mode_shape(N, 2))
-    expected = mj.exact_solve(reference, TS, x0=x0).displacement
-    np.testing.assert_allclose(mj.exact_solve(system, TS, x0=x0).displacement, expected,
-                               atol=1e-12)
-    simulated = mj.simulate(system, TS, x0=x0, rtol=1e-10).displacement
+    expected = mj.solve(reference, TS, x0=x0, method=mj.Spectral()).displacement
+    np.testing.assert_allclose(mj.solve(system, TS, x0=x0, method=mj.Spectral()).displacement,
+                               expected, atol=1e-12)
+    simulated = mj.solve(system, TS, x0=x0, method=mj.ODE(rtol=1e-10)).displacement
     np.testing.assert_allclose(simulated, expected, atol=1e-8)
     np.testing.assert_allclose(mj.modal_decomposition(system)[0], np.arange(1, N + 1), rtol=1e-12)
 
@@ -183,12 +185,14 @@ def test_banded_sparse_and_dense_stiffness_give_the_same_solutions():
         np.testing.assert_allclose(system.stiffness.as_matrix(), k, atol=1e-15)
         v = jnp.linspace(-1.0, 1.0, N)
         np.testing.assert_allclose(system.stiffness.mv(v), k @ np.asarray(v), atol=1e-14)
-        solutions[name] = mj.simulate(system, TS, x0=x0, rtol=1e-10).displacement
+        solutions[name] = mj.solve(system, TS, x0=x0, method=mj.ODE(rtol=1e-10)).displacement
         if name == "scipy":  # the stiff solver's dense fallback for a sparse stiffness
-            solutions["kvaerno5"] = mj.simulate(system, TS, x0=x0, rtol=1e-10,
-                                                solver="kvaerno5").displacement
-    exact = mj.exact_solve(mj.system(mass, k, dampers=[DAMPER],
-                                     internal_damping=mj.Rayleigh(0.01, 0.005)), TS, x0=x0)
+            solutions["kvaerno5"] = mj.solve(
+                system, TS, x0=x0,
+                method=mj.ODE(mj.StructuredKvaerno5(), rtol=1e-10)).displacement
+    exact = mj.solve(mj.system(mass, k, dampers=[DAMPER],
+                               internal_damping=mj.Rayleigh(0.01, 0.005)), TS, x0=x0,
+                     method=mj.Spectral())
     for solution in solutions.values():
         np.testing.assert_allclose(solution, exact.displacement, atol=1e-8)
 
@@ -198,13 +202,14 @@ def test_a_non_diagonal_mass_from_every_format_gives_the_same_solutions():
     m = m * (np.abs(np.subtract.outer(np.arange(N), np.arange(N))) <= 1)  # tridiagonal mass
     m = m + N * np.eye(N)  # still SPD
     x0 = jnp.linspace(0.0, 1.0, N)
-    reference = mj.exact_solve(mj.system(m, k), TS, x0=x0).displacement
+    reference = mj.solve(mj.system(m, k), TS, x0=x0, method=mj.DenseExponential()).displacement
     for mass in ((np.diag(m), np.diag(m, 1)), sp.csr_matrix(m)):
         system = mj.system(mass, sp.csr_matrix(k), internal_damping=mj.ModalDamping(0.05))
-        damped = mj.exact_solve(system, TS, x0=x0).displacement
-        simulated = mj.simulate(system, TS, x0=x0, rtol=1e-10).displacement
+        damped = mj.solve(system, TS, x0=x0, method=mj.DenseExponential()).displacement
+        simulated = mj.solve(system, TS, x0=x0, method=mj.ODE(rtol=1e-10)).displacement
         np.testing.assert_allclose(simulated, damped, atol=1e-8)
-        undamped = mj.exact_solve(mj.system(mass, sp.csr_matrix(k)), TS, x0=x0).displacement
+        undamped = mj.solve(mj.system(mass, sp.csr_matrix(k)), TS, x0=x0,
+                            method=mj.DenseExponential()).displacement
         np.testing.assert_allclose(undamped, reference, atol=1e-12)
 
 
@@ -239,8 +244,9 @@ def test_branched_chain_stiff_solver_keeps_the_structure_and_is_exact():
     np.testing.assert_allclose(shifted_solver(system, 0.3)(rhs),
                                dense_shifted_solver(system, 0.3)(rhs), rtol=1e-12)
     v0 = jnp.zeros(9).at[0].set(1.0)
-    exact = mj.exact_solve(system, TS, v0=v0).displacement
-    implicit = mj.simulate(system, TS, v0=v0, solver="kvaerno5", rtol=1e-10).displacement
+    exact = mj.solve(system, TS, v0=v0, method=mj.Spectral()).displacement
+    implicit = mj.solve(system, TS, v0=v0,
+                        method=mj.ODE(mj.StructuredKvaerno5(), rtol=1e-10)).displacement
     np.testing.assert_allclose(implicit, exact, atol=1e-8)
 
 
@@ -325,11 +331,13 @@ def test_a_full_rank_rom_reproduces_every_internal_damping_model():
     system = mj.system(m, sp.csr_matrix(k), np.diag(np.linspace(0, 0.1, N)), dampers=[DAMPER],
                        internal_damping=(mj.Rayleigh(0.02, 0.003), mj.ModalDamping(0.01)))
     x0 = jnp.linspace(1.0, 0.0, N)
-    full = mj.exact_solve(system, TS, x0=x0).displacement
+    full = mj.solve(system, TS, x0=x0, method=mj.DenseExponential()).displacement
     basis = mj.pod(full.T).basis(N)
     rom = mj.galerkin(system, basis)
-    np.testing.assert_allclose(mj.exact_solve(rom, TS, x0=x0).displacement, full, atol=1e-11)
-    np.testing.assert_allclose(mj.simulate(rom, TS, x0=x0, rtol=1e-10).displacement, full,
+    np.testing.assert_allclose(mj.solve(rom, TS, x0=x0, method=mj.DenseExponential()).displacement,
+                               full, atol=1e-11)
+    np.testing.assert_allclose(mj.solve(rom, TS, x0=x0, method=mj.ODE(rtol=1e-10)).displacement,
+                               full,
                                atol=1e-8)
 
 
@@ -343,7 +351,7 @@ def test_gradients_in_alpha_beta_zeta_and_the_damper_match_central_differences()
         system = mj.system(m, k, dampers=[mj.GroundedDamper(3.0, p[3])],
                            internal_damping=(mj.Rayleigh(p[0], p[1]), mj.ModalDamping(p[2])))
         model = mj.galerkin(system, basis) if reduced else system
-        return mj.integrated_energy(model, 8.0, x0=x0)
+        return mj.Energy(8.0, x0=x0)(model)
 
     energy = jax.jit(energy, static_argnums=1)
     p = jnp.array([0.05, 0.01, 0.02, 0.3])
@@ -391,7 +399,7 @@ def test_damper_problem_keeps_the_internal_damping():
     system = mj.mikota_chain(N, dampers=[DAMPER], internal_damping=mj.Rayleigh(0.05, 0.01))
     x0 = jnp.asarray(mj.analytic.mode_shape(N, 1))
     problem = mj.DamperProblem(system, TS, x0=x0)
-    expected = mj.integrated_energy(system, float(TS[-1]), x0=x0)
+    expected = mj.Energy(float(TS[-1]), x0=x0)(system)
     full = mj.placement_objective(problem)(jnp.array([3.0]), jnp.array([0.4]))
     reduced = mj.placement_objective(problem, jnp.eye(N))(jnp.array([3.0]), jnp.array([0.4]))
     np.testing.assert_allclose(full, expected, rtol=1e-9)
@@ -473,9 +481,9 @@ def test_a_consistent_mass_is_solved_in_its_tridiagonal_structure():
     np.testing.assert_allclose(shifted_solver(system, 0.01)(rhs),
                                dense_shifted_solver(system, 0.01)(rhs), rtol=1e-12)
     v0 = jnp.zeros(n).at[-1].set(1.0)
-    exact = mj.exact_solve(system, TS, v0=v0).displacement
-    for solver in ("dopri8", "kvaerno5"):
-        simulated = mj.simulate(system, TS, v0=v0, solver=solver, rtol=1e-10).displacement
+    exact = mj.solve(system, TS, v0=v0, method=mj.Spectral()).displacement
+    for solver in (diffrax.Dopri8(), mj.StructuredKvaerno5()):
+        simulated = mj.solve(system, TS, v0=v0, method=mj.ODE(solver, rtol=1e-10)).displacement
         np.testing.assert_allclose(simulated, exact, atol=1e-9)
-    np.testing.assert_allclose(mj.integrated_energy(system, 6.0, v0=v0, method="ode", rtol=1e-10),
-                               mj.integrated_energy(system, 6.0, v0=v0), rtol=1e-8)
+    np.testing.assert_allclose(integrated_energy(system, 6.0, v0=v0, method="ode", rtol=1e-10),
+                               mj.Energy(6.0, v0=v0)(system), rtol=1e-8)

@@ -7,8 +7,9 @@ Each row carries the paper's printed value, ours, the reading used, and a status
 * ``not reproduced``: no sound reading of the paper reproduces it; the closest reading is given and
   nothing is tuned to hit the printed value.
 
-All references are exact solutions (``exact_solve``: modal coordinates, matrix exponential), so the
-numbers carry no integration error. The paper's own solver (MATLAB) is unknown.
+All references are exact solutions (``solve`` with ``DenseExponential()``: modal coordinates, a
+matrix exponential; ``Spectral()`` for the damped chain: its damped modes), so the numbers carry
+no integration error. The paper's own solver (MATLAB) is unknown.
 """
 
 import math
@@ -21,7 +22,15 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from .. import exact_solve, galerkin, mikota_chain, modal_decomposition, pod
+from .. import (
+    DenseExponential,
+    Spectral,
+    galerkin,
+    mikota_chain,
+    modal_decomposition,
+    pod,
+    solve,
+)
 from ..analytic import mode_shape, paper_mode_shape
 from ..metrics import phase_error
 from . import figures
@@ -98,7 +107,7 @@ def _section2(out: Path | None) -> list[Row]:
 
 def _section4_first_mode(out: Path | None) -> list[Row]:
     scene = load_scene("section4_first_mode")
-    full = exact_solve(scene.system, scene.ts, scene.x0)
+    full = solve(scene.system, scene.ts, scene.x0, method=DenseExponential())
     q = np.asarray(full.displacement).T
     decomposition = pod(q)
     s = np.asarray(decomposition.singular_values)
@@ -123,7 +132,7 @@ def _section4_impulse(out: Path | None) -> list[Row]:
     scene = load_scene("section4_impulse")
     system, load = scene.system, scene.load
     delta = float(load.duration)
-    grid = exact_solve(system, scene.ts, load=load, velocity=True)
+    grid = solve(system, scene.ts, load=load, velocity=True, method=DenseExponential())
     x, v = np.asarray(grid.displacement), np.asarray(grid.velocity)
     peak_x, peak_v = np.abs(x).max(), np.abs(v[:, 1:]).max()
     j = np.arange(1, int(float(scene.ts[-1]) // np.pi) + 1)
@@ -131,7 +140,7 @@ def _section4_impulse(out: Path | None) -> list[Row]:
     for shift, reading in ((0.0, "at t = j*pi, as printed"),
                            (delta / 2, "at t = j*pi + delta_f/2, the pulse centre")):
         ts = jnp.asarray(np.concatenate([[0.0], j * np.pi + shift]))
-        at = exact_solve(system, ts, load=load, velocity=True)
+        at = solve(system, ts, load=load, velocity=True, method=DenseExponential())
         xs = np.abs(np.asarray(at.displacement)[1:]).max() / peak_x
         even = np.asarray(at.velocity)[1:][j % 2 == 0][:, 1:]
         vs = np.abs(even).max() / peak_v
@@ -150,7 +159,7 @@ def _section4_impulse(out: Path | None) -> list[Row]:
     impulse = float(load.direction[0]) * delta
     v0 = jnp.zeros(scene.size).at[0].set(impulse / float(system.mass.diagonal[0]))
     ts = jnp.asarray(np.concatenate([[0.0], j * np.pi]))
-    at = exact_solve(system, ts, v0=v0, velocity=True)
+    at = solve(system, ts, v0=v0, velocity=True, method=DenseExponential())
     xs = np.abs(np.asarray(at.displacement)[1:]).max() / impulse
     even = np.asarray(at.velocity)[1:][j % 2 == 0]
     vs = max(np.abs(even[:, 1:]).max(), np.abs(even[:, 0] - float(v0[0])).max()) / float(v0[0])
@@ -173,7 +182,7 @@ def _section5(out: Path | None) -> tuple[list[Row], dict]:
     scene = load_scene("section5_damped")
     window = scene.reduction.window
     ts = scene.ts
-    full = exact_solve(scene.system, ts, scene.x0, velocity=True)
+    full = solve(scene.system, ts, scene.x0, velocity=True, method=Spectral())
     x, v = np.asarray(full.displacement), np.asarray(full.velocity)
     mask = (np.asarray(ts) >= window[0] - 1e-9) & (np.asarray(ts) <= window[1] + 1e-9)
     decomposition = pod(x[mask].T)
@@ -207,7 +216,7 @@ def _section5(out: Path | None) -> tuple[list[Row], dict]:
     for printed_rank, printed in (("76", "0.5149"), ("98", "0.144")):
         r = ranks[printed_rank]
         model = galerkin(scene.system, decomposition.basis(r))
-        red = exact_solve(model, ts, scene.x0, velocity=True)
+        red = solve(model, ts, scene.x0, velocity=True, method=DenseExponential())
         reduced[r] = red
         readings = {a: float(phase_error(x, v, red.displacement, red.velocity, a))
                     for a in ("sum", "mean", "max")}
@@ -248,11 +257,11 @@ def _section5(out: Path | None) -> tuple[list[Row], dict]:
         # oscillation; the 0.01 result grid has ~9 and draws the peaks as corners)
         fine = np.linspace(0.0, 3.75 * np.pi, 7501)
         window = fine >= 3.25 * np.pi
-        full_fine = exact_solve(scene.system, jnp.asarray(fine), scene.x0, dofs=[150],
-                                velocity=True)
+        full_fine = solve(scene.system, jnp.asarray(fine), scene.x0, dofs=[150], velocity=True,
+                          method=Spectral())
         for number, r in ((8, ranks["76"]), (9, ranks["98"])):
-            red_fine = exact_solve(galerkin(scene.system, decomposition.basis(r)),
-                                   jnp.asarray(fine), scene.x0, dofs=[150], velocity=True)
+            red_fine = solve(galerkin(scene.system, decomposition.basis(r)), jnp.asarray(fine),
+                             scene.x0, dofs=[150], velocity=True, method=DenseExponential())
             figures.full_versus_reduced(
                 out / f"fig{number}_dof150_nred{r}.png", fine[window],
                 np.asarray(full_fine.displacement)[window, 0],
@@ -266,9 +275,9 @@ def reproduce(out: str | Path | None = None, verbose: bool = True) -> dict:
     """Reproduce every number of the paper; write figures and ``reproduce.json`` under ``out``.
 
     Sections 2 (eqs. 2.4, 2.6), 4 and 5 (n_red by eqs. 3.7 and 5.3, eq. 5.2's pseudo-energy,
-    eq. 5.4's phase error), all by ``exact_solve``. Returns a dict: ``rows`` (paper's value, ours,
-    status), ``section5``, ``missed`` (count of ``MISSED`` rows), ``wall_time_s``; ``out=None``
-    writes nothing. ``verbose`` prints the table.
+    eq. 5.4's phase error), all by ``solve``'s exact methods. Returns a dict: ``rows`` (paper's
+    value, ours, status), ``section5``, ``missed`` (count of ``MISSED`` rows), ``wall_time_s``;
+    ``out=None`` writes nothing. ``verbose`` prints the table.
     """
     start = time.perf_counter()
     folder = None if out is None else Path(out)
