@@ -120,6 +120,10 @@ class DamperDesign(eqx.Module):
         n = system.size
         self.positions = None if positions is None else checked_positions(positions, n)
         self.pairs = None if pairs is None else checked_pairs(pairs, n) + 1
+        if positions is not None and system.damping.positions.shape[0] == 0:
+            raise ValueError(MARK + "positions: the system has no GroundedDamper to move.")
+        if pairs is not None and system.damping.pair_count == 0:
+            raise ValueError(MARK + "pairs: the system has no RelativeDamper to move.")
         if free is not None:
             _free_mask(free, size)  # checked here, once
             free = tuple(integer_indices(free, "free"))
