@@ -88,7 +88,8 @@ class DamperDesign(eqx.Module):
     coefficient (``upper=0`` switches a damper off). ``positions``: the candidate DOFs (1-based)
     of the grounded dampers, None to keep them in place. ``pairs``: the candidate (c, 2) pairs
     (1-based) of the relative dampers, None to keep them. ``free``: 0-based indices into the
-    coefficient vector that move, None for all.
+    coefficient vector that move, None for all. A design of g grounded dampers is (g,)
+    positions and (g,) coefficients (plus the relative dampers' pairs and coefficients).
     """
 
     system: SecondOrderSystem
@@ -354,8 +355,9 @@ def _damper_problem(design: DamperDesign, strategy: str, settings: _ReducedSetti
 
 
 class ScreenAndCertify(AbstractDesignStrategy):
-    """Grounded dampers anywhere on the chain, searched on a POD reduced model and certified on
-    the full one (``positions`` of the design: every DOF 1..n).
+    """Grounded dampers anywhere on the chain, searched on a POD reduced model (the Galerkin
+    model, eq. 3.4) and certified on the full one (``positions`` of the design: every DOF
+    1..n).
 
     1. a relaxed search (several dampers, or ``split``: between DOFs) from ``starts`` starts
        with ``optimizer`` (an optax ``GradientTransformation``, default ``optax.adam(0.1)``)
@@ -438,9 +440,10 @@ class ScreenAndCertify(AbstractDesignStrategy):
 
 
 class Grid(AbstractDesignStrategy):
-    """One grounded damper at every candidate DOF (``DamperDesign.positions``) x each of
-    ``coefficients`` ((C,), >= 0), at full order (brute force, the independent check of
-    ``ScreenAndCertify``), or on the Galerkin model of ``basis`` ((n, r), far cheaper, for plots).
+    """One grounded damper at every candidate DOF (``DamperDesign.positions``, 1-based) x each
+    of ``coefficients`` ((C,), >= 0), at full order (brute force, the independent check of
+    ``ScreenAndCertify``), or on the Galerkin model (eq. 3.4) of ``basis`` ((n, r), far cheaper,
+    for plots).
 
     ``refine`` > 0: the coefficient of the ``refine`` best DOFs then refined by golden-section
     search in log c (to ``refine_tol``; full order only). ``method``: "ode" (the objective's own
