@@ -56,6 +56,7 @@ from ._integrate import simulate_with_result
 from ._plain import to_plain
 from ._reduction import Reduction, reduce, snapshot_window
 from ._search import (
+    OPTIMIZERS,
     best_index,
     default_starts,
     last_finite,
@@ -69,6 +70,7 @@ from ._search import (
 # the relaxed search's default: Adam, step 0.1 on the unconstrained variables (one object, so
 # that its compiled step is reused from call to call)
 DEFAULT_OPTIMIZER = optax.adam(0.1)
+LBFGS = OPTIMIZERS["lbfgs"](None)  # the polish's, as an object (its learning rate is unused)
 _LEARNING_RATE = 0.1  # the polish's L-BFGS, by name, takes it and ignores it
 
 

@@ -91,13 +91,14 @@ def optimise_scene(source, out, *, objective: str = "energy", dof: int | None = 
     best DOFs refined) and draws it; otherwise the plot shows the reduced model's landscape on a
     ``landscape`` = (positions, coefficients) grid. ``certify``: "full" or "estimate".
     """
+    from .._certify import LBFGS
     from .._search import OPTIMIZERS
 
     if isinstance(optimizer, str):
         if optimizer not in OPTIMIZERS:
             raise ValueError(MARK + f"optimizer must be one of {list(OPTIMIZERS)}, got "
                              f"{optimizer!r}.")
-        optimizer = None if optimizer == "adam" else OPTIMIZERS[optimizer](None)
+        optimizer = None if optimizer == "adam" else LBFGS
     scene = load_scene(source)
     design, strategy = problem_from_scene(
         scene, objective=objective, dof=dof, lowest=lowest, energy=energy, starts=starts,
