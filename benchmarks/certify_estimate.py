@@ -1,6 +1,6 @@
 """The optimiser certified by the error estimate instead of the full model.
 
-Part A: ``optimise_dampers`` on the paper's Section 5 scene (one grounded damper, the energy on
+Part A: ``ScreenAndCertify`` on the paper's Section 5 scene (one grounded damper, the energy on
 [0, 20] of the free vibration from x_3(0) = 1), ``certify="full"`` (the full model's J and dJ/dc
 at the optimum, one solve per round) against ``certify="estimate"`` (the hierarchical estimates
 of |J - J_r| and of the log-sensitivity's error c |dJ/dc - dJ_r/dc| / J, no full solve). Each is
@@ -9,7 +9,7 @@ run twice in this process, cold then warm; the design, J, the estimates against 
 
 Part B: the certification step alone at n = 300 / 1000 / 3000 (Mikota chains, the same scene
 scaled: x_3(0) = 1, horizon 20, a damper at DOF 4 with c = 70; the basis: Craig-Bampton + x0
-of the crossover's ranks): the full model's J and dJ/dc (``placement_objective`` under
+of the crossover's ranks): the full model's J and dJ/dc (``testing.placement_objective`` under
 ``jax.value_and_grad``, what ``certify="full"`` runs) against building the estimator and
 estimating J and its gradient (``estimate(..., gradient=True)`` with ``Hierarchical``, what
 ``certify="estimate"`` runs). Compile apart (first call), then the median of repeats.
@@ -29,6 +29,7 @@ import matplotlib.ticker
 import numpy as np
 
 import mikota_jax as mj
+from mikota_jax.testing import LBFGS, DamperProblem, placement_objective
 
 NAME = "certify_estimate"
 SIZES = ((300, 100), (1000, 160), (3000, 280))  # (n, Craig-Bampton rank before x0)
@@ -37,26 +38,28 @@ DESIGN = (4.0, 70.0)
 
 
 def optimiser_runs(quick: bool) -> dict:
-    problem = mj.problem_from_scene(mj.load_scene("section5_damped"))
+    scene = mj.load_scene("section5_damped")
     runs = {}
     for label in ("cold", "warm"):
         for certify in ("full", "estimate"):
+            design, strategy = mj.problem_from_scene(scene, optimizer=LBFGS, certify=certify,
+                                                     iterations=10 if quick else 80)
             start = time.perf_counter()
-            result = mj.optimise_dampers(problem, optimizer="lbfgs", certify=certify,
-                                         iterations=10 if quick else 80)
+            result = mj.optimise(design, strategy)
             seconds = time.perf_counter() - start
+            s = result.stats
             runs[f"{certify}_{label}"] = dict(
                 seconds=seconds, position=float(result.positions[0]),
-                coefficient=float(result.coefficients[0]), objective=result.objective,
-                objective_reduced=result.objective_reduced, rom_error=result.rom_error,
-                gradient_error=None if np.isnan(result.gradient_error)
-                else result.gradient_error, full_solves=result.full_solves,
-                seconds_full=result.seconds_full, rank=result.rank, status=result.status,
-                gradient=float(result.gradient[0]),
-                ranking=result.ranking, certified=result.certified)
+                coefficient=float(result.coefficients[0]), objective=result.value,
+                objective_reduced=s["objective_reduced"], rom_error=s["rom_error"],
+                gradient_error=None if np.isnan(s["gradient_error"])
+                else s["gradient_error"], full_solves=s["full_solves"],
+                seconds_full=s["seconds_full"], rank=s["rank"], status=s["status"],
+                gradient=float(s["gradient"][0]),
+                ranking=s["ranking"], certified=s["certified"])
             print(f"{certify:8s} {label}: {seconds:6.1f} s, DOF {result.positions[0]:g}, "
-                  f"c = {result.coefficients[0]:.6g}, J = {result.objective:.10g}, "
-                  f"{result.full_solves} full solves; {result.status}", flush=True)
+                  f"c = {result.coefficients[0]:.6g}, J = {result.value:.10g}, "
+                  f"{s['full_solves']} full solves; {s['status']}", flush=True)
     full, est = runs["full_warm"], runs["estimate_warm"]
     true = abs(est["objective"] - full["objective"]) / full["objective"]
     true_gradient = (est["coefficient"] * abs(est["gradient"] - full["gradient"])
@@ -80,10 +83,10 @@ def median_seconds(fn, repeats: int) -> tuple[float, object]:
 def certification_step(n: int, r: int, repeats: int) -> dict:
     system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(*DESIGN)])
     x0 = jnp.zeros(n).at[2].set(1.0)
-    problem = mj.DamperProblem(system, jnp.linspace(0.0, HORIZON, 2001), x0)
+    problem = DamperProblem(system, jnp.linspace(0.0, HORIZON, 2001), x0)
     positions, coefficients = problem.positions, problem.coefficients
     basis = mj.craig_bampton_basis(system, r, states=x0)
-    full = jax.jit(jax.value_and_grad(mj.placement_objective(problem), argnums=(0, 1)))
+    full = jax.jit(jax.value_and_grad(placement_objective(problem), argnums=(0, 1)))
 
     def estimate():
         return mj.estimate(system, mj.Hierarchical(system, basis), HORIZON, x0, gradient=True)

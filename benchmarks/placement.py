@@ -1,7 +1,7 @@
 """Damper placement on the paper's Section 5 scene: gradient optimiser vs brute-force full sweep.
 
 The objective is the integrated energy on [0, 20] of the free vibration from x_3(0) = 1, one
-grounded damper. The optimiser (``optimise_dampers``: reduced-model screening of every DOF,
+grounded damper. The optimiser (``ScreenAndCertify``: reduced-model screening of every DOF,
 L-BFGS on the coefficient of the best few, full-model certification with basis enrichment) is run
 twice: cold (compiling) and warm. The sweep evaluates the full model at every DOF x a log grid of
 coefficients (Dopri8 with the energy as one more state, the evaluator the certification uses,
@@ -21,6 +21,7 @@ import numpy as np
 from _common import figure, legend, parse_args, read_json, save_figure, subtitle, write_json
 
 import mikota_jax as mj
+from mikota_jax.testing import DamperProblem, placement_objective
 
 
 def snapshot_basis(problem) -> np.ndarray:
@@ -76,12 +77,16 @@ def main(argv=None) -> None:
     if args.replot:
         return plot(read_json("placement", args.quick))
     scene = mj.load_scene("section5_damped")
-    problem = mj.problem_from_scene(scene)
+    design, strategy = mj.problem_from_scene(scene)
+    # the problem the strategy builds, for the reduced objective's timings
+    problem = DamperProblem(design.system, strategy.ts, scene.x0, scene.v0, scene.load,
+                            snapshots=strategy.snapshots, energy=strategy.energy,
+                            criterion=strategy.criterion, rank=strategy.rank)
     n = problem.size
 
     # one reduced evaluation vs one gradient step (same basis, compiled apart)
     basis = snapshot_basis(problem)
-    objective = mj.placement_objective(problem, basis)
+    objective = placement_objective(problem, basis)
     rom = jax.jit(lambda p, c: objective(p, c))
     step = jax.jit(jax.value_and_grad(objective, argnums=(0, 1)))
     p, c = problem.positions, problem.coefficients
@@ -98,31 +103,34 @@ def main(argv=None) -> None:
     runs = []
     for label in ("cold", "warm"):
         t = time.perf_counter()
-        result = mj.optimise_dampers(problem)
+        result = mj.optimise(design, strategy)
         runs.append(dict(label=label, seconds=time.perf_counter() - t, result=result.to_json()))
     result_json = runs[-1]["result"]
+    stats = result_json["stats"]
 
     positions = np.arange(1.0, n + 1) if not args.quick else np.arange(1.0, n + 1, 30.0)
     coefficients = np.geomspace(0.1, 1000.0, 4 if args.quick else args.coefficients)
+    grid = dict(ts=strategy.ts)
+    last = mj.DamperDesign(design.system, design.objective, positions=positions[-1:])
     for c in (coefficients[0], coefficients[-1]):  # compile the ODE and the exact evaluator
-        mj.sweep_dampers(problem, [c], positions=positions[-1:])
-    sweep = mj.sweep_dampers(problem, coefficients, positions=positions, refine=3,
-                             progress=True)
-    sweep_seconds = sweep.seconds + sweep.seconds_refine
+        mj.optimise(last, mj.Grid([c], **grid))
+    sweep = mj.optimise(mj.DamperDesign(design.system, design.objective, positions=positions),
+                        mj.Grid(coefficients, refine=3, progress=True, **grid))
+    sweep_seconds = sweep.stats["seconds"] + sweep.stats["seconds_refine"]
 
     warm = runs[-1]["seconds"]
     summary = dict(
         optimum=dict(position=result_json["positions"], coefficient=result_json["coefficients"],
-                     objective_full=result_json["objective"], rom_error=result_json["rom_error"],
-                     certified=result_json["certified"], rounds=result_json["rounds"],
-                     full_solves=result_json["full_solves"], rank=result_json["rank"]),
-        sweep_best=dict(position=sweep.best_position, coefficient=sweep.best_coefficient,
-                        objective=sweep.best_objective, points=int(sweep.objective.size),
-                        exact_points=sweep.exact, seconds_grid=sweep.seconds,
-                        seconds_refine=sweep.seconds_refine, seconds=sweep_seconds,
-                        refined=sweep.refined),
-        relative_difference=(result_json["objective"] - sweep.best_objective)
-        / sweep.best_objective,
+                     objective_full=result_json["value"], rom_error=stats["rom_error"],
+                     certified=stats["certified"], rounds=stats["rounds"],
+                     full_solves=stats["full_solves"], rank=stats["rank"]),
+        sweep_best=dict(position=float(sweep.positions[0]),
+                        coefficient=float(sweep.coefficients[0]), objective=sweep.value,
+                        points=int(sweep.stats["grid"].size), exact_points=sweep.stats["exact"],
+                        seconds_grid=sweep.stats["seconds"],
+                        seconds_refine=sweep.stats["seconds_refine"], seconds=sweep_seconds,
+                        refined=sweep.stats["refined"]),
+        relative_difference=(result_json["value"] - sweep.value) / sweep.value,
         optimiser_seconds=dict(cold=runs[0]["seconds"], warm=warm),
         speedup_warm=sweep_seconds / warm, speedup_cold=sweep_seconds / runs[0]["seconds"],
         gradient_step_over_forward=times["rom_value_and_gradient"] / times["rom_value"],

@@ -3,7 +3,7 @@
 The example (``spectral_objectives.fod_system``: n = 801, two chains of 400 masses joined by
 m_0 = 1200, internal damping Gamma = 0.02 Omega, a grounded damper at DOF 50, a relative one
 between DOFs 550 and 520, a grounded one at DOF 120; the trace of X over the s = 27 lowest
-modes). ``optimise_viscosities`` from their start [100, 100, 100], timed whole (compile
+modes). ``Coefficients`` from their start [100, 100, 100], timed whole (compile
 included, one process, nothing warm), against:
 
 * the published optimum: FastOptimalDamping.jl's ``src/ResultsSmall`` prints the viscosities
@@ -93,13 +93,15 @@ def main(argv=None):
     n1 = 100 if args.quick else 400
     system = fod_system(n1, START)
     print(f"n = {system.size}: optimising 3 viscosities from {START}", flush=True)
-    result = mj.optimise_viscosities(system, "average_energy", lowest=LOWEST, progress=True)
-    print(f"{result.status} in {result.seconds:.1f} s (compile included): d = "
+    design = mj.DamperDesign(system, mj.AverageEnergy(LOWEST))
+    result = mj.optimise(design, mj.Coefficients(progress=True))
+    stats = result.stats
+    print(f"{stats['status']} in {stats['seconds']:.1f} s (compile included): d = "
           f"{np.array2string(result.coefficients, precision=3)}, trace {result.value:.10g}, "
-          f"relative gradient {result.relative_gradient:.1e}, {result.iterations} iterations, "
-          f"{result.evaluations} evaluations", flush=True)
+          f"relative gradient {stats['relative_gradient']:.1e}, {stats['iterations']} "
+          f"iterations, {stats['evaluations']} evaluations", flush=True)
 
-    function = criterion_function(system, "average_energy", LOWEST, None, None, None)
+    function = criterion_function(system, mj.AverageEnergy(LOWEST))
     evaluate = lambda d: tuple(np.asarray(a, dtype=float) for a in function(np.asarray(d)))  # noqa: E731
     published_value, published_gradient = evaluate(np.asarray(PUBLISHED))
     swapped_value = float(evaluate(np.asarray(SWAPPED))[0])
@@ -117,16 +119,19 @@ def main(argv=None):
                                         bounds=[(0, None)] * 3,
                                         options=dict(ftol=1e-13, gtol=gtol, maxiter=100))
     scipy_s = time.perf_counter() - start
-    spg = mj.optimise_viscosities(system, "average_energy", lowest=LOWEST, method="spg")
-    print(f"SPG: {spg.status} in {spg.seconds:.1f} s (compiled already): trace {spg.value:.10g},"
-          f" {spg.iterations} iterations, {spg.evaluations} evaluations", flush=True)
+    spg = mj.optimise(design, mj.Coefficients(method="spg"))
+    spg_stats = spg.stats
+    print(f"SPG: {spg_stats['status']} in {spg_stats['seconds']:.1f} s (compiled already): "
+          f"trace {spg.value:.10g}, {spg_stats['iterations']} iterations, "
+          f"{spg_stats['evaluations']} evaluations", flush=True)
     rows = [
-        dict(method="optimise_viscosities (projected BFGS)", seconds=result.seconds,
-             iterations=result.iterations, evaluations=result.evaluations,
+        dict(method="Coefficients() (projected BFGS)", seconds=stats["seconds"],
+             iterations=stats["iterations"], evaluations=stats["evaluations"],
              trace=result.value, d1=result.coefficients[0], d2=result.coefficients[1],
              d3=result.coefficients[2]),
-        dict(method="optimise_viscosities(method='spg') (compiled already)",
-             seconds=spg.seconds, iterations=spg.iterations, evaluations=spg.evaluations,
+        dict(method="Coefficients(method='spg') (compiled already)",
+             seconds=spg_stats["seconds"], iterations=spg_stats["iterations"],
+             evaluations=spg_stats["evaluations"],
              trace=spg.value, d1=spg.coefficients[0], d2=spg.coefficients[1],
              d3=spg.coefficients[2]),
         dict(method="scipy L-BFGS-B, same function (compiled already)", seconds=scipy_s,
@@ -148,10 +153,10 @@ def main(argv=None):
           f"gradient {relative_published:.1e} (their own trace there: {PUBLISHED_TRACE:.10g}, "
           f"in their coordinates); with relative and DOF 120 swapped it would be "
           f"{swapped_value:.10g}", flush=True)
-    met = result.converged and result.seconds < TARGET_S
+    met = (result.result == "converged") and stats["seconds"] < TARGET_S
     print(f"target: < {TARGET_S:.0f} s with relative gradient < 1e-6: "
-          f"{'met' if met else 'MISSED'} ({result.seconds:.1f} s, "
-          f"{result.relative_gradient:.1e})")
+          f"{'met' if met else 'MISSED'} ({stats['seconds']:.1f} s, "
+          f"{stats['relative_gradient']:.1e})")
 
     write_json(NAME, args.quick, dict(
         n=system.size, lowest=LOWEST, start=list(START), published=list(PUBLISHED),
@@ -159,14 +164,16 @@ def main(argv=None):
         coefficient_order=["DOF 50", "DOF 120", "relative (550, 520)"],
         published_as_printed=list(PUBLISHED_AS_PRINTED), swapped_trace=swapped_value,
         result=dict(coefficients=result.coefficients.tolist(), value=result.value,
-                    relative_gradient=result.relative_gradient, converged=result.converged,
-                    iterations=result.iterations, evaluations=result.evaluations,
-                    seconds=result.seconds, status=result.status,
+                    relative_gradient=stats["relative_gradient"],
+                    converged=result.result == "converged",
+                    iterations=stats["iterations"], evaluations=stats["evaluations"],
+                    seconds=stats["seconds"], status=stats["status"],
                     history=[list(h) for h in result.history]),
         spg=dict(coefficients=spg.coefficients.tolist(), value=spg.value,
-                 relative_gradient=spg.relative_gradient, converged=spg.converged,
-                 iterations=spg.iterations, evaluations=spg.evaluations, seconds=spg.seconds,
-                 status=spg.status, history=[list(h) for h in spg.history]),
+                 relative_gradient=spg_stats["relative_gradient"],
+                 converged=spg.result == "converged", iterations=spg_stats["iterations"],
+                 evaluations=spg_stats["evaluations"], seconds=spg_stats["seconds"],
+                 status=spg_stats["status"], history=[list(h) for h in spg.history]),
         scipy=dict(coefficients=reference.x.tolist(), value=float(reference.fun),
                    iterations=int(reference.nit), evaluations=counts["evaluations"],
                    seconds=scipy_s, message=str(reference.message)),

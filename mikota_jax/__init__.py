@@ -26,15 +26,11 @@ __version__ = "0.1.0"
 
 # Each core module and the public names it defines, loaded on first use.
 _MODULES = {
-    "_brute_force": "SweepResult reduced_landscape sweep_dampers",
     "_cache": "enable_compilation_cache",
-    "_certify": "PlacementResult optimise_dampers",
     "_chain": "branched_chain chain mikota_chain",
     "_classic": ("craig_bampton_basis damper_directions extend_basis fixed_interface_modes "
                  "krylov_basis modal_basis modal_static_basis static_moments"),
-    "_damper_search": "DamperPlacement place_dampers",
     "_dampers": "GroundedDamper RelativeDamper",
-    "_design": "DamperProblem",
     "_enrichment": "enriched_reduce sensitivity_snapshots",
     "_estimate": "AbstractEstimator Estimate Hierarchical ResidualBound certified_sweep estimate",
     "_excitation": "LoadFunction Pulse pulse unit_vector",
@@ -47,7 +43,8 @@ _MODULES = {
     "_interpolatory": "IRKABasis band_shifts irka_basis rational_krylov_basis",
     "_modal": "modal_decomposition",
     "_objective_family": "AbstractObjective AverageEnergy Energy H2Norm OutputEnergy Peak",
-    "_placement_objective": "placement_objective",
+    "_optimise": ("AbstractDesignStrategy Coefficients CoordinateDescent DamperDesign DesignResult "
+                  "Grid ScreenAndCertify Solution optimise"),
     "_pod": "POD energy_fraction pod rank_for_energy",
     "_reduction": "ReducedBasis Reduction reduce",
     "_run": "SceneResult run_scene",
@@ -57,7 +54,6 @@ _MODULES = {
     "_sweep": "grid sweep",
     "_system": "SecondOrderSystem",
     "_user_matrices": "system",
-    "_viscosity": "ViscosityResult optimise_viscosities",
 }
 _CORE_NAMES = {name: module for module, names in _MODULES.items() for name in names.split()}
 
@@ -98,12 +94,7 @@ if TYPE_CHECKING:  # the same names for static tools (type checkers, the API ref
     from . import analytic as analytic
     from . import io as io
     from . import metrics as metrics
-    from ._brute_force import SweepResult as SweepResult
-    from ._brute_force import reduced_landscape as reduced_landscape
-    from ._brute_force import sweep_dampers as sweep_dampers
     from ._cache import enable_compilation_cache as enable_compilation_cache
-    from ._certify import PlacementResult as PlacementResult
-    from ._certify import optimise_dampers as optimise_dampers
     from ._chain import branched_chain as branched_chain
     from ._chain import chain as chain
     from ._chain import mikota_chain as mikota_chain
@@ -115,11 +106,8 @@ if TYPE_CHECKING:  # the same names for static tools (type checkers, the API ref
     from ._classic import modal_basis as modal_basis
     from ._classic import modal_static_basis as modal_static_basis
     from ._classic import static_moments as static_moments
-    from ._damper_search import DamperPlacement as DamperPlacement
-    from ._damper_search import place_dampers as place_dampers
     from ._dampers import GroundedDamper as GroundedDamper
     from ._dampers import RelativeDamper as RelativeDamper
-    from ._design import DamperProblem as DamperProblem
     from ._enrichment import enriched_reduce as enriched_reduce
     from ._enrichment import sensitivity_snapshots as sensitivity_snapshots
     from ._estimate import AbstractEstimator as AbstractEstimator
@@ -153,7 +141,15 @@ if TYPE_CHECKING:  # the same names for static tools (type checkers, the API ref
     from ._objective_family import H2Norm as H2Norm
     from ._objective_family import OutputEnergy as OutputEnergy
     from ._objective_family import Peak as Peak
-    from ._placement_objective import placement_objective as placement_objective
+    from ._optimise import AbstractDesignStrategy as AbstractDesignStrategy
+    from ._optimise import Coefficients as Coefficients
+    from ._optimise import CoordinateDescent as CoordinateDescent
+    from ._optimise import DamperDesign as DamperDesign
+    from ._optimise import DesignResult as DesignResult
+    from ._optimise import Grid as Grid
+    from ._optimise import ScreenAndCertify as ScreenAndCertify
+    from ._optimise import Solution as Solution
+    from ._optimise import optimise as optimise
     from ._pod import POD as POD
     from ._pod import energy_fraction as energy_fraction
     from ._pod import pod as pod
@@ -178,5 +174,3 @@ if TYPE_CHECKING:  # the same names for static tools (type checkers, the API ref
     from ._sweep import sweep as sweep
     from ._system import SecondOrderSystem as SecondOrderSystem
     from ._user_matrices import system as system
-    from ._viscosity import ViscosityResult as ViscosityResult
-    from ._viscosity import optimise_viscosities as optimise_viscosities

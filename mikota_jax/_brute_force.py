@@ -1,8 +1,10 @@
 """Brute force: the full (or reduced) objective of one damper on a grid of designs, via ``sweep``.
 
-``sweep_dampers`` evaluates the full model at every (position, coefficient) of a grid -- the
-independent check of ``optimise_dampers`` -- and refines the coefficient of the best DOFs by
-golden-section search in log c; ``reduced_landscape`` does the same on the reduced model, for
+The algorithm of the ``Grid`` strategy (``optimise``).
+
+``grid_sweep`` evaluates the full model at every (position, coefficient) of a grid -- the
+independent check of ``ScreenAndCertify`` -- and refines the coefficient of the best DOFs by
+golden-section search in log c; ``reduced_grid`` does the same on the reduced model, for
 plots. The grid goes through ``mikota_jax.sweep`` (chunked, sharded over the devices, one compile
 per chunk shape); a failed point is reported by its flag and becomes NaN here.
 
@@ -115,7 +117,7 @@ def _evaluate_grid(problem, basis, positions, coefficients, batch_size: int, pro
 
 
 def _stiff_rule(problem: DamperProblem, method: str):
-    """For ``sweep_dampers``: which (positions, coefficients) the exact evaluator takes.
+    """For ``grid_sweep``: which (positions, coefficients) the exact evaluator takes.
 
     "auto": the free-vibration energy of a damper whose own rate c / M_jj exceeds 10x the
     Gershgorin bound of the highest eigenfrequency (there the explicit Dopri8 is stiff and slow,
@@ -175,16 +177,17 @@ def _check_grid(problem, positions, coefficients):
     return positions, coefficients
 
 
-def reduced_landscape(problem: DamperProblem, basis, positions, coefficients, *,
-                      batch_size: int = 16, progress: bool = False) -> np.ndarray:
+def reduced_grid(problem: DamperProblem, basis, positions, coefficients, *,
+                 batch_size: int = 16, progress: bool = False) -> np.ndarray:
     """The reduced model's objective for one damper on a (positions x coefficients) grid.
 
-    ``basis``: (n, r), e.g. ``PlacementResult.basis``; ``positions``: (P,), 1-based in [1, n];
+    ``basis``: (n, r), e.g. ``Solution.stats["basis"]`` of ``ScreenAndCertify``; ``positions``:
+    (P,), 1-based in [1, n];
     ``coefficients``: (C,), >= 0. Returns a (P, C) numpy array. For plots: far cheaper than
-    ``sweep_dampers``.
+    ``grid_sweep``.
     """
     if problem.num_dampers != 1:
-        raise ValueError(MARK + "reduced_landscape places one damper; the problem has "
+        raise ValueError(MARK + "reduced_grid places one damper; the problem has "
                          f"{problem.num_dampers}.")
     basis = galerkin(problem.base, basis).basis  # orthonormal (n, r): checked here, once
     positions, coefficients = _check_grid(problem, positions, coefficients)
@@ -193,13 +196,13 @@ def reduced_landscape(problem: DamperProblem, basis, positions, coefficients, *,
 
 
 @dataclasses.dataclass
-class SweepResult:
+class GridRun:
     """A brute-force sweep of the full model: ``objective[i, j]`` at ``positions[i]``,
     ``coefficients[j]``, a (P, C) array for (P,) positions (1-based) and (C,) coefficients
     (NaN where a solve failed, counted in ``failed``). ``refined``: for the
     ``refine`` best DOFs, the coefficient refined by golden-section search between the grid
     neighbours of their best; ``best_*`` is the best of grid and refinement. ``exact``: how many
-    points the exact evaluator took (see ``sweep_dampers``)."""
+    points the exact evaluator took (see ``grid_sweep``)."""
 
     positions: np.ndarray
     coefficients: np.ndarray
@@ -220,13 +223,13 @@ class SweepResult:
         return {f.name: to_plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
 
 
-def sweep_dampers(problem: DamperProblem, coefficients, positions=None, *, method: str = "auto",
-                  refine: int = 0, refine_tol: float = 1e-3, batch_size: int = 1,
-                  progress: bool = False) -> SweepResult:
+def grid_sweep(problem: DamperProblem, coefficients, positions=None, *, method: str = "auto",
+               refine: int = 0, refine_tol: float = 1e-3, batch_size: int = 1,
+               progress: bool = False) -> GridRun:
     """The full model's objective for one damper at every position x coefficient of a grid.
 
     ``coefficients``: (C,), >= 0; ``positions``: (P,), 1-based in [1, n], default every DOF 1..n;
-    returns a ``SweepResult`` with a (P, C) ``objective``. Points are evaluated ``batch_size``
+    returns a ``GridRun`` with a (P, C) ``objective``. Points are evaluated ``batch_size``
     at a time with ``jax.vmap`` (one compiled chunk shape; memory bounded by the chunk), with a
     progress bar. On a CPU, ``batch_size=1`` is fastest (a vmapped adaptive solve steps every
     member with the batch's largest step count); on a GPU, use hundreds.
@@ -246,7 +249,7 @@ def sweep_dampers(problem: DamperProblem, coefficients, positions=None, *, metho
     if not isinstance(problem, DamperProblem):
         raise ValueError(MARK + f"problem must be a DamperProblem, got {type(problem).__name__}.")
     if problem.num_dampers != 1:
-        raise ValueError(MARK + "sweep_dampers places one damper; the problem has "
+        raise ValueError(MARK + "grid_sweep places one damper; the problem has "
                          f"{problem.num_dampers}.")
     positions, coefficients = _check_grid(problem, coefficients=coefficients,
                                           positions=np.arange(1.0, problem.size + 1)
@@ -263,7 +266,7 @@ def sweep_dampers(problem: DamperProblem, coefficients, positions=None, *, metho
                                     exact)
     seconds = time.perf_counter() - clock
     if not np.isfinite(values).any():
-        raise ValueError(MARK + "sweep_dampers: every full solve failed; increase max_steps.")
+        raise ValueError(MARK + "grid_sweep: every full solve failed; increase max_steps.")
     exact_points = 0 if exact is None else int(exact(*(a.ravel() for a in np.meshgrid(
         positions, coefficients, indexing="ij"))).sum())
     i, j = np.unravel_index(np.nanargmin(values), values.shape)
@@ -289,6 +292,6 @@ def sweep_dampers(problem: DamperProblem, coefficients, positions=None, *, metho
                                 evaluations=count))
             if value < best[2]:
                 best = (p, float(np.exp(log_c)), value)
-    return SweepResult(positions, coefficients, values, *best, int(failed.sum()), seconds,
+    return GridRun(positions, coefficients, values, *best, int(failed.sum()), seconds,
                        batch_size, method, exact_points, refined, time.perf_counter() - clock)
 

@@ -1,5 +1,7 @@
 """Certified damper placement: search on the reduced model, certify on the full one.
 
+The algorithm of the ``ScreenAndCertify`` strategy (``optimise``).
+
 The design is (positions, coefficients) of the problem's grounded dampers; any relative dampers of
 the chain stay as they are. Gradients are taken through the reduced model with its POD basis held
 fixed (no derivative through the SVD), and the optimum is certified on the full model:
@@ -31,7 +33,7 @@ fixed (no derivative through the SVD), and the optimum is certified on the full 
    estimates (the ranking certified, not only the value).
 
 "Certified" means the reduced model is accurate (to ``tolerance``) at the design returned, which
-is the best the reduced model found; the full sweep (``sweep_dampers``) is the independent check
+is the best the reduced model found; the full sweep (``Grid``) is the independent check
 that it is the best DOF (``benchmarks/placement.py``). Phases 1-3 live in ``_search.py``, the
 objectives in ``_design.py``.
 """
@@ -44,6 +46,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 
 from ._classic import extend_basis
 from ._design import DamperProblem, Energy
@@ -63,6 +66,12 @@ from ._search import (
     to_unconstrained,
     value_and_gradient,
 )
+
+# the relaxed search's default: Adam, step 0.1 on the unconstrained variables (one object, so
+# that its compiled step is reused from call to call)
+DEFAULT_OPTIMIZER = optax.adam(0.1)
+LBFGS = OPTIMIZERS["lbfgs"](None)  # the polish's, as an object (its learning rate is unused)
+_LEARNING_RATE = 0.1  # the polish's L-BFGS, by name, takes it and ignores it
 
 
 @eqx.filter_jit
@@ -98,12 +107,12 @@ def _snapshot_modes(problem, positions, coefficients):
 
 
 @dataclasses.dataclass
-class PlacementResult:
-    """The optimised damper design, certified on the full model.
+class CertifiedRun:
+    """What ``screen_and_certify`` found: the damper design, certified on the full model.
 
     ``positions``/``coefficients``: the design, (g,) each, 1-based positions (at DOFs unless
     ``split``); ``gradient``: the full model's dJ/dc there, (g,); ``basis``: the final (n, r) POD
-    basis (``rank`` r), e.g. for ``placement_objective``; ``objective``: the full
+    basis (``rank`` r), e.g. for ``Grid(basis=...)``; ``objective``: the full
     model's objective there, ``objective_reduced`` the reduced model's, ``rom_error`` their
     relative difference and ``gradient_error`` that of the logarithmic coefficient sensitivities
     c dJ/dc / J (and dJ/dp / J for split designs). ``full_solves`` counts full-model solves
@@ -149,22 +158,23 @@ class PlacementResult:
                 if f.name != "basis"}
 
 
-def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
-                     optimizer: str = "adam", iterations: int = 80,
-                     learning_rate: float = 0.1, split: bool = False, keep: int = 4,
-                     polish_iterations: int = 20, tolerance: float = 1e-4, max_rounds: int = 4,
-                     seed: int = 0, certify: str = "full",
-                     progress: bool = False) -> PlacementResult:
+def screen_and_certify(problem: DamperProblem, *, starts: int | np.ndarray = 8,
+                       optimizer=None, iterations: int = 80, split: bool = False,
+                       keep: int = 4, polish_iterations: int = 20, tolerance: float = 1e-4,
+                       max_rounds: int = 4, seed: int = 0, certify: str = "full",
+                       progress: bool = False) -> CertifiedRun:
     """Place the problem's grounded dampers: gradients through the ROM, certified on the full model.
 
     The ROM is the Galerkin model (eq. 3.4) on a POD basis (eqs. 3.5-3.8) of full-model snapshots;
-    returns a ``PlacementResult`` with (g,) positions (1-based) and coefficients. See the module
+    returns a ``CertifiedRun`` with (g,) positions (1-based) and coefficients. See the module
     docstring for the phases. ``starts``: the number of starts of the relaxed
     search (the problem's design, then spread over the chain) or an (S, g) array of start
-    positions; ``optimizer``: its "adam" (``learning_rate`` on the unconstrained variables) or
-    "lbfgs"; ``iterations`` its length. The relaxed search runs for ``split=True`` (dampers may
-    sit between DOFs, split linearly over the neighbours) and for several dampers; one damper at
-    a DOF is found by screening every DOF. ``keep``: how many screened designs are polished.
+    positions; ``optimizer``: its optax ``GradientTransformation`` on the unconstrained
+    variables (default ``optax.adam(0.1)``; an L-BFGS with a line search gets the value and its
+    function too); ``iterations`` its length. The relaxed search runs for ``split=True``
+    (dampers may sit between DOFs, split linearly over the neighbours) and for several dampers;
+    one damper at a DOF is found by screening every DOF. ``keep``: how many screened designs are
+    polished.
     ``tolerance``: the largest relative ROM error (objective and log-sensitivities) accepted at
     the optimum; beyond it the basis is enriched and the search goes on, up to ``max_rounds``.
     ``certify``: "full" (the full model's J and dJ/dc at the optimum, one solve per round) or
@@ -175,16 +185,15 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
     check_x64()
     if not isinstance(problem, DamperProblem):
         raise ValueError(MARK + f"problem must be a DamperProblem, got {type(problem).__name__}.")
-    if optimizer not in OPTIMIZERS:
-        raise ValueError(MARK + f"optimizer must be one of {list(OPTIMIZERS)}, got "
-                         f"{optimizer!r}.")
+    optimizer = DEFAULT_OPTIMIZER if optimizer is None else optimizer
+    if not isinstance(optimizer, optax.GradientTransformation):
+        raise ValueError(MARK + "optimizer must be an optax GradientTransformation (e.g. "
+                         f"optax.adam(0.1)), got {type(optimizer).__name__}.")
     for name, value, low in (("iterations", iterations, 1), ("keep", keep, 1),
                              ("polish_iterations", polish_iterations, 1),
                              ("max_rounds", max_rounds, 1)):
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
             raise ValueError(MARK + f"{name} must be an integer >= {low}, got {value!r}.")
-    if not (np.isfinite(learning_rate) and learning_rate > 0):
-        raise ValueError(MARK + f"learning_rate must be > 0, got {learning_rate!r}.")
     if not (np.isfinite(tolerance) and tolerance > 0):
         raise ValueError(MARK + f"tolerance must be > 0, got {tolerance!r}.")
     if certify not in ("full", "estimate"):
@@ -240,7 +249,7 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
     for round_ in range(max_rounds):
         if split or g > 1:
             search = run_search(problem, basis, c_ref, params, dummy, optimizer=optimizer,
-                             iterations=iterations, learning_rate=learning_rate,
+                             iterations=iterations, learning_rate=_LEARNING_RATE,
                              positions_fixed=False, tol=1e-7, progress=progress,
                              label=f"round {round_ + 1}: relaxed search", race=round_ == 0)
             history.append(phase_record("search", round_, search))
@@ -251,7 +260,7 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
                                 "on.")
             last = last_finite(search)
             if last is None:
-                raise ValueError(MARK + "optimise_dampers stopped: the objective was not finite "
+                raise ValueError(MARK + "ScreenAndCertify stopped: the objective was not finite "
                                  "at any start (a solve failed); try other starts or a larger "
                                  "max_steps.")
             best = best_index(last[2])
@@ -268,13 +277,13 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
                 f"{np.asarray(cand_p).astype(int).tolist()}")
             polish = run_search(problem, basis, c_ref, to_unconstrained(n, c_ref, cand_p, cand_c),
                              jnp.asarray(cand_p), optimizer="lbfgs",
-                             iterations=polish_iterations, learning_rate=learning_rate,
+                             iterations=polish_iterations, learning_rate=_LEARNING_RATE,
                              positions_fixed=True, tol=1e-9, progress=progress,
                              label=f"round {round_ + 1}: polish")
             history.append(phase_record("polish", round_, polish))
             polished = last_finite(polish)
             if polished is None:
-                raise ValueError(MARK + "optimise_dampers stopped: the objective was not finite "
+                raise ValueError(MARK + "ScreenAndCertify stopped: the objective was not finite "
                                  "at any screened DOF (every solve failed); try a larger "
                                  "max_steps.")
             k = best_index(polished[2])
@@ -336,7 +345,7 @@ def optimise_dampers(problem: DamperProblem, *, starts: int | np.ndarray = 8,
         say(f"round {round_ + 1}: enriching the basis with full-model snapshots there ...")
         modes = full_timed(_snapshot_modes, problem, positions, coefficients)
         basis = extend_basis(basis, modes, tol=1e-8)
-    return PlacementResult(
+    return CertifiedRun(
         positions=np.asarray(positions), coefficients=np.asarray(coefficients),
         objective=float(full_value), objective_reduced=float(rom_value), rom_error=rom_error,
         gradient_error=gradient_error, gradient=np.asarray(full_gc), certified=certified,

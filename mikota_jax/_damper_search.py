@@ -1,10 +1,11 @@
 """Where several dampers go: a coordinate-wise search over candidate DOFs at full order.
 
-``place_dampers`` moves the grounded dampers of a system among candidate DOFs (and its relative
-dampers among candidate pairs of DOFs, when given), the coefficients of all dampers (grounded
-and relative) re-optimised at each accepted placement by
-``optimise_viscosities``. It is a coordinate-wise (block Gauss-Seidel) descent on the positions,
-not an enumeration of the C(c, g) placements of g dampers on c candidates:
+The algorithm of the ``CoordinateDescent`` strategy (``optimise``): ``search_places`` moves the
+grounded dampers of a system among candidate DOFs (when given) and its relative dampers among
+candidate pairs of DOFs (when given), the coefficients of all dampers (grounded and relative)
+re-optimised at each accepted placement by ``search_coefficients`` (``Coefficients``). It is a
+coordinate-wise (block Gauss-Seidel) descent on the positions, not an enumeration of the C(c, g)
+placements of g dampers on c candidates:
 
 1. the start: the system's own positions, coefficients optimised there;
 2. a sweep: for each movable damper in turn, the criterion at every free candidate place, its
@@ -33,7 +34,7 @@ import numpy as np
 
 from ._errors import MARK
 from ._parameters import with_parameters
-from ._viscosity import checked_criterion, criterion_value, optimise_viscosities
+from ._viscosity import criterion_value, search_coefficients
 
 # the moved damper's coefficient is screened at these multiples of its current value: the best
 # DOF at one coefficient is often not the best once the coefficient is re-optimised
@@ -41,13 +42,13 @@ _SCALES = (0.1, 1.0, 10.0)
 
 
 @dataclasses.dataclass(frozen=True)
-class DamperPlacement:
-    """The result of ``place_dampers``.
+class PlacementRun:
+    """What ``search_places`` found.
 
     ``positions``: (g,) 1-based DOFs of the grounded dampers; ``pairs``: (p, 2) 1-based DOFs
     of the relative dampers; ``coefficients``: (g + p,) all damper coefficients (grounded, then
     relative) optimised there; ``value``: the criterion; ``sweeps``; ``evaluations``: screening
-    values; ``polishes``: coefficient optimisations (``optimise_viscosities`` calls);
+    values; ``polishes``: coefficient optimisations (``search_coefficients`` calls);
     ``seconds`` (wall, compile included); ``history``: one (sweep, damper index in
     ``coefficients``, position or pair, value) per accepted move of the best start; ``status``:
     one line; ``start_values``: the value each start descended to (the first is the system's
@@ -98,21 +99,20 @@ def _screen(system, kind: str, index, candidates, scales, criterion):
     return jax.lax.map(one, grid).reshape(count, scales.shape[0])
 
 
-def _candidates(candidates, n: int) -> np.ndarray:
-    if candidates is None:
-        return np.arange(1, n + 1, dtype=float)
+def checked_positions(candidates, n: int) -> np.ndarray:
+    """(c,) candidate DOFs, 1-based, checked; as floats."""
     array = np.asarray(candidates)
     if (array.ndim != 1 or array.size == 0 or not np.issubdtype(array.dtype, np.number)
             or np.any(array != np.round(array)) or np.any((array < 1) | (array > n))
             or np.unique(array).size != array.size):
-        raise ValueError(MARK + f"candidates must be distinct integer DOFs in 1..{n}, got "
+        raise ValueError(MARK + f"positions must be distinct integer DOFs in 1..{n}, got "
                          f"{candidates!r:.80}.")
     return array.astype(float)
 
 
-def _pair_candidates(pairs, n: int) -> np.ndarray:
-    """(c, 2) 0-based pairs from 1-based ``pair_candidates``, checked."""
-    message = (MARK + f"pair_candidates must be distinct pairs (i, j) of different integer DOFs "
+def checked_pairs(pairs, n: int) -> np.ndarray:
+    """(c, 2) 0-based pairs from 1-based candidate ``pairs``, checked."""
+    message = (MARK + f"pairs must be distinct pairs (i, j) of different integer DOFs "
                f"in 1..{n}, got {pairs!r:.80}.")
     try:
         array = np.asarray(pairs)
@@ -143,54 +143,49 @@ def _onto(kind: str, design: np.ndarray, candidates: np.ndarray) -> np.ndarray:
     return placed
 
 
-def place_dampers(system, criterion: str = "average_energy", *, candidates=None,
-                  pair_candidates=None, lowest: int | None = None, horizon: float | None = None,
-                  x0=None, v0=None, cx=None, cv=None, inputs=None, dof: int | None = None,
-                  ts=None, order: int = 16, keep: int = 2, max_sweeps: int = 10,
-                  starts: int = 1, seed: int = 0, lower=0.0, upper=None,
-                  tolerance: float = 1e-6, method: str = "bfgs",
-                  progress: bool = False) -> DamperPlacement:
+def search_places(system, objective, *, candidates=None, pair_candidates=None,
+                  keep: int = 2, max_sweeps: int = 10, starts: int = 1, seed: int = 0,
+                  free=None, lower=0.0, upper=None, tolerance: float = 1e-6,
+                  method: str = "bfgs", progress: bool = False) -> PlacementRun:
     """Place the dampers of ``system`` on candidate DOFs and optimise every damper's
     coefficient, at full order (see the module docstring).
 
     ``system``: a ``SecondOrderSystem`` with dampers; their places and coefficients are the
-    start. Grounded dampers move among ``candidates`` (1-based DOFs, default all; at least one
-    per damper). Relative dampers move among ``pair_candidates`` ((c, 2) 1-based pairs of DOFs,
-    at least one per damper) when it is given and stay where they are otherwise; their
-    coefficients are optimised either way. A damper that does not start on a candidate starts
-    on the nearest free one, so every place returned is a candidate. ``criterion``
-    and its arguments (``lowest``, ``horizon``, ``x0``, ``v0``, ``cx``, ``cv``, ``inputs``,
-    ``dof``, ``ts``, ``order``), ``lower``, ``upper``, ``tolerance``, ``method``: as in
-    ``optimise_viscosities``. ``keep``: places polished per damper and sweep (>= 1);
-    ``max_sweeps`` (>= 1). ``starts`` (>= 1): the system's own placement, then ``starts - 1``
-    random placements on the candidates (``seed``), each descended to a coordinate-wise minimum;
-    the best is returned. Returns a ``DamperPlacement``.
+    start. Grounded dampers move among ``candidates`` ((c,) 1-based DOFs, checked, at least one
+    per damper) when given and stay where they are otherwise; relative dampers among
+    ``pair_candidates`` ((c, 2) 0-based pairs, checked) likewise; their coefficients are
+    optimised either way. A damper that does not start on a candidate starts on the nearest
+    free one, so every place returned is a candidate. ``objective``: a ``checked_objective``;
+    ``free``, ``lower``, ``upper``, ``tolerance``, ``method``: as in ``search_coefficients``.
+    ``keep``: places polished per damper and sweep (>= 1); ``max_sweeps`` (>= 1). ``starts``
+    (>= 1): the system's own placement, then ``starts - 1`` random placements on the candidates
+    (``seed``), each descended to a coordinate-wise minimum; the best is returned.
     """
     start = time.perf_counter()
-    args = checked_criterion(system, criterion, lowest, horizon, x0, v0, cx, cv, inputs, dof,
-                             ts, order)
+    args = objective
     g = int(system.damping.positions.shape[0])
     p = system.damping.pair_count
-    if g == 0 and (p == 0 or pair_candidates is None):
-        raise ValueError(MARK + "system has no damper to place: add a GroundedDamper, or a "
-                         "RelativeDamper and pair_candidates.")
+    if (g == 0 or candidates is None) and (p == 0 or pair_candidates is None):
+        raise ValueError(MARK + "positions/pairs: nothing to place; give the candidate DOFs of "
+                         "the grounded dampers (positions) or the candidate pairs of the "
+                         "relative ones (pairs).")
     for name, value in (("keep", keep), ("max_sweeps", max_sweeps), ("starts", starts)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise ValueError(MARK + f"{name} must be an integer >= 1, got {value!r}.")
-    places = {"grounded": _candidates(candidates, system.size)}
-    if places["grounded"].shape[0] < g:
-        raise ValueError(MARK + f"candidates must hold at least one DOF per grounded damper "
-                         f"({g}), got {places['grounded'].shape[0]}: {candidates!r:.60}.")
+    places = {}
+    if candidates is not None and g:
+        places["grounded"] = np.asarray(candidates, dtype=float)
+        if places["grounded"].shape[0] < g:
+            raise ValueError(MARK + f"positions must hold at least one DOF per grounded damper "
+                             f"({g}), got {places['grounded'].shape[0]}.")
     if pair_candidates is not None:
         if p == 0:
-            raise ValueError(MARK + "pair_candidates: the system has no RelativeDamper to move.")
-        places["relative"] = _pair_candidates(pair_candidates, system.size)
+            raise ValueError(MARK + "pairs: the system has no RelativeDamper to move.")
+        places["relative"] = np.asarray(pair_candidates, dtype=int)
         if places["relative"].shape[0] < p:
-            raise ValueError(MARK + f"pair_candidates must hold at least one pair per relative "
+            raise ValueError(MARK + f"pairs must hold at least one pair per relative "
                              f"damper ({p}), got {places['relative'].shape[0]}.")
-    options = dict(lowest=lowest, horizon=horizon, x0=x0, v0=v0, cx=cx, cv=cv, inputs=inputs,
-                   dof=dof, ts=ts, order=order, lower=lower, upper=upper, tolerance=tolerance,
-                   method=method)
+    options = dict(free=free, lower=lower, upper=upper, tolerance=tolerance, method=method)
 
     def at(design, coefficients):  # the system at a design: positions (g,), pairs (p, 2)
         moved = with_parameters(system, dict(positions=jnp.asarray(design["grounded"],
@@ -200,7 +195,7 @@ def place_dampers(system, criterion: str = "average_energy", *, candidates=None,
         return eqx.tree_at(lambda s: s.damping.pairs, moved, jnp.asarray(design["relative"]))
 
     def polish(design, coefficients):
-        return optimise_viscosities(at(design, coefficients), criterion, **options)
+        return search_coefficients(at(design, coefficients), args, **options)
 
     def same(kind, a, b):  # one place: a DOF, or a pair in either order
         return a == b if kind == "grounded" else set(a.tolist()) == set(b.tolist())
@@ -257,13 +252,14 @@ def place_dampers(system, criterion: str = "average_energy", *, candidates=None,
                 for kind in own}]
     for _ in range(starts - 1):  # distinct random places among the candidates
         designs.append({
-            "grounded": rng.choice(places["grounded"], g, replace=False),
+            "grounded": (rng.choice(places["grounded"], g, replace=False)
+                         if "grounded" in places else own["grounded"].copy()),
             "relative": (places["relative"][rng.choice(places["relative"].shape[0], p,
                                                        replace=False)]
                          if "relative" in places else own["relative"].copy())})
     runs = [descend(design, f"start {k + 1} of {starts}") for k, design in enumerate(designs)]
     best, design, sweeps, history, status = min(runs, key=lambda run: run[0].value)
-    return DamperPlacement(design["grounded"], design["relative"] + 1, best.coefficients,
+    return PlacementRun(design["grounded"], design["relative"] + 1, best.coefficients,
                            best.value, sweeps, counts["evaluations"], counts["polishes"],
                            time.perf_counter() - start, history, status,
                            [run[0].value for run in runs])

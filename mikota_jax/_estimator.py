@@ -276,7 +276,7 @@ class HierarchicalGradient(eqx.Module):
     @property
     def log_sensitivity_error(self) -> Float[Array, ""]:
         """The estimate of the largest error of the logarithmic coefficient sensitivities,
-        max_i c_i |dJ/dc_i - dJ_r/dc_i| / J (what ``optimise_dampers`` certifies; J >= J_r -
+        max_i c_i |dJ/dc_i - dJ_r/dc_i| / J (what ``ScreenAndCertify`` certifies; J >= J_r -
         energy), inf where that floor is not positive; 0 without grounded dampers."""
         floor = self.value - self.energy
         coefficients = self.error["coefficients"] * jnp.abs(self.design["coefficients"])

@@ -35,7 +35,7 @@ def chunk(n: int, smallest: int) -> int:
 # Section 5 damper c = 1000 at DOF 7: 1.25x), below it the explicit one.
 STIFF_THRESHOLD = 1e5
 
-# ``sweep_dampers``: a damper rate c / m beyond this multiple of the highest eigenfrequency
+# ``Grid``: a damper rate c / m beyond this multiple of the highest eigenfrequency
 # makes Dopri8 cost more than a matrix exponential.
 STIFF_RATIO = 10.0
 

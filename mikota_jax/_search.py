@@ -52,8 +52,10 @@ OPTIMIZERS = {
 }
 
 
-def _optimizer(name: str, learning_rate):
-    return OPTIMIZERS[name](learning_rate)
+def _optimizer(optimizer, learning_rate):
+    """An optax ``GradientTransformation``: the object itself, or one of ``OPTIMIZERS`` by name
+    (the polish's L-BFGS)."""
+    return OPTIMIZERS[optimizer](learning_rate) if isinstance(optimizer, str) else optimizer
 
 
 def _loss(problem, reduced, c_ref, params, fixed, positions_fixed: bool):
@@ -66,13 +68,13 @@ def _loss(problem, reduced, c_ref, params, fixed, positions_fixed: bool):
 
 
 @eqx.filter_jit
-def _init(params, learning_rate, *, optimizer: str):
+def _init(params, learning_rate, *, optimizer):
     return jax.vmap(_optimizer(optimizer, learning_rate).init)(params)
 
 
 @eqx.filter_jit
 def _step(problem, basis, c_ref, params, state, fixed, alive, active, learning_rate, *,
-          optimizer: str, positions_fixed: bool):
+          optimizer, positions_fixed: bool):
     """One optax step for every start, one after the other (``lax.map``: on a CPU, batched
     matrix exponentials cost more than the same ones in turn); an inactive start is skipped, a
     start whose objective fails stops where it is (``ok`` false)."""
@@ -96,11 +98,11 @@ def _step(problem, basis, c_ref, params, state, fixed, alive, active, learning_r
         ok = alive & ~failed & jnp.all(jnp.isfinite(jnp.concatenate(grad)))
         grad = jax.tree.map(lambda g: jnp.where(ok, g, 0.0), grad)
         with jax.numpy_dtype_promotion("standard"):  # optax mixes int32 counts and floats
-            if optimizer == "adam":
-                updates, new_state = opt.update(grad, state, params)
-            else:
+            if isinstance(opt, optax.GradientTransformationExtraArgs):  # L-BFGS's line search
                 updates, new_state = opt.update(grad, state, params, value=value, grad=grad,
                                                 value_fn=loss)
+            else:
+                updates, new_state = opt.update(grad, state, params)
             new_params = optax.apply_updates(params, updates)
         keep = lambda a, b: jnp.where(ok, a, b)  # noqa: E731
         new_params = jax.tree.map(keep, new_params, params)

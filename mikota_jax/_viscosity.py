@@ -1,28 +1,28 @@
 """Optimal viscosities at full order: several dampers of any kind, some free, within bounds.
 
-The design is the vector of damper coefficients of a ``SecondOrderSystem``: its grounded dampers'
-``coefficients`` first, then its relative dampers' (``Dampers.pair_coefficients``), in the order
-they were given. Positions stay where they are (``optimise_dampers`` moves grounded dampers on a
-reduced model). The objective is evaluated at full order on the spectral path (``_spectral``:
+The algorithm of the ``Coefficients`` strategy (``optimise``). The design is the vector of damper
+coefficients of a ``SecondOrderSystem``: its grounded dampers' ``coefficients`` first, then its
+relative dampers' (``Dampers.pair_coefficients``), in the order they were given. Positions stay
+where they are. The objective is evaluated at full order on the spectral path (``_spectral``:
 exact, O(k n^2) per value for dampers alone), with its gradient by ``jax.grad`` through the
 secular equation's implicit derivative; both compile once per problem.
 
-Criteria (``CRITERIA``):
+Objectives (``FULL_ORDER``, of the public family), each of a free vibration:
 
-* ``"average_energy"``: Veselic's total average energy trace X, A^T X + X A = -Z over the
+* ``AverageEnergy(lowest)``: Veselic's total average energy trace X, A^T X + X A = -Z over the
   ``lowest`` s modes (``total_average_energy``), the criterion of FastOptimalDamping.jl and of
   Truhar & Veselic (SIAM J. Matrix Anal. Appl. 31, 2009), with Z = diag of the s lowest modes'
   two components in the scaled modal coordinates (the trace depends on the coordinates: these
   are the ones where X is the energy over all initial states of unit energy in those modes);
-* ``"energy"``: the integrated energy of a given free vibration (x0, v0) over [0, T]
+* ``Energy(horizon, x0, v0)``: the integrated energy of a given free vibration over [0, T]
   (``integrated_energy``);
-* ``"output"``: the energy of an output C_x x + C_v x' (``output_energy``: initial states x0, v0
-  or the ``lowest`` modes' unit states, T = ``horizon`` or infinite), Veselic's trace with a
-  general weight;
-* ``"h2"``: the H2 norm of the map from the columns of ``inputs`` to that output (``h2_norm``);
-* ``"peak"``: the smooth peak (``smooth_peak``, an L^p mean of order ``order``) of the
-  displacement of one DOF ``dof`` over the time grid ``ts`` in the free vibration from x0, v0,
-  exact from the damped modes (the spectral solve) at every time of the grid.
+* ``OutputEnergy(cx, cv, x0, v0, lowest, horizon)``: the energy of an output C_x x + C_v x'
+  (``output_energy``), Veselic's trace with a general weight;
+* ``H2Norm(inputs, cx, cv)``: the H2 norm of the map from the columns of ``inputs`` to that
+  output (``h2_norm``);
+* ``Peak(dof, ts, x0, v0, order=...)``: the smooth peak (``smooth_peak``, an L^p mean of order
+  ``order``) of the displacement of one DOF over the time grid ``ts`` in the free vibration
+  from x0, v0, exact from the damped modes (the spectral solve) at every time of the grid.
 
 Search coordinates: u = log d of the free coefficients, where the stopping rule below is the
 plain gradient (|d_i df/dd_i| = |df/du_i|) and the criterion is far closer to quadratic than in d
@@ -39,7 +39,7 @@ curvature s^T y > 0. Stops when every free, non-held variable has a relative gra
 |d_i df/dd_i| / |f| below ``tolerance`` (scale-free: the change of log f per change of log d_i),
 or when a step no longer changes f in its 14th digit. ``method="spg"`` is the spectral projected
 gradient method that Li & Tisseur (arXiv 2601.05404, 2026) propose for the trace criterion
-(``_spg``); ``ViscosityResult`` keeps the iteration and evaluation counts to compare (on
+(``_spg``); ``Solution.stats`` keeps the iteration and evaluation counts to compare (on
 FastOptimalDamping.jl's small example, n = 801, iterations / values: BFGS 8 / 10, SPG 14 / 15,
 scipy's L-BFGS-B in d 13 / 17; ``benchmarks/viscosity.py``).
 """
@@ -52,10 +52,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._custom_types import Array
 from ._dampers import Dampers
 from ._errors import MARK, check_lowest, check_x64, integer_indices
 from ._integrate import initial_vector
+from ._objective_family import AverageEnergy, Energy, H2Norm, OutputEnergy, Peak
 from ._objectives import smooth_peak
 from ._output_criteria import output_arguments, output_horizon, output_states, state_matrix
 from ._parameters import with_parameters
@@ -68,7 +68,6 @@ from ._spectral_solve import spectral_solve_with_result
 from ._spectral_system import spectral_applies
 from ._system import SecondOrderSystem
 
-CRITERIA = ("average_energy", "energy", "output", "h2", "peak")
 METHODS = ("bfgs", "spg")
 _SPG_MEMORY = 10  # the non-monotone line search compares with the largest of the last 10 values
 _ARMIJO = 1e-4
@@ -77,8 +76,8 @@ _BACKTRACKS = 30
 
 
 @dataclasses.dataclass(frozen=True)
-class ViscosityResult:
-    """The optimum of ``optimise_viscosities``.
+class CoefficientRun:
+    """What ``search_coefficients`` found.
 
     ``coefficients``: (g + p,) all damper coefficients (grounded, then relative) at the optimum;
     ``value``: the criterion there (full order); ``gradient``: its gradient (g + p,);
@@ -100,51 +99,37 @@ class ViscosityResult:
     status: str
 
 
-class Criterion(eqx.Module):
-    """A criterion with its arguments, checked (``checked_criterion``): what ``criterion_value``
-    evaluates. ``name``: one of ``CRITERIA``; ``lowest``, ``horizon``: as in
-    ``optimise_viscosities``; ``x0``, ``v0``: (n,) or (n, q) states or None; ``outputs``: (C_x,
-    C_v) of "output" and "h2"; ``inputs``: (n, m) of "h2"; ``dof``, ``ts``, ``order``: of
-    "peak". Names, counts and the horizon are static (one compile each), arrays traced."""
-
-    name: str = eqx.field(static=True)
-    lowest: int | None = eqx.field(static=True, default=None)
-    horizon: float | None = eqx.field(static=True, default=None)
-    x0: Array | None = None
-    v0: Array | None = None
-    outputs: tuple | None = None
-    inputs: Array | None = None
-    dof: int | None = eqx.field(static=True, default=None)
-    ts: Array | None = None
-    order: int = eqx.field(static=True, default=16)
+# the objectives the full-order searches evaluate on the spectral path, and what each needs
+FULL_ORDER = (AverageEnergy, Energy, OutputEnergy, H2Norm, Peak)
 
 
-def criterion_value(system, criterion: Criterion):
-    """The criterion on the spectral path, +inf where it does not hold (a root not converged,
-    roots coinciding beyond a critically damped pair, an undamped mode seen): no check inside,
-    so a compiled search meets a failed design as a value to reject, never as an error."""
-    c = criterion
-    if c.name == "average_energy":
-        value, ok = spectral_trace_with_result(system, lowest=c.lowest)
-    elif c.name == "energy":
-        value, ok = spectral_energy_with_result(system, c.horizon, c.x0, c.v0)
-    elif c.name == "h2":
-        value, ok = spectral_output_energy_with_result(system, None, None, c.inputs, *c.outputs,
+def criterion_value(system, objective):
+    """The objective (a ``checked_objective``) on the spectral path, +inf where it does not hold
+    (a root not converged, roots coinciding beyond a critically damped pair, an undamped mode
+    seen): no check inside, so a compiled search meets a failed design as a value to reject,
+    never as an error."""
+    o = objective
+    if isinstance(o, AverageEnergy):
+        value, ok = spectral_trace_with_result(system, lowest=o.lowest)
+    elif isinstance(o, Energy):
+        value, ok = spectral_energy_with_result(system, o.horizon, o.x0, o.v0)
+    elif isinstance(o, H2Norm):
+        value, ok = spectral_output_energy_with_result(system, None, None, o.inputs, o.cx, o.cv,
                                                        None, None)
         value = jnp.sqrt(value)
-    elif c.name == "peak":
-        trajectory, ok = spectral_solve_with_result(system, c.ts, c.x0, c.v0, None,
-                                                    dofs=(c.dof,), displacement=True,
+    elif isinstance(o, Peak):
+        trajectory, ok = spectral_solve_with_result(system, o.ts, o.x0, o.v0, None,
+                                                    dofs=(o.dof,), displacement=True,
                                                     velocity=False)
-        value = smooth_peak(trajectory.displacement, c.order)
-    else:  # "output"
-        value, ok = spectral_output_energy_with_result(system, c.x0, c.v0, None, *c.outputs,
-                                                       c.horizon, c.lowest)
+        value = smooth_peak(trajectory.displacement, o.order)
+    else:  # OutputEnergy
+        value, ok = spectral_output_energy_with_result(system, o.x0, o.v0, None, o.cx, o.cv,
+                                                       o.horizon, o.lowest)
     return jnp.where(ok, value, jnp.inf)
 
 
 @eqx.filter_jit
-def _value_and_gradient(d, system, criterion: Criterion):
+def _value_and_gradient(d, system, criterion):
     """(f, df/dd) for the (g + p,) coefficient vector d: one compile per system structure and
     criterion (the system's values are traced)."""
     grounded = system.damping.coefficients.shape[0]
@@ -157,13 +142,11 @@ def _value_and_gradient(d, system, criterion: Criterion):
     return jax.value_and_grad(value)(d)
 
 
-def criterion_function(system, criterion, lowest=None, horizon=None, x0=None, v0=None,
-                       outputs=None, inputs=None):
-    """d -> (f, df/dd), compiled once per system structure (``_value_and_gradient``).
-
-    ``criterion``: a ``Criterion``, or its name followed by its arguments (unchecked)."""
-    if not isinstance(criterion, Criterion):
-        criterion = Criterion(criterion, lowest, horizon, x0, v0, outputs, inputs)
+def criterion_function(system, objective):
+    """d -> (f, df/dd) of an objective of the family (``Energy``, ``AverageEnergy``,
+    ``OutputEnergy``, ``H2Norm``, ``Peak``) over the (g + p,) coefficient vector d, compiled once
+    per system structure (``_value_and_gradient``); the objective is checked here."""
+    criterion = checked_objective(system, objective)
     return lambda d: _value_and_gradient(jnp.asarray(d, dtype=jnp.float64), system, criterion)
 
 
@@ -205,9 +188,8 @@ def _free_mask(free, size: int) -> np.ndarray:
     return mask
 
 
-def checked_criterion(system, criterion, lowest, horizon, x0, v0, cx, cv, inputs, dof=None,
-                      ts=None, order=16) -> Criterion:
-    """The criterion's arguments checked before compiling, as a ``Criterion``."""
+def check_design_system(system) -> None:
+    """A system the full-order searches take: discrete dampers, the spectral path."""
     check_x64()
     if not isinstance(system, SecondOrderSystem) or not isinstance(system.damping, Dampers):
         raise ValueError(MARK + "system must be a SecondOrderSystem with GroundedDamper/"
@@ -215,94 +197,114 @@ def checked_criterion(system, criterion, lowest, horizon, x0, v0, cx, cv, inputs
     why = spectral_applies(system)
     if why is not None:
         raise ValueError(MARK + f"system: {why}.")
-    if criterion not in CRITERIA:
-        raise ValueError(MARK + f"criterion must be one of {list(CRITERIA)}, got {criterion!r}.")
+
+
+def checked_objective(system, objective):
+    """``objective`` (one of ``FULL_ORDER``) with its arguments checked and normalised before
+    compiling: a free vibration (no load), states as the spectral path takes them, counts and
+    the horizon as Python numbers (static: one compile each)."""
+    from ._objective_family import AbstractObjective
+
+    check_design_system(system)
+    names = ", ".join(kind.__name__ for kind in FULL_ORDER)
+    if not isinstance(objective, AbstractObjective):
+        raise ValueError(MARK + f"objective must be an objective of the family ({names}), got "
+                         f"{type(objective).__name__}.")
+    if type(objective) not in FULL_ORDER:
+        raise ValueError(MARK + f"objective must be one of {names} for a full-order search (the "
+                         f"spectral path), got {type(objective).__name__}.")
     n = system.size
-    if criterion == "energy":
+    o = objective
+    if isinstance(o, Energy | Peak) and o.load is not None:
+        raise ValueError(MARK + f"objective: {type(o).__name__} of a free vibration only at full "
+                         "order (the spectral path), got a load.")
+    if isinstance(o, Energy):
+        horizon = o.horizon
+        try:
+            horizon = float(horizon)
+        except (TypeError, ValueError):
+            horizon = None
         if horizon is None or not np.isfinite(horizon) or horizon <= 0:
-            raise ValueError(MARK + f"horizon must be a finite time > 0 for criterion 'energy', "
-                             f"got {horizon!r}.")
-        x0, v0 = initial_vector(x0, n, "x0"), initial_vector(v0, n, "v0")
+            raise ValueError(MARK + f"horizon must be a finite time > 0 for Energy, got "
+                             f"{o.horizon!r}.")
+        x0, v0 = initial_vector(o.x0, n, "x0"), initial_vector(o.v0, n, "v0")
         if not (bool(jnp.any(x0 != 0)) or bool(jnp.any(v0 != 0))):
-            raise ValueError(MARK + "criterion 'energy' needs an excitation: x0 or v0.")
-        return Criterion(criterion, None, float(horizon), x0, v0)
-    if criterion == "average_energy":
-        check_lowest(lowest, n)
-        return Criterion(criterion, lowest)
-    if criterion == "peak":
-        return _checked_peak(n, x0, v0, dof, ts, order)
-    # "output", "h2": checked as the public functions check them, before compiling
-    outputs = output_arguments(system, cx, cv)
-    if criterion == "h2":
-        return Criterion(criterion, outputs=outputs,
-                         inputs=state_matrix(inputs, n, "inputs", required=True))
-    x0, v0 = output_states(n, x0, v0, lowest)
-    return Criterion(criterion, lowest, output_horizon(horizon), x0, v0, outputs)
+            raise ValueError(MARK + "objective Energy needs an excitation: x0 or v0.")
+        return Energy(horizon, x0, v0)
+    if isinstance(o, AverageEnergy):
+        check_lowest(o.lowest, n)
+        return o
+    if isinstance(o, Peak):
+        return _checked_peak(n, o.x0, o.v0, o.dof, o.ts, o.order)
+    # OutputEnergy, H2Norm: checked as the public functions check them, before compiling
+    cx, cv = output_arguments(system, o.cx, o.cv)
+    if isinstance(o, H2Norm):
+        return H2Norm(state_matrix(o.inputs, n, "inputs", required=True), cx, cv)
+    x0, v0 = output_states(n, o.x0, o.v0, o.lowest)
+    return OutputEnergy(cx, cv, x0, v0, o.lowest, output_horizon(o.horizon))
 
 
-def _checked_peak(n, x0, v0, dof, ts, order) -> Criterion:
+def _checked_peak(n, x0, v0, dof, ts, order) -> Peak:
     if isinstance(dof, bool) or not isinstance(dof, int | np.integer) or not 1 <= dof <= n:
-        raise ValueError(MARK + f"dof must be an integer DOF in 1..{n} for criterion 'peak', "
-                         f"got {dof!r}.")
+        raise ValueError(MARK + f"dof must be an integer DOF in 1..{n} for Peak, got {dof!r}.")
     if isinstance(order, bool) or not isinstance(order, int) or order < 2 or order % 2:
         raise ValueError(MARK + f"order must be an even integer >= 2, got {order!r}.")
     times = None if ts is None else np.asarray(ts, dtype=float)
     if (times is None or times.ndim != 1 or times.shape[0] < 2 or not np.all(np.isfinite(times))
             or times[0] < 0 or np.any(np.diff(times) <= 0)):
         raise ValueError(MARK + "ts must be an increasing grid of >= 2 finite times >= 0 for "
-                         f"criterion 'peak', got {ts!r:.80}.")
+                         f"Peak, got {ts!r:.80}.")
     x0, v0 = initial_vector(x0, n, "x0"), initial_vector(v0, n, "v0")
     if not (bool(jnp.any(x0 != 0)) or bool(jnp.any(v0 != 0))):
-        raise ValueError(MARK + "criterion 'peak' needs an excitation: x0 or v0.")
-    return Criterion("peak", x0=x0, v0=v0, dof=int(dof), ts=jnp.asarray(times), order=order)
+        raise ValueError(MARK + "objective Peak needs an excitation: x0 or v0.")
+    return Peak(int(dof), jnp.asarray(times), x0, v0, order=order)
 
 
-def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_energy", *,
-                         lowest: int | None = None, horizon: float | None = None, x0=None,
-                         v0=None, cx=None, cv=None, inputs=None, dof: int | None = None,
-                         ts=None, order: int = 16, free=None, lower=0.0, upper=None,
-                         tolerance: float = 1e-6, max_iterations: int = 200,
-                         method: str = "bfgs", progress: bool = False) -> ViscosityResult:
-    """Optimal damper coefficients of ``system`` at full order (positions fixed).
+def checked_bounds(lower, upper, size: int):
+    """(lower, upper), each (size,), from scalars or one value per coefficient, checked:
+    0 <= lower <= upper, lower finite."""
+    lo = _check_bounds(lower, size, "lower", 0.0)
+    hi = _check_bounds(upper, size, "upper", np.inf)
+    if np.any(lo < 0) or np.any(hi < lo):
+        raise ValueError(MARK + f"coefficients bounds must satisfy 0 <= lower <= upper, got "
+                         f"lower {lower!r}, upper {upper!r}.")
+    if not np.all(np.isfinite(lo)):
+        raise ValueError(MARK + f"lower must be finite, got {lower!r}.")
+    return lo, hi
 
-    ``system``: a ``SecondOrderSystem`` with grounded and/or relative dampers (``mikota_chain``,
-    ``chain``, ``system``, ``branched_chain``), internal damping diagonal in modal coordinates or
-    none; its coefficients are the start. ``criterion``: ``"average_energy"`` (trace over the
-    ``lowest`` modes, all when None), ``"energy"`` (of the free vibration from ``x0``, ``v0``
-    over [0, ``horizon``]), ``"output"`` (the energy of the output ``cx`` x + ``cv`` x' from
-    ``x0``, ``v0`` or the ``lowest`` modes' unit states, over [0, ``horizon``] or [0, inf) when
-    None: ``output_energy``), ``"h2"`` (the H2 norm from ``inputs`` to that output:
-    ``h2_norm``) or ``"peak"`` (``smooth_peak`` of order ``order`` of the displacement of the
-    1-based ``dof`` over the times ``ts``, free vibration from ``x0``, ``v0``). ``free``:
-    0-based indices into the coefficient vector (grounded dampers first, then relative ones, each
-    in the order given; 0..g + p - 1) that move, distinct, default all; the others stay.
-    ``lower``, ``upper``: bounds, scalars or (g + p,) (default 0 and none); a coefficient with
-    lower = upper (``upper=0`` switches a damper off) stays there. ``method``:
-    ``"bfgs"`` (projected quasi-Newton) or ``"spg"`` (spectral projected gradient, Li &
-    Tisseur's globally convergent method). See the module docstring for the methods and the
-    stopping rule. Returns a ``ViscosityResult``.
+
+def check_method(method, tolerance) -> None:
+    """The coefficient search's ``method`` and ``tolerance``."""
+    if method not in METHODS:
+        raise ValueError(MARK + f"method must be one of {METHODS}, got {method!r}.")
+    if (isinstance(tolerance, bool) or not isinstance(tolerance, float | int)
+            or not 0 < tolerance < 1):
+        raise ValueError(MARK + f"tolerance must lie in (0, 1), got {tolerance!r}.")
+
+
+def search_coefficients(system: SecondOrderSystem, objective, *, free=None, lower=0.0,
+                        upper=None, tolerance: float = 1e-6, max_iterations: int = 200,
+                        method: str = "bfgs", progress: bool = False) -> CoefficientRun:
+    """Optimal damper coefficients of ``system`` at full order (positions fixed): the algorithm
+    of ``Coefficients``.
+
+    ``objective``: a ``checked_objective``; ``free``: None or 0-based indices into the (g + p,)
+    coefficient vector (grounded dampers first, then relative ones) that move; ``lower``,
+    ``upper``: bounds, scalars or (g + p,); a coefficient with lower = upper stays there.
+    ``method``: ``"bfgs"`` (projected quasi-Newton) or ``"spg"`` (spectral projected gradient,
+    Li & Tisseur's globally convergent method). See the module docstring.
     """
     check_x64()
     start = time.perf_counter()
-    args = checked_criterion(system, criterion, lowest, horizon, x0, v0, cx, cv, inputs, dof,
-                             ts, order)
+    args = objective
     d = np.concatenate([np.asarray(system.damping.coefficients),
                         np.asarray(system.damping.pair_coefficients)])
     size = d.shape[0]
     if size == 0:
         raise ValueError(MARK + "system has no damper whose coefficient could be optimised.")
     mask = _free_mask(free, size)
-    lo = _check_bounds(lower, size, "lower", 0.0)
-    hi = _check_bounds(upper, size, "upper", np.inf)
-    if np.any(lo < 0) or np.any(hi < lo):
-        raise ValueError(MARK + f"bounds must satisfy 0 <= lower <= upper, got lower {lower!r}, "
-                         f"upper {upper!r}.")
-    if not np.all(np.isfinite(lo)):
-        raise ValueError(MARK + f"lower must be finite, got {lower!r}.")
-    if method not in METHODS:
-        raise ValueError(MARK + f"method must be one of {METHODS}, got {method!r}.")
-    if not (isinstance(tolerance, float | int) and 0 < tolerance < 1):
-        raise ValueError(MARK + f"tolerance must lie in (0, 1), got {tolerance!r}.")
+    lo, hi = checked_bounds(lower, upper, size)
+    check_method(method, tolerance)
     # a free coefficient whose bounds meet (lower = upper, 0 included) is fixed there, no search
     # variable: its log coordinate would be a constant, -inf at 0
     pinned = mask & (lo == hi)
@@ -317,7 +319,8 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
     with np.errstate(divide="ignore"):
         u_lo, u_hi = np.log(lo[mask]), np.log(hi[mask])
 
-    evaluate_jit = criterion_function(system, args)
+    evaluate_jit = lambda point: _value_and_gradient(  # noqa: E731
+        jnp.asarray(point, dtype=jnp.float64), system, args)
     evaluations = 0
     last = {}
 
@@ -363,7 +366,7 @@ def optimise_viscosities(system: SecondOrderSystem, criterion: str = "average_en
     converged = history[-1][1] < tolerance
     if converged:
         status = "converged" if mask.any() else "nothing to move: every free coefficient is pinned"
-    return ViscosityResult(d, f, g, history[-1][1], converged, iterations, evaluations,
+    return CoefficientRun(d, f, g, history[-1][1], converged, iterations, evaluations,
                            time.perf_counter() - start, history, status)
 
 

@@ -10,20 +10,29 @@ the private modules:
   operators a system holds (0-based coordinate indices for ``Sparse``, both triangles stored),
   to hand ``system`` an explicit form (e.g. a dense mass operator) instead of letting it choose
   the structure of an array;
-* ``criterion_function(system, criterion, lowest, horizon, x0, v0)``: d -> (f, df/dd), the
-  compiled criterion ``optimise_viscosities`` minimises over the coefficient vector d;
+* ``criterion_function(system, objective)``: d -> (f, df/dd), the compiled objective (one of
+  ``Energy``, ``AverageEnergy``, ``OutputEnergy``, ``H2Norm``, ``Peak``) that ``Coefficients``
+  minimises over the coefficient vector d;
+* ``DamperProblem(system, ts, x0, v0, load, objective=..., ...)`` and ``placement_objective(
+  problem, basis=None)``: the design problem ``ScreenAndCertify`` and ``Grid`` build from a
+  ``DamperDesign``, and its objective as a function (positions (g,), coefficients (g,)) -> J,
+  reduced on a fixed (n, r) basis or full; ``LBFGS``: the optax L-BFGS (backtracking line
+  search) of the polish, for ``ScreenAndCertify(optimizer=LBFGS)``;
 * ``spectral_energy_with_result(system, horizon, x0, v0, block=None)``: (J, ok) of
   ``integrated_energy(method="spectral")``; ``block=0`` forms the O(n^2) work all at once from
   U (the layout before the blocks, for the benchmarks' comparison), None is the library's choice.
 """
 
+from ._certify import LBFGS as LBFGS
 from ._chain_modes import chain_mode_data as chain_mode_data
 from ._chain_modes import chain_modes as chain_modes
+from ._design import DamperProblem as DamperProblem
 from ._exact import dense_solve_with_result as dense_solve_with_result
 from ._modal import generalized_modes as generalized_modes
 from ._operators import Dense as Dense
 from ._operators import Diagonal as Diagonal
 from ._operators import Sparse as Sparse
+from ._placement_objective import placement_objective as placement_objective
 from ._solver_choice import choose_solver as choose_solver
 from ._solver_choice import stiffness_rate as stiffness_rate
 from ._spectral_objectives import spectral_energy_with_result as spectral_energy_with_result
@@ -33,4 +42,5 @@ from ._viscosity import criterion_function as criterion_function
 
 __all__ = ["Dense", "Diagonal", "Sparse", "chain_mode_data", "chain_modes", "damped_modes",
            "dense_solve_with_result", "generalized_modes", "spectral_solve_with_result",
-           "spectral_energy_with_result", "stiffness_rate", "choose_solver", "criterion_function"]
+           "spectral_energy_with_result", "stiffness_rate", "choose_solver", "criterion_function",
+           "DamperProblem", "placement_objective", "LBFGS"]

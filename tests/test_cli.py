@@ -310,16 +310,16 @@ def test_optimise_places_moves_the_relative_damper_over_candidate_pairs(tmp_path
                  "--pair-candidates", "2-9,1-12,5-6", "--method", "spg", "--no-progress"]) == 0
     result = json.loads((out / "placement.json").read_text())["result"]
     # every candidate pair with both coefficients optimised: the search returns the best
-    best = min((mj.optimise_viscosities(mj.mikota_chain(12, dampers=[
-        mj.GroundedDamper(4, 1.0), mj.RelativeDamper(pair, 1.0)]), lowest=5).value, pair)
-        for pair in [(2, 9), (1, 12), (5, 6)])
+    best = min((mj.optimise(mj.DamperDesign(mj.mikota_chain(12, dampers=[
+        mj.GroundedDamper(4, 1.0), mj.RelativeDamper(pair, 1.0)]), mj.AverageEnergy(5)),
+        mj.Coefficients()).value, pair) for pair in [(2, 9), (1, 12), (5, 6)])
     assert sorted(result["pairs"][0]) == sorted(best[1])
     close(result["value"], best[0], rtol=1e-9)
     assert "relative pairs" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize(("argv", "match"), [
-    (["--search", "places", "--pair-candidates", "1-13"], "pair_candidates must be"),
+    (["--search", "places", "--pair-candidates", "1-13"], "pairs must be"),
     (["--objective", "h2"], "needs a full-order search"),
     (["--search", "viscosities", "--objective", "output"], "needs output_dofs"),
     (["--search", "places", "--objective", "h2", "--output-dofs", "3"], "needs input_dofs"),

@@ -175,8 +175,8 @@ def test_the_pair_at_a_critical_point_is_one_cluster(name):
 
 def test_the_optimiser_finds_the_one_mass_trace_optimum_at_critical_damping(close):
     # trace X = c / 2 + 2 / c: minimum 2 at c = 2 (exact), where the two roots meet
-    result = mj.optimise_viscosities(one_dof(0.5))
-    assert result.converged
+    result = mj.optimise(mj.DamperDesign(one_dof(0.5), mj.AverageEnergy()), mj.Coefficients())
+    assert result.result == mj.DesignResult.converged
     close(result.coefficients, [2.0], rtol=1e-8)
     close(result.value, 2.0, rtol=1e-13)
 

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
+from mikota_jax._design import DamperProblem
 
 N = 6
 
@@ -198,8 +199,8 @@ def test_one_damper_not_in_a_list_is_a_list_of_one_for_every_system_builder(clos
                                               1.0, 1.0, d)):
         close(build(relative).damping.as_matrix(), build([relative]).damping.as_matrix(),
               rtol=0.0, atol=0.0)
-    problem = mj.DamperProblem(mj.mikota_chain(N), np.linspace(0.0, 1.0, 3), e(3),
-                               dampers=grounded)
+    problem = DamperProblem(mj.mikota_chain(N), np.linspace(0.0, 1.0, 3), e(3),
+                            dampers=grounded)
     assert problem.base.damping.positions.tolist() == [2.0]
 
 
@@ -209,7 +210,7 @@ def test_dampers_that_are_neither_dampers_nor_a_list_are_refused_in_one_line(dam
                        r"GroundedDamper or RelativeDamper, got .*\.$"):
         mj.mikota_chain(N, dampers=dampers)
     with pytest.raises(ValueError, match="dampers must be a non-empty list of GroundedDamper"):
-        mj.DamperProblem(mj.mikota_chain(N), np.linspace(0.0, 1.0, 3), e(3), dampers=dampers)
+        DamperProblem(mj.mikota_chain(N), np.linspace(0.0, 1.0, 3), e(3), dampers=dampers)
 
 
 def matrix_of(position, coefficient):

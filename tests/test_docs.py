@@ -44,7 +44,7 @@ EQUATIONS = {
     "energy_fraction": "3.7", "rank_for_energy": "3.7", "metrics.pseudo_energy": "3.7",
     "metrics.phase_error": "5.4", "Energy": "3.1", "AverageEnergy": "3.1",
     "Scene": "4.3", "run_scene": "5.4", "reproduce": "5.4",
-    "DamperProblem": "3.7", "optimise_dampers": "3.4", "placement_objective": "3.4",
+    "ScreenAndCertify": "3.7", "Grid": "3.4",
 }
 # names (and methods) that take or return arrays: their docstrings state a shape like (n,) or
 # (N, d), in the letters of the package (n DOFs, N times, r rank, m snapshots, ...)
@@ -54,15 +54,13 @@ SHAPED = [
     "unit_vector", "Pulse", "pulse", "LoadFunction", "solve", "Trajectory",
     "ReducedModel", "galerkin", "POD", "pod", "energy_fraction", "rank_for_energy",
     "metrics.pseudo_energy", "metrics.phase_error", "metrics.relative_error", "Energy", "Peak",
-    "Scene", "DamperProblem", "PlacementResult", "SweepResult",
-    "placement_objective", "reduced_landscape", "sweep_dampers", "POD.basis",
+    "Scene", "DamperDesign", "Solution", "Grid", "ScreenAndCertify", "POD.basis",
     "POD.energy_fraction", "ReducedModel.lift", "ReducedModel.reduce_state",
     "SecondOrderSystem.dense", "SecondOrderSystem.project", "Pulse.project",
 ]
 SHAPE = re.compile(r"\((?:[nNrmkdgPCS]|\d+)(?:, ?(?:[nNrmkdgPCS]|\d+))*,?\)")
 ONE_BASED = ["unit_vector", "pulse", "analytic.mode_shape", "GroundedDamper", "RelativeDamper",
-             "solve", "Trajectory", "DamperProblem", "placement_objective",
-             "sweep_dampers"]
+             "solve", "Trajectory", "DamperDesign", "Solution", "Grid"]
 UNITS = {"analytic.eigenfrequencies": "rad per unit time", "mikota_chain": "force per length",
          "chain": "force per length", "GroundedDamper": "force * time per length",
          "RelativeDamper": "force * time per length", "SecondOrderSystem": "force per length"}

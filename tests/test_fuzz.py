@@ -197,6 +197,7 @@ def test_many_random_scenes_end_in_results_or_one_line(tmp_path, capsys, case):
 
 BAD_NUMBERS = [0.0, -1.0, NAN, INF, -INF]
 SYSTEM = mj.mikota_chain(4, dampers=[mj.GroundedDamper(2.0, 0.5)])
+AVERAGE = mj.AverageEnergy()
 TS = jnp.linspace(0.0, 1.0, 11)
 X0 = jnp.asarray([0.0, 0.0, 1.0, 0.0])
 
@@ -240,12 +241,18 @@ def api_calls():
               ("rtol", lambda: mj.solve(SYSTEM, TS, X0, method=mj.ODE(rtol=1.0)), "rtol"),
               ("method", lambda: mj.solve(SYSTEM, TS, X0, method="fast"), "method"),
               ("dampers", lambda: mj.mikota_chain(4, dampers=3), "dampers must be a list"),
-              ("lower", lambda: mj.optimise_viscosities(SYSTEM, lower=[0.0, 0.0]),
+              ("lower", lambda: mj.DamperDesign(SYSTEM, AVERAGE,
+                                                coefficients=([0.0, 0.0], None)),
                r"lower must be one number \(one per damper coefficient"),
-              ("upper", lambda: mj.optimise_viscosities(SYSTEM, upper=[1.0, 2.0, 3.0]),
+              ("upper", lambda: mj.DamperDesign(SYSTEM, AVERAGE,
+                                                coefficients=(0.0, [1.0, 2.0, 3.0])),
                r"upper must be one number \(one per damper coefficient"),
-              ("free", lambda: mj.optimise_viscosities(SYSTEM, free=[-1]),
-               r"free must be 0-based indices in 0..0")]
+              ("free", lambda: mj.DamperDesign(SYSTEM, AVERAGE, free=[-1]),
+               r"free must be 0-based indices in 0..0"),
+              ("objective", lambda: mj.DamperDesign(SYSTEM, "average_energy"),
+               r"objective must be an AbstractObjective"),
+              ("strategy", lambda: mj.optimise(mj.DamperDesign(SYSTEM, AVERAGE), "bfgs"),
+               r"strategy must be an AbstractDesignStrategy")]
     return calls
 
 

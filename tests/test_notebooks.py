@@ -48,13 +48,13 @@ def test_notebook_cells_have_ids(path):
 # tests/test_paper.py runs in the default run, so the notebook runs once, under -m slow (43 s).
 # Two small runs go under -m slow beside their full ones, for the 15-minute budget (the default
 # run was 919-931 s with them; 885 s without damper_placement's, ~4 % slower on CI), each where
-# the default run tests what it calls: damper_placement (139 s: optimise_dampers for one and two
-# dampers, the split search, the certification's enrichment, sweep_dampers and
-# reduced_landscape through the CLI: tests/test_optimise.py) and custom_systems (100 s: Matrix
+# the default run tests what it calls: damper_placement (139 s: ScreenAndCertify for one and two
+# dampers, the split search, the certification's enrichment, Grid full and
+# reduced through the CLI: tests/test_optimise.py) and custom_systems (100 s: Matrix
 # Market files, branched chains, Rayleigh and modal damping, mj.system: tests/test_io.py,
 # test_systems.py, test_scene_systems.py, test_viscosity.py). The other two small runs went the
 # same way when the default run grew past 25 min on CI (140-170 s each there): multi_damper
-# (place_dampers, optimise_viscosities and the published examples: tests/test_damper_search.py,
+# (CoordinateDescent, Coefficients and the published examples: tests/test_damper_search.py,
 # test_viscosity.py) and sensitivity_study (sensitivities, grid, sweep: tests/test_sensitivity.py,
 # test_sweep.py, and docs/sensitivities.md's blocks under -m slow).
 ONE_SIZE = {"paper_reproduction.ipynb"}

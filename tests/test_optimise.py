@@ -1,5 +1,7 @@
-"""Damper placement: gradients through the ROM against central differences of the full model, the
-constraints, the realisable polish, the certification loop, the sweep, the CLI and bad input."""
+"""Damper placement (``optimise`` with ``ScreenAndCertify`` and ``Grid``): gradients through the
+ROM against central differences of the full model, the constraints, the realisable polish, the
+certification loop, the sweep, the CLI and bad input. The private ``DamperProblem`` and
+``placement_objective`` are what the strategies evaluate, tested here as internals."""
 
 import json
 import os
@@ -12,6 +14,8 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
+from mikota_jax._design import DamperProblem
+from mikota_jax._placement_objective import placement_objective
 from mikota_jax._search import (
     _init,
     _step,
@@ -28,7 +32,20 @@ def problem(n=N, position=4.0, coefficient=0.8, **kwargs):
     system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(position, coefficient)])
     x0 = jnp.zeros(n).at[2].set(1.0)
     kwargs.setdefault("energy", 1.0)
-    return mj.DamperProblem(system, jnp.linspace(0.0, HORIZON, 401), x0, **kwargs)
+    return DamperProblem(system, jnp.linspace(0.0, HORIZON, 401), x0, **kwargs)
+
+
+def design(n=N, position=4.0, coefficient=0.8, objective=None, dampers=None):
+    """The design of ``problem``: one damper (or ``dampers``) anywhere on the chain, the energy
+    over [0, HORIZON] of the free vibration from x_3 = 1."""
+    system = mj.mikota_chain(n, dampers=dampers or [mj.GroundedDamper(position, coefficient)])
+    objective = objective or mj.Energy(HORIZON, jnp.zeros(n).at[2].set(1.0))
+    return mj.DamperDesign(system, objective, positions=range(1, n + 1))
+
+
+def certified(energy=1.0, **kwargs):
+    """``ScreenAndCertify`` with ``problem``'s POD settings (its 401 times are the default)."""
+    return mj.ScreenAndCertify(energy=energy, **kwargs)
 
 
 def full_energy(n, position, coefficient):
@@ -47,7 +64,7 @@ def full_basis(n=N):
                                       float(N)])  # 4.0, 4.3: default-run time
 def test_reduced_gradient_matches_central_differences_of_the_full_model(position):
     p = problem(position=position)
-    objective = mj.placement_objective(p, full_basis())  # full basis: the ROM is exact
+    objective = placement_objective(p, full_basis())  # full basis: the ROM is exact
     c = 0.8
     value, (gp, gc) = jax.value_and_grad(objective, argnums=(0, 1))(
         jnp.array([position]), jnp.array([c]))
@@ -68,7 +85,7 @@ def test_reduced_gradient_matches_central_differences_of_the_full_model(position
 
 def test_gradient_near_zero_coefficient_is_finite_and_matches_differences():
     p = problem()
-    objective = mj.placement_objective(p, full_basis())
+    objective = placement_objective(p, full_basis())
     c, h = 1e-6, 5e-7  # both sides >= 0; larger steps would amplify rounding less but cross 0
     gc = jax.grad(objective, argnums=1)(jnp.array([4.0]), jnp.array([c]))
     dc = (full_energy(N, 4.0, c + h) - full_energy(N, 4.0, c - h)) / (2 * h)
@@ -82,9 +99,9 @@ def test_truncated_basis_gradient_differs_from_the_full_one_by_the_rom_error():
     snapshots = mj.solve(p.system(p.positions, p.coefficients), p.ts, p.x0,
                          method=mj.ODE()).displacement
     basis = mj.pod(snapshots.T).basis(6)
-    reduced = jax.grad(mj.placement_objective(p, basis), argnums=1)(p.positions, p.coefficients)
-    full = jax.grad(mj.placement_objective(p), argnums=1)(p.positions, p.coefficients)
-    exact = jax.grad(mj.placement_objective(p, full_basis()), argnums=1)(p.positions,
+    reduced = jax.grad(placement_objective(p, basis), argnums=1)(p.positions, p.coefficients)
+    full = jax.grad(placement_objective(p), argnums=1)(p.positions, p.coefficients)
+    exact = jax.grad(placement_objective(p, full_basis()), argnums=1)(p.positions,
                                                                          p.coefficients)
     assert float(full[0]) == pytest.approx(float(exact[0]), rel=1e-5)  # ODE vs exact
     assert abs(float(reduced[0]) - float(exact[0])) > 1e-6 * abs(float(exact[0]))
@@ -121,128 +138,133 @@ def test_the_energy_search_compiles_without_host_callbacks():
 def small_sweep():
     p = problem(n=10)
     coefficients = np.geomspace(0.05, 50.0, 60)
-    return p, mj.sweep_dampers(p, coefficients)
+    return p, mj.optimise(design(n=10), mj.Grid(coefficients))
 
 
 @pytest.mark.slow  # default-run time (issue: CI under 15 min)
 def test_sweep_equals_unbatched_evaluations(small_sweep):
-    p, sweep = small_sweep
-    assert sweep.objective.shape == (10, 60) and sweep.failed == 0
-    batched = mj.sweep_dampers(p, sweep.coefficients[:7], positions=[2.0, 9.0], batch_size=4)
-    np.testing.assert_allclose(batched.objective, sweep.objective[[1, 8], :7], rtol=1e-12)
+    _, sweep = small_sweep
+    grid, coefficients = sweep.stats["grid"], sweep.stats["coefficients"]
+    assert grid.shape == (10, 60) and sweep.stats["failed"] == 0
+    two = mj.DamperDesign(design(n=10).system, design(n=10).objective, positions=[2, 9])
+    batched = mj.optimise(two, mj.Grid(coefficients[:7], batch_size=4))
+    np.testing.assert_allclose(batched.stats["grid"], grid[[1, 8], :7], rtol=1e-12)
     for i, j in [(0, 0), (4, 30), (9, 59)]:
-        assert sweep.objective[i, j] == pytest.approx(
-            full_energy(10, i + 1.0, sweep.coefficients[j]), rel=1e-6)
+        assert grid[i, j] == pytest.approx(full_energy(10, i + 1.0, coefficients[j]), rel=1e-6)
 
 
 @pytest.mark.slow  # default-run time (issue: CI under 15 min)
 def test_certified_optimum_matches_the_sweep(small_sweep):
-    p, sweep = small_sweep
-    result = mj.optimise_dampers(p, starts=4, iterations=40)
-    assert result.certified and result.rom_error <= 1e-4
+    _, sweep = small_sweep
+    result = mj.optimise(design(n=10), certified(starts=4, iterations=40))
+    assert result.result == mj.DesignResult.converged and result.stats["certified"]
+    assert result.stats["rom_error"] <= 1e-4
     assert float(result.positions[0]) == int(result.positions[0])  # realisable: at a DOF
     # the optimum (continuous coefficient) is at least as good as the grid's best, and close
-    assert result.objective <= sweep.best_objective * (1 + 1e-9)
-    assert result.objective == pytest.approx(sweep.best_objective, rel=1e-3)
-    assert result.objective == pytest.approx(
+    assert result.value <= sweep.value * (1 + 1e-9)
+    assert result.value == pytest.approx(sweep.value, rel=1e-3)
+    assert result.value == pytest.approx(
         full_energy(10, float(result.positions[0]), float(result.coefficients[0])), rel=1e-6)
-    assert result.full_solves == 2  # one snapshot solve, one certification
+    assert result.stats["full_solves"] == 2  # one snapshot solve, one certification
     # one damper: every DOF screened (no relaxed search), and the sweep's best DOF chosen
-    assert result.relaxed_objective is None
+    assert result.stats["relaxed_objective"] is None
     screen = [h for h in result.history if h["phase"] == "screen"]
     np.testing.assert_array_equal(screen[0]["positions"], np.arange(1.0, 11.0))
-    assert float(result.positions[0]) == sweep.best_position
+    assert float(result.positions[0]) == float(sweep.positions[0])
 
 
 @pytest.mark.slow  # default-run time (issue: CI under 15 min)
 def test_sweep_refinement_and_its_two_evaluators(small_sweep):
-    p, sweep = small_sweep
-    coarse = mj.sweep_dampers(p, sweep.coefficients[::6], refine=2)
-    assert len(coarse.refined) == 2 and coarse.seconds_refine > 0
-    grid_best = float(np.nanmin(coarse.objective))
+    _, sweep = small_sweep
+    coarse = mj.optimise(design(n=10), mj.Grid(sweep.stats["coefficients"][::6], refine=2))
+    assert len(coarse.stats["refined"]) == 2 and coarse.stats["seconds_refine"] > 0
+    grid_best = float(np.nanmin(coarse.stats["grid"]))
     # refinement beats the coarse grid, reaches the fine grid's best, and is the full model's J
-    assert coarse.best_objective < grid_best
-    assert coarse.best_objective <= sweep.best_objective * (1 + 1e-9)
-    assert coarse.best_objective == pytest.approx(sweep.best_objective, rel=1e-3)
-    assert coarse.best_objective == pytest.approx(
-        full_energy(10, coarse.best_position, coarse.best_coefficient), rel=1e-6)
+    assert coarse.value < grid_best
+    assert coarse.value <= sweep.value * (1 + 1e-9)
+    assert coarse.value == pytest.approx(sweep.value, rel=1e-3)
+    assert coarse.value == pytest.approx(
+        full_energy(10, float(coarse.positions[0]), float(coarse.coefficients[0])), rel=1e-6)
     # the ODE and the exact evaluator agree; "auto" sends the stiff points (c / m_j large) to
     # the exact one
-    ode = mj.sweep_dampers(p, [20.0, 50.0], positions=[10.0], method="ode")
-    exact = mj.sweep_dampers(p, [20.0, 50.0], positions=[10.0], method="exact")
-    np.testing.assert_allclose(ode.objective, exact.objective, rtol=1e-6)
-    assert (ode.exact, exact.exact) == (0, 2) and 0 < sweep.exact < sweep.objective.size
+    last = mj.DamperDesign(design(n=10).system, design(n=10).objective, positions=[10])
+    ode = mj.optimise(last, mj.Grid([20.0, 50.0], method="ode"))
+    exact = mj.optimise(last, mj.Grid([20.0, 50.0], method="exact"))
+    np.testing.assert_allclose(ode.stats["grid"], exact.stats["grid"], rtol=1e-6)
+    assert (ode.stats["exact"], exact.stats["exact"]) == (0, 2)
+    assert 0 < sweep.stats["exact"] < sweep.stats["grid"].size
 
 
 @pytest.mark.slow  # 14 s in CI
 def test_split_designs_only_on_request():
-    p = problem()
-    result = mj.optimise_dampers(p, starts=3, iterations=30, split=True)
-    assert result.positions[0] == pytest.approx(result.relaxed_positions[0])
-    assert result.objective == pytest.approx(
+    result = mj.optimise(design(), certified(starts=3, iterations=30, split=True))
+    assert result.positions[0] == pytest.approx(result.stats["relaxed_positions"][0])
+    assert result.value == pytest.approx(
         full_energy(N, float(result.positions[0]), float(result.coefficients[0])), rel=1e-6)
 
 
 @pytest.mark.slow  # 62 s in CI; certification itself stays in the default run (above)
 def test_certification_enriches_a_poor_basis_until_the_models_agree(capsys):
     p = problem(n=20, energy=0.9, criterion="squared")
-    result = mj.optimise_dampers(p, starts=2, iterations=10, tolerance=1e-6, max_rounds=6,
-                                 progress=True)
-    assert result.rounds >= 2 and result.full_solves == 2 * result.rounds
-    assert any("enriched" in m for m in result.messages)
+    result = mj.optimise(design(n=20), certified(
+        energy=0.9, criterion="squared", starts=2, iterations=10, tolerance=1e-6, max_rounds=6,
+        progress=True))
+    stats = result.stats
+    assert stats["rounds"] >= 2 and stats["full_solves"] == 2 * stats["rounds"]
+    assert any("enriched" in m for m in stats["messages"])
     # every phase says when it starts (no silent minutes): snapshots, screening, certification
     printed = capsys.readouterr().out
     for phase in ("snapshots at the start design", "POD basis: r =", "screening DOFs",
                   "certifying positions", "enriching the basis", "ROM error"):
         assert phase in printed, phase
-    assert result.certified, result.status
-    assert result.rom_error <= 1e-6 and result.gradient_error <= 1e-6
+    assert stats["certified"] and result.result == "converged", stats["status"]
+    assert stats["rom_error"] <= 1e-6 and stats["gradient_error"] <= 1e-6
     first_rank = mj.pod(mj.solve(p.system(p.positions, p.coefficients), p.ts, p.x0,
                                  method=mj.ODE()).displacement.T).rank_for_energy(0.9)
-    assert result.rank > first_rank
+    assert stats["rank"] > first_rank
 
 
 @pytest.mark.slow  # default-run time (issue: CI under 15 min)
 def test_certification_by_the_estimate_takes_no_full_solve_and_never_under_estimates():
-    p = problem(n=20, energy=0.9, criterion="squared")
-    result = mj.optimise_dampers(p, starts=2, iterations=10, tolerance=1e-6, max_rounds=6,
-                                 certify="estimate")
-    assert result.certified and result.certified_by == "estimate", result.status
+    settings = dict(energy=0.9, criterion="squared", starts=2, iterations=10, tolerance=1e-6,
+                    max_rounds=6)
+    result = mj.optimise(design(n=20), certified(**settings, certify="estimate"))
+    stats = result.stats
+    assert stats["certified"] and stats["certified_by"] == "estimate", stats["status"]
     # full solves: the first snapshots and one per enrichment, none to certify
-    assert result.full_solves == result.rounds
+    assert stats["full_solves"] == stats["rounds"]
     position, coefficient = float(result.positions[0]), float(result.coefficients[0])
     truth = full_energy(20, position, coefficient)
-    error = abs(result.objective - truth) / truth  # the objective reported is J_r
-    assert error <= result.rom_error <= 1e-6  # the estimate holds the true error
+    error = abs(result.value - truth) / truth  # the objective reported is J_r
+    assert error <= stats["rom_error"] <= 1e-6  # the estimate holds the true error
     # and the log-sensitivity's (the full dJ/dc by reverse mode through the exact J)
     slope = jax.grad(lambda c: mj.Energy(HORIZON, jnp.zeros(20).at[2].set(1.0))(
         mj.mikota_chain(20, dampers=[mj.GroundedDamper(position, c)])))(coefficient)
-    true_gradient_error = coefficient * abs(float(result.gradient[0]) - float(slope)) / truth
-    assert true_gradient_error <= result.gradient_error <= 1e-6
-    assert result.ranking is not None
-    full = mj.optimise_dampers(p, starts=2, iterations=10, tolerance=1e-6, max_rounds=6)
+    true_gradient_error = coefficient * abs(float(stats["gradient"][0]) - float(slope)) / truth
+    assert true_gradient_error <= stats["gradient_error"] <= 1e-6
+    assert stats["ranking"] is not None
+    full = mj.optimise(design(n=20), certified(**settings))
     assert float(full.positions[0]) == float(result.positions[0])
 
 
 @pytest.mark.slow  # 28 s in CI
 def test_two_dampers_are_placed_at_dofs():
-    system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(3.0, 0.5), mj.GroundedDamper(9.0, 0.5)])
-    p = mj.DamperProblem(system, jnp.linspace(0.0, HORIZON, 401), jnp.zeros(N).at[2].set(1.0),
-                         energy=1.0)
-    result = mj.optimise_dampers(p, starts=3, iterations=20)
+    dampers = [mj.GroundedDamper(3.0, 0.5), mj.GroundedDamper(9.0, 0.5)]
+    result = mj.optimise(design(dampers=dampers), certified(starts=3, iterations=20))
     assert result.positions.shape == (2,) and np.all(result.positions == np.round(result.positions))
-    assert result.certified
-    assert result.objective < result.initial_objective
+    assert result.stats["certified"]
+    assert result.value < result.stats["initial_objective"]
 
 
 @pytest.mark.slow  # 22 s in CI; certification stays in the default run (the sweep test)
 def test_average_energy_objective_is_certified():
     p = problem(objective="average_energy", lowest=3)
-    objective = mj.placement_objective(p, full_basis())
+    objective = placement_objective(p, full_basis())
     truth = mj.AverageEnergy(lowest=3)(p.system(p.positions, p.coefficients))
     assert float(objective(p.positions, p.coefficients)) == pytest.approx(float(truth), rel=1e-8)
-    result = mj.optimise_dampers(p, starts=2, iterations=15)
-    assert result.certified and np.isfinite(result.objective)
+    result = mj.optimise(design(objective=mj.AverageEnergy(3)), certified(
+        ts=p.ts, x0=p.x0, starts=2, iterations=15))
+    assert result.stats["certified"] and np.isfinite(result.value)
 
 
 @pytest.mark.parametrize("kwargs, match", [
@@ -261,43 +283,56 @@ def test_bad_problems_are_refused(kwargs, match):
 
 def test_no_excitation_is_refused():
     with pytest.raises(ValueError, match="needs an excitation"):
-        mj.DamperProblem(mj.mikota_chain(N, dampers=[mj.GroundedDamper(2.0, 1.0)]),
+        DamperProblem(mj.mikota_chain(N, dampers=[mj.GroundedDamper(2.0, 1.0)]),
                          jnp.linspace(0.0, 1.0, 11))
 
 
 @pytest.mark.parametrize("kwargs, match", [
-    (dict(optimizer="sgd"), "optimizer must be one of"),
+    (dict(optimizer="sgd"), "optimizer must be an optax GradientTransformation"),
     (dict(iterations=0), "iterations must be an integer >= 1"),
     (dict(starts=np.array([[0.0]])), "starts must be an int or"),
     (dict(tolerance=-1.0), "tolerance must be > 0"),
     (dict(certify="half"), "certify must be 'full' or 'estimate'"),
+    (dict(energy=0.0), "energy must lie in"),
+    (dict(snapshots=(5.0, 100.0)), "snapshots must be a window"),
+    (dict(ts=jnp.linspace(0.0, 2 * HORIZON, 11)), "ts must be a grid spanning"),
 ])
 def test_bad_optimiser_settings_are_refused(kwargs, match):
     with pytest.raises(ValueError, match=match):
-        mj.optimise_dampers(problem(), **kwargs)
+        mj.optimise(design(), mj.ScreenAndCertify(**kwargs))
+    average = design(objective=mj.AverageEnergy(3))
     with pytest.raises(ValueError, match="certify='estimate' needs the 'energy' objective"):
-        mj.optimise_dampers(problem(objective="average_energy", lowest=3), certify="estimate")
+        mj.optimise(average, mj.ScreenAndCertify(ts=jnp.linspace(0.0, 1.0, 11),
+                                                 x0=jnp.ones(N), certify="estimate"))
+    with pytest.raises(ValueError, match="ts must be given"):
+        mj.optimise(average, mj.ScreenAndCertify())
+    with pytest.raises(ValueError, match="positions must be every DOF"):
+        mj.optimise(mj.DamperDesign(average.system, average.objective, positions=[1, 2]),
+                    mj.ScreenAndCertify())
 
 
 @pytest.mark.parametrize("kwargs, match", [
     (dict(method="euler"), "method must be 'auto', 'exact' or 'ode'"),
     (dict(refine=-1), "refine must be an integer >= 0"),
     (dict(coefficients=[-1.0]), "coefficients must be a non-empty"),
-    (dict(positions=[0.0]), "positions must be a 1-d array of positions in"),
 ])
 def test_bad_sweep_settings_are_refused(kwargs, match):
-    kwargs = dict(coefficients=[1.0], positions=[2.0]) | kwargs
+    kwargs = dict(coefficients=[1.0]) | kwargs
     with pytest.raises(ValueError, match=match):
-        mj.sweep_dampers(problem(), kwargs.pop("coefficients"), **kwargs)
+        mj.optimise(design(), mj.Grid(**kwargs))
+    peak = design(objective=mj.Peak(3, jnp.linspace(0.0, 1.0, 11), jnp.ones(N)))
     with pytest.raises(ValueError, match="free-vibration energy only"):
-        mj.sweep_dampers(problem(objective="peak", dof=3), [1.0], method="exact")
+        mj.optimise(peak, mj.Grid([1.0], method="exact"))
+    with pytest.raises(ValueError, match="positions must be distinct integer DOFs"):
+        mj.DamperDesign(peak.system, peak.objective, positions=[0])
 
 
 def test_failing_solves_stop_with_a_reason_not_a_nan_optimum():
     p = problem(objective="peak", dof=N, max_steps=3)
+    peak = design(objective=mj.Peak(N, p.ts, p.x0))
     with pytest.raises(ValueError, match="solve failed"):
-        mj.optimise_dampers(p, starts=2, iterations=3)
-    assert np.isnan(float(mj.placement_objective(p)(p.positions, p.coefficients)))
+        mj.optimise(peak, mj.ScreenAndCertify(max_steps=3, energy=1.0, starts=2, iterations=3))
+    assert np.isnan(float(placement_objective(p)(p.positions, p.coefficients)))
 
 
 @pytest.mark.slow  # 34 s in CI: a whole optimisation through the CLI
@@ -314,7 +349,7 @@ def test_cli_optimise_writes_json_and_plot(tmp_path):
         capture_output=True, text=True, env=os.environ | {"MIKOTA_JAX_CACHE": "0"})
     assert done.returncode == 0, done.stderr
     report = json.loads((out / "placement.json").read_text())
-    assert report["result"]["certified"]
+    assert report["result"]["stats"]["certified"] and report["result"]["result"] == "converged"
     assert report["result"]["positions"][0] == int(report["result"]["positions"][0])
     assert (out / "placement.png").stat().st_size > 10_000
     bad = subprocess.run(

@@ -155,8 +155,9 @@ def test_optimal_viscosity_for_the_h2_norm_is_the_lyapunov_optimum():
 
     reference = scipy.optimize.minimize_scalar(dense_h2, bounds=(1e-3, 1e3), method="bounded",
                                                options=dict(xatol=1e-10))
-    result = mj.optimise_viscosities(system(1.0), "h2", inputs=B, cx=CX, cv=CV, free=[0])
-    assert result.converged, result.status
+    result = mj.optimise(mj.DamperDesign(system(1.0), mj.H2Norm(B, CX, CV), free=[0]),
+                         mj.Coefficients())
+    assert result.result == "converged", result.stats["status"]
     assert result.coefficients[1] == 1.0  # held
     assert result.coefficients[0] == pytest.approx(reference.x, rel=1e-5)
     assert result.value == pytest.approx(reference.fun, rel=1e-10)

@@ -15,6 +15,8 @@ import pytest
 import scipy.linalg as sl
 
 import mikota_jax as mj
+from mikota_jax._design import DamperProblem
+from mikota_jax._placement_objective import placement_objective
 from mikota_jax._spectral_solve import spectral_solve_with_result
 
 N = 20
@@ -301,8 +303,8 @@ def test_simulate_auto_takes_the_exact_spectral_solution_where_it_applies(close)
 @pytest.mark.slow  # default-run time (issue: CI under 15 min)
 def test_the_full_energy_the_optimiser_certifies_with_is_the_exact_one(close):
     system = chain(mj.GroundedDamper(4.0, 0.8))
-    problem = mj.DamperProblem(system, jnp.linspace(0.0, 20.0, 11), X0, V0)
-    objective = mj.placement_objective(problem)  # the full model
+    problem = DamperProblem(system, jnp.linspace(0.0, 20.0, 11), X0, V0)
+    objective = placement_objective(problem)  # the full model
     value = objective(jnp.array([4.0]), jnp.array([0.8]))
     close(value, mj.Energy(20.0, X0, V0, method="dense")(system), rtol=1e-11)
     gradient = jax.grad(objective, argnums=1)(jnp.array([4.0]), jnp.array([0.8]))

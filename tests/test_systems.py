@@ -15,8 +15,10 @@ import scipy.linalg
 import scipy.sparse as sp
 
 import mikota_jax as mj
+from mikota_jax._design import DamperProblem
 from mikota_jax._objectives import integrated_energy
 from mikota_jax._operators import Dense, Diagonal, Sparse, SymmetricBanded, SymmetricTridiagonal
+from mikota_jax._placement_objective import placement_objective
 
 N = 8
 TS = jnp.linspace(0.0, 6.0, 61)
@@ -398,10 +400,10 @@ def test_sensitivities_of_a_custom_scene_name_the_internal_damping_parameters():
 def test_damper_problem_keeps_the_internal_damping():
     system = mj.mikota_chain(N, dampers=[DAMPER], internal_damping=mj.Rayleigh(0.05, 0.01))
     x0 = jnp.asarray(mj.analytic.mode_shape(N, 1))
-    problem = mj.DamperProblem(system, TS, x0=x0)
+    problem = DamperProblem(system, TS, x0=x0)
     expected = mj.Energy(float(TS[-1]), x0=x0)(system)
-    full = mj.placement_objective(problem)(jnp.array([3.0]), jnp.array([0.4]))
-    reduced = mj.placement_objective(problem, jnp.eye(N))(jnp.array([3.0]), jnp.array([0.4]))
+    full = placement_objective(problem)(jnp.array([3.0]), jnp.array([0.4]))
+    reduced = placement_objective(problem, jnp.eye(N))(jnp.array([3.0]), jnp.array([0.4]))
     np.testing.assert_allclose(full, expected, rtol=1e-9)
     np.testing.assert_allclose(reduced, expected, rtol=1e-9)
 

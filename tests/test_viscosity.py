@@ -1,6 +1,6 @@
-"""Optimal viscosities at full order (``optimise_viscosities``): a grounded and a relative damper
-on a small chain, checked against scipy's L-BFGS-B on the same function, a grid around the
-optimum, the first-order conditions at a bound, and the refusals."""
+"""Optimal viscosities at full order (``optimise`` with ``Coefficients``): a grounded and a
+relative damper on a small chain, checked against scipy's L-BFGS-B on the same function, a grid
+around the optimum, the first-order conditions at a bound, and the refusals."""
 
 import warnings
 
@@ -17,6 +17,15 @@ from mikota_jax.testing import criterion_function
 N, LOWEST = 12, 5
 
 
+def coefficients(system, objective=None, *, free=None, lower=0.0, upper=None, **strategy):
+    """``optimise`` with ``Coefficients``: every coefficient of ``system`` (or the ``free``
+    ones) within (``lower``, ``upper``), its places fixed; the total average energy by
+    default."""
+    objective = mj.AverageEnergy() if objective is None else objective
+    design = mj.DamperDesign(system, objective, coefficients=(lower, upper), free=free)
+    return mj.optimise(design, mj.Coefficients(**strategy))
+
+
 def two_dampers(grounded=4.0, relative=1.0):
     return mj.mikota_chain(N, dampers=[mj.GroundedDamper(4.0, grounded),
                                        mj.RelativeDamper((2, 9), relative)],
@@ -25,19 +34,20 @@ def two_dampers(grounded=4.0, relative=1.0):
 
 @pytest.fixture(scope="module")
 def optimum():
-    return mj.optimise_viscosities(two_dampers(), "average_energy", lowest=LOWEST)
+    return coefficients(two_dampers(), mj.AverageEnergy(LOWEST))
 
 
 @pytest.fixture(scope="module")
 def criterion():
-    function = criterion_function(two_dampers(), "average_energy", LOWEST, None, None, None)
+    function = criterion_function(two_dampers(), mj.AverageEnergy(LOWEST))
     return lambda d: tuple(np.asarray(a, dtype=float) for a in function(np.asarray(d)))
 
 
 @pytest.mark.slow
 def test_the_optimum_of_a_grounded_and_a_relative_damper_is_scipys_and_the_grids(
         optimum, criterion, close):
-    assert optimum.converged and optimum.relative_gradient < 1e-6, optimum.status
+    assert optimum.result == "converged", optimum.stats["status"]
+    assert optimum.stats["relative_gradient"] < 1e-6
     assert np.all(optimum.coefficients > 0)
     # an independent search on the same function: scipy's L-BFGS-B from another start
     reference = scipy.optimize.minimize(criterion, np.array([0.5, 0.5]), jac=True,
@@ -53,22 +63,24 @@ def test_the_optimum_of_a_grounded_and_a_relative_damper_is_scipys_and_the_grids
     # the reported value and gradient are the function's there
     value, gradient = criterion(optimum.coefficients)
     close(optimum.value, value, rtol=1e-14)
-    close(optimum.gradient, gradient, rtol=1e-12, atol=1e-14 * np.max(np.abs(gradient)))
+    close(optimum.stats["gradient"], gradient, rtol=1e-12,
+          atol=1e-14 * np.max(np.abs(gradient)))
     assert optimum.history[0][0] > optimum.value  # it went downhill from the start
 
 
 def test_an_upper_bound_holds_its_damper_with_the_gradient_pushing_out(optimum, criterion):
     cap = 0.5 * optimum.coefficients[0]
-    bounded = mj.optimise_viscosities(two_dampers(), "average_energy", lowest=LOWEST,
+    bounded = coefficients(two_dampers(), mj.AverageEnergy(LOWEST),
                                       upper=[cap, np.inf])
-    assert bounded.converged, bounded.status
-    assert bounded.coefficients[0] == cap and bounded.gradient[0] < 0  # KKT at the upper bound
+    assert bounded.result == "converged", bounded.stats["status"]
+    # KKT at the upper bound
+    assert bounded.coefficients[0] == cap and bounded.stats["gradient"][0] < 0
     assert bounded.value > optimum.value
     # the free one is optimal given the held one: its own derivative vanishes
-    assert abs(bounded.gradient[1] * bounded.coefficients[1]) < 1e-6 * bounded.value
-    fixed = mj.optimise_viscosities(two_dampers(relative=0.7), "average_energy", lowest=LOWEST,
+    assert abs(bounded.stats["gradient"][1] * bounded.coefficients[1]) < 1e-6 * bounded.value
+    fixed = coefficients(two_dampers(relative=0.7), mj.AverageEnergy(LOWEST),
                                     free=[0])
-    assert fixed.coefficients[1] == 0.7 and fixed.converged
+    assert fixed.coefficients[1] == 0.7 and fixed.result == "converged"
 
 
 def dof_2_and_5(c2=1.0, c5=1.0):
@@ -85,18 +97,19 @@ def test_a_damper_pinned_at_zero_is_fixed_and_the_other_reaches_its_lone_optimum
     assert round(float(np.exp(truth.x)), 3) == 0.826 and round(truth.fun, 3) == 59.647
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no log(0) of the pinned coefficient
-        pinned = mj.optimise_viscosities(dof_2_and_5(), upper=[0.0, 10.0], method=method)
-    assert pinned.converged, pinned.status
-    assert pinned.coefficients[0] == 0.0 and pinned.iterations > 0
+        pinned = coefficients(dof_2_and_5(), upper=[0.0, 10.0], method=method)
+    assert pinned.result == "converged", pinned.stats["status"]
+    assert pinned.coefficients[0] == 0.0 and pinned.stats["iterations"] > 0
     close(pinned.coefficients[1], np.exp(truth.x), rtol=1e-5)
     close(pinned.value, truth.fun, rtol=1e-11)
     # lower = upper > 0 pins too; pinning every free one leaves nothing to move
-    held = mj.optimise_viscosities(dof_2_and_5(c5=3.0), lower=[0.5, 0.0], upper=[0.5, 10.0],
+    held = coefficients(dof_2_and_5(c5=3.0), lower=[0.5, 0.0], upper=[0.5, 10.0],
                                    method=method)
-    assert held.converged and held.coefficients[0] == 0.5
-    nothing = mj.optimise_viscosities(dof_2_and_5(), free=[1], upper=[np.inf, 2.0],
+    assert held.result == "converged" and held.coefficients[0] == 0.5
+    nothing = coefficients(dof_2_and_5(), free=[1], upper=[np.inf, 2.0],
                                       lower=[0.0, 2.0], method=method)
-    assert nothing.converged and nothing.iterations == 0 and "pinned" in nothing.status
+    assert nothing.result == "converged" and nothing.stats["iterations"] == 0
+    assert "pinned" in nothing.stats["status"]
     assert nothing.coefficients.tolist() == [1.0, 2.0]
 
 
@@ -108,29 +121,30 @@ def test_a_damper_pinned_at_zero_that_leaves_a_mode_undamped_is_one_line_not_an_
     with pytest.raises(ValueError, match=r"^mikota_jax: the criterion is not finite at the "
                        r"start design \(inf\); a mode no damper reaches \(a coefficient held "
                        r"at 0 reaches none\)[^\n]*\.$"):
-        mj.optimise_viscosities(system, upper=[0.0, 10.0])
+        coefficients(system, upper=[0.0, 10.0])
 
 
 def test_the_spectral_projected_gradient_reaches_the_same_optimum_and_bound(optimum):
     # Li & Tisseur's method (SPG): the optimum of the projected BFGS, and the KKT point at a cap
-    spg = mj.optimise_viscosities(two_dampers(), "average_energy", lowest=LOWEST, method="spg")
-    assert spg.converged and spg.relative_gradient < 1e-6, spg.status
+    spg = coefficients(two_dampers(), mj.AverageEnergy(LOWEST), method="spg")
+    assert spg.result == "converged", spg.stats["status"]
+    assert spg.stats["relative_gradient"] < 1e-6
     assert spg.value == pytest.approx(optimum.value, rel=1e-10)
     np.testing.assert_allclose(spg.coefficients, optimum.coefficients, rtol=1e-4)
     cap = 0.5 * optimum.coefficients[0]
-    bounded = mj.optimise_viscosities(two_dampers(), "average_energy", lowest=LOWEST,
+    bounded = coefficients(two_dampers(), mj.AverageEnergy(LOWEST),
                                       upper=[cap, np.inf], method="spg")
-    assert bounded.converged and bounded.coefficients[0] == cap and bounded.gradient[0] < 0
+    assert bounded.result == "converged" and bounded.coefficients[0] == cap
+    assert bounded.stats["gradient"][0] < 0
 
 
 @pytest.mark.slow  # default-run time (issue: CI under 15 min)
 def test_the_energy_of_a_free_vibration_is_optimised_in_one_coefficient(close):
     system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(5.0, 1.0)])
     x0 = np.eye(N)[2]
-    result = mj.optimise_viscosities(system, "energy", horizon=20.0, x0=x0)
-    assert result.converged, result.status
-    energy = criterion_function(system, "energy", None, 20.0, jax.numpy.asarray(x0),
-                        jax.numpy.zeros(N))
+    result = coefficients(system, mj.Energy(20.0, x0))
+    assert result.result == "converged", result.stats["status"]
+    energy = criterion_function(system, mj.Energy(20.0, jax.numpy.asarray(x0)))
     c = result.coefficients
     value, gradient = energy(c)
     close(value, result.value, rtol=1e-14)
@@ -143,10 +157,10 @@ def test_the_energy_of_a_free_vibration_is_optimised_in_one_coefficient(close):
 
 
 @pytest.mark.parametrize("kwargs,match", [
-    (dict(criterion="maximum"), "criterion must be one of"),
-    (dict(criterion="h2", cx=[1.0] * 12), "inputs must be"),
-    (dict(criterion="output"), "give an output"),
-    (dict(lowest=0), "lowest must be None or an integer"),
+    (dict(objective="maximum"), r"^mikota_jax: objective must be an AbstractObjective"),
+    (dict(objective=mj.H2Norm(None, cx=[1.0] * 12)), "inputs must be"),
+    (dict(objective=mj.OutputEnergy()), "give an output"),
+    (dict(objective=mj.AverageEnergy(0)), "lowest must be None or an integer"),
     (dict(free=[5]), r"^mikota_jax: free must be 0-based indices in 0..1 into the 2 damper "
      r"coefficients, grounded dampers first, then relative ones, got \[5\]\.$"),
     (dict(free=[-1]), r"free must be 0-based indices in 0..1 .*, got \[-1\]\.$"),
@@ -162,16 +176,18 @@ def test_the_energy_of_a_free_vibration_is_optimised_in_one_coefficient(close):
     (dict(upper="big"), r"upper must be a number or 2 numbers"),
     (dict(tolerance=0.0), "tolerance must lie in"),
     (dict(method="newton"), "method must be one of"),
-    (dict(criterion="energy"), "horizon must be a finite time > 0"),
-    (dict(criterion="energy", horizon=1.0), "needs an excitation")])
+    (dict(objective=mj.Energy(None)), "horizon must be a finite time > 0"),
+    (dict(objective=mj.Energy(1.0)), "needs an excitation"),
+    (dict(objective=mj.Energy(1.0, np.ones(N), load=mj.pulse(N, 1, 1.0, 0.1))),
+     "free vibration only")])
 def test_bad_arguments_are_refused_by_name(kwargs, match):
     with pytest.raises(ValueError, match=match):
-        mj.optimise_viscosities(two_dampers(), **kwargs)
+        coefficients(two_dampers(), **kwargs)
 
 
 def test_a_system_without_the_spectral_path_is_refused():
     with pytest.raises(ValueError, match="GroundedDamper/RelativeDamper"):
-        mj.optimise_viscosities(mj.mikota_chain(N))
+        coefficients(mj.mikota_chain(N))
 
 
 def triple_chain(n1, d, internal=0.02):
@@ -190,8 +206,9 @@ def triple_chain(n1, d, internal=0.02):
 @pytest.mark.slow  # default-run time (issue: CI under 15 min)
 def test_truhar_veselic_triple_chain_optimum_is_the_dense_lyapunov_optimum(close):
     n1, lowest, start = 8, 8, np.array([100.0, 100.0, 100.0])
-    result = mj.optimise_viscosities(triple_chain(n1, start), "average_energy", lowest=lowest)
-    assert result.converged and result.relative_gradient < 1e-6, result.status
+    result = coefficients(triple_chain(n1, start), mj.AverageEnergy(lowest))
+    assert result.result == "converged", result.stats["status"]
+    assert result.stats["relative_gradient"] < 1e-6
     # independent: scipy's dense Lyapunov trace (its own eigh, Bartels-Stewart) minimised by
     # L-BFGS-B in log d with finite differences, from the same start
     dense = lambda logd: lyapunov_trace(triple_chain(n1, np.exp(logd)), lowest)  # noqa: E731
@@ -223,9 +240,8 @@ def test_the_smooth_peak_optimum_is_the_dense_exponentials_optimum(close):
 
     # the minimum is flat (f'' / f ~ 5e-4 in log d): the default stopping rule (relative
     # gradient 1e-6) leaves f up to ~1e-9 above it, so compare at a tighter one
-    result = mj.optimise_viscosities(system(1.0), "peak", dof=dof, ts=ts, x0=x0,
-                                     tolerance=1e-8)
-    assert result.converged, result.status
+    result = coefficients(system(1.0), mj.Peak(dof, ts, x0), tolerance=1e-8)
+    assert result.result == "converged", result.stats["status"]
     close(result.value, dense_peak(result.coefficients[0]), rtol=1e-10)
     reference = scipy.optimize.minimize_scalar(lambda u: dense_peak(np.exp(u)),
                                                bounds=(np.log(1e-2), np.log(1e3)),
@@ -235,6 +251,6 @@ def test_the_smooth_peak_optimum_is_the_dense_exponentials_optimum(close):
     # the minimum is flat (f changes by < 1e-9 over 0.2 % in d): the place to a looser tolerance
     close(result.coefficients[0], np.exp(reference.x), rtol=1e-2)
     with pytest.raises(ValueError, match="dof must be an integer DOF in 1..8"):
-        mj.optimise_viscosities(system(1.0), "peak", dof=9, ts=ts, x0=x0)
+        coefficients(system(1.0), mj.Peak(9, ts, x0))
     with pytest.raises(ValueError, match="ts must be an increasing grid"):
-        mj.optimise_viscosities(system(1.0), "peak", dof=dof, ts=ts[::-1], x0=x0)
+        coefficients(system(1.0), mj.Peak(dof, ts[::-1], x0))

@@ -250,8 +250,9 @@ def _command(argv) -> int:
                 progress=not (args.no_progress or args.quiet))
             result = report["result"]
             which = "full model" if args.certify == "full" else "reduced model, estimated"
-            say(f"{result['status']}\noptimum: positions {result['positions']}, coefficients "
-                f"{result['coefficients']}, objective ({which}) {result['objective']:.10g}"
+            say(f"{result['stats']['status']}\noptimum: positions {result['positions']}, "
+                f"coefficients {result['coefficients']}, objective ({which}) "
+                f"{result['value']:.10g}"
                 f"\nwrote {Path(args.out) / 'placement.json'}")
             return 0
         from .. import run_scene

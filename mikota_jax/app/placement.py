@@ -9,27 +9,44 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import DamperProblem, Scene, optimise_dampers, reduced_landscape, sweep_dampers
+from .. import (
+    AverageEnergy,
+    DamperDesign,
+    Energy,
+    Grid,
+    Peak,
+    Scene,
+    ScreenAndCertify,
+    optimise,
+)
 from .._errors import MARK
 from .figures import placement_landscape
 from .results import write_json
 from .scene_file import load_scene
 
 _MIN_ENERGY = 0.9999
+_OBJECTIVES = ("energy", "average_energy", "peak")
 
 
 def problem_from_scene(scene: Scene, *, objective: str = "energy", dof: int | None = None,
-                       lowest: int | None = None, energy: float | None = None) -> DamperProblem:
-    """A ``DamperProblem`` from a scene (see the module docstring for what is taken from where).
+                       lowest: int | None = None, energy: float | None = None,
+                       **strategy) -> tuple[DamperDesign, ScreenAndCertify]:
+    """The design problem of a scene and the ``ScreenAndCertify`` strategy with its POD settings
+    (see the module docstring for what is taken from where): ``(design, strategy)`` for
+    ``optimise``.
 
-    ``objective``: "energy", "average_energy" (``lowest`` s modes) or "peak" (of the 1-based
-    ``dof``); the design is the scene's grounded dampers, (g,) positions and coefficients.
-
-    The first basis keeps at least 99.99 % of the snapshots' pseudo-energy (the scene's fraction
-    if higher, its rank if it gives one); ``energy`` overrides both.
+    ``objective``: "energy" (``Energy`` over the scene's horizon ts[-1] - ts[0]),
+    "average_energy" (``AverageEnergy`` of the ``lowest`` s modes) or "peak" (``Peak`` of the
+    1-based ``dof`` over the scene's grid); the design is the scene's grounded dampers, placed
+    anywhere on the chain. The first basis keeps at least 99.99 % of the snapshots'
+    pseudo-energy (the scene's fraction if higher, its rank if it gives one); ``energy``
+    overrides both. ``strategy``: further ``ScreenAndCertify`` settings (starts, iterations...).
     """
     if not isinstance(scene, Scene):
         raise ValueError(MARK + f"scene must be a Scene, got {type(scene).__name__}.")
+    if objective not in _OBJECTIVES:
+        raise ValueError(MARK + f"objective must be one of {list(_OBJECTIVES)}, got "
+                         f"{objective!r}.")
     reduction = scene.reduction
     kwargs = {}
     if reduction is not None:
@@ -44,50 +61,77 @@ def problem_from_scene(scene: Scene, *, objective: str = "energy", dof: int | No
     if energy is not None:
         kwargs.pop("rank", None)
         kwargs["energy"] = energy
-    return DamperProblem(scene.system, scene.ts, scene.x0, scene.v0, scene.load,
-                         objective=objective, dof=dof, lowest=lowest, **kwargs)
+    ts = scene.ts
+    if objective == "energy":
+        goal = Energy(float(ts[-1] - ts[0]), scene.x0, scene.v0, scene.load)
+        kwargs.update(ts=ts)
+    elif objective == "peak":
+        if dof is None:
+            raise ValueError(MARK + "objective 'peak' needs dof (a 1-based DOF in 1..n).")
+        goal = Peak(dof, ts, scene.x0, scene.v0, scene.load)
+    else:
+        goal = AverageEnergy(lowest)
+        kwargs.update(ts=ts, x0=scene.x0, v0=scene.v0, load=scene.load)
+    n = scene.system.size
+    design = DamperDesign(scene.system, goal, positions=range(1, n + 1))
+    return design, ScreenAndCertify(**kwargs, **strategy)
 
 
 def optimise_scene(source, out, *, objective: str = "energy", dof: int | None = None,
                    lowest: int | None = None, energy: float | None = None, starts: int = 8,
-                   optimizer: str = "adam", iterations: int = 80, split: bool = False,
+                   optimizer=None, iterations: int = 80, split: bool = False,
                    tolerance: float = 1e-4, certify: str = "full", sweep: int = 0,
                    landscape: tuple[int, int] = (60, 12), progress: bool = True) -> dict:
-    """Optimise a scene's dampers; write ``placement.json`` and ``placement.png`` into ``out``.
+    """Optimise a scene's dampers (``ScreenAndCertify``); write ``placement.json`` and
+    ``placement.png`` into ``out``.
 
-    ``sweep`` > 0 also runs the brute-force full-model sweep (every DOF x ``sweep``
-    log-spaced coefficients, the 3 best DOFs refined) and draws it; otherwise the plot shows
-    the reduced model's landscape on a ``landscape`` = (positions, coefficients) grid.
-    ``certify``: as ``optimise_dampers``'s ("full" or "estimate").
+    ``optimizer``: an optax ``GradientTransformation``, "adam" (the default, ``optax.adam(0.1)``)
+    or "lbfgs" (optax's L-BFGS with a backtracking line search). ``sweep`` > 0 also runs the
+    brute-force full-model sweep (``Grid``: every DOF x ``sweep`` log-spaced coefficients, the 3
+    best DOFs refined) and draws it; otherwise the plot shows the reduced model's landscape on a
+    ``landscape`` = (positions, coefficients) grid. ``certify``: "full" or "estimate".
     """
+    from .._certify import LBFGS
+    from .._search import OPTIMIZERS
+
+    if isinstance(optimizer, str):
+        if optimizer not in OPTIMIZERS:
+            raise ValueError(MARK + f"optimizer must be one of {list(OPTIMIZERS)}, got "
+                             f"{optimizer!r}.")
+        optimizer = None if optimizer == "adam" else LBFGS
     scene = load_scene(source)
-    problem = problem_from_scene(scene, objective=objective, dof=dof, lowest=lowest,
-                                 energy=energy)
-    result = optimise_dampers(problem, starts=starts, optimizer=optimizer, iterations=iterations,
-                              split=split, tolerance=tolerance, certify=certify,
-                              progress=progress)
+    design, strategy = problem_from_scene(
+        scene, objective=objective, dof=dof, lowest=lowest, energy=energy, starts=starts,
+        optimizer=optimizer, iterations=iterations, split=split, tolerance=tolerance,
+        certify=certify, progress=progress)
+    result = optimise(design, strategy)
     report = dict(scene=scene.name, objective=objective, result=result.to_json())
-    n = problem.size
+    n = design.system.size
+    grounded = int(design.system.damping.positions.shape[0])
     paths_from = [h for h in result.history if h["phase"] in ("search", "polish")]
     c_all = np.concatenate([np.ravel(h["coefficients"]) for h in paths_from]
-                           + [result.coefficients])
+                           + [result.coefficients[:grounded]])
     c_low = max(float(np.nanmin(c_all)) / 3, 1e-6)
     c_high = float(np.nanmax(c_all)) * 3
-    if problem.num_dampers == 1 and sweep > 0:
+    settings = dict(ts=strategy.ts, x0=strategy.x0, v0=strategy.v0, load=strategy.load,
+                    rtol=strategy.rtol, max_steps=strategy.max_steps, progress=progress)
+    if grounded == 1 and sweep > 0:
         coefficients = np.geomspace(c_low, c_high, sweep)
-        grid = sweep_dampers(problem, coefficients, refine=3, progress=progress)
+        grid = optimise(design, Grid(coefficients, refine=3, **settings))
         report["sweep"] = grid.to_json()
-        report["sweep_speedup"] = (grid.seconds + grid.seconds_refine) / result.seconds
-        positions, values, kind = grid.positions, grid.objective, "full-model sweep"
-    elif problem.num_dampers == 1:
+        report["sweep_speedup"] = ((grid.stats["seconds"] + grid.stats["seconds_refine"])
+                                   / result.stats["seconds"])
+        positions, values, kind = grid.stats["positions"], grid.stats["grid"], "full-model sweep"
+    elif grounded == 1:
         positions = np.unique(np.round(np.linspace(1, n, min(landscape[0], n))))
         coefficients = np.geomspace(c_low, c_high, landscape[1])
-        values = reduced_landscape(problem, result.basis, positions, coefficients,
-                                   progress=progress)
-        kind = f"reduced model (r = {result.rank})"
+        on = DamperDesign(design.system, design.objective, positions=positions)
+        values = optimise(on, Grid(coefficients, basis=result.stats["basis"], batch_size=16,
+                                   **settings)).stats["grid"]
+        kind = f"reduced model (r = {result.stats['rank']})"
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    if problem.num_dampers == 1:
+    if grounded == 1:
         last = paths_from[-1]  # the last relaxed search (split) or polish
         paths = [(last["positions"][:, s, 0], last["coefficients"][:, s, 0])
                  for s in range(last["positions"].shape[1])]
@@ -120,9 +164,9 @@ def full_order_scene(source, out, *, search: str, objective: str = "average_ener
                      method: str = "bfgs", progress: bool = True) -> dict:
     """Optimise a scene's dampers at full order; write ``placement.json`` and ``.png``.
 
-    ``search``: ``"viscosities"`` (``optimise_viscosities``: every damper's coefficient,
-    grounded and relative, at fixed places) or ``"places"`` (``place_dampers``: the grounded
-    dampers moved over ``candidates``, 1-based DOFs, default all, the relative ones over
+    ``search``: ``"viscosities"`` (``Coefficients``: every damper's coefficient, grounded and
+    relative, at fixed places) or ``"places"`` (``CoordinateDescent``: the grounded dampers
+    moved over ``candidates``, 1-based DOFs, default all, the relative ones over
     ``pair_candidates`` when given, every coefficient re-optimised, each polish by
     ``method``). ``objective``: one of ``FULL_ORDER_CRITERIA``; "energy" and "output" take the
     scene's initial state over its time grid ("output" over the ``lowest`` modes' unit states
@@ -130,7 +174,7 @@ def full_order_scene(source, out, *, search: str, objective: str = "average_ener
     displacements at ``output_dofs``, "h2" unit forces at ``input_dofs``, "peak" the smooth
     peak of the displacement of ``dof`` over the scene's time grid.
     """
-    from .. import optimise_viscosities, place_dampers
+    from .. import Coefficients, CoordinateDescent, H2Norm, OutputEnergy
     from .figures import search_history
 
     if search not in ("viscosities", "places"):
@@ -146,43 +190,44 @@ def full_order_scene(source, out, *, search: str, objective: str = "average_ener
         raise ValueError(MARK + f"objective {objective!r} needs output_dofs (--output-dofs).")
     if objective == "h2" and inputs is None:
         raise ValueError(MARK + "objective 'h2' needs input_dofs (--input-dofs).")
-    kwargs = dict(lowest=lowest)
     free_vibration = objective in ("energy", "peak") or (objective == "output"
                                                           and lowest is None)
+    x0 = v0 = None
     if free_vibration:
         if scene.load is not None:
             raise ValueError(MARK + f"objective {objective!r} is the energy of a free vibration; "
                              f"scene {scene.name!r} has a load.")
-        kwargs.update(x0=scene.x0, v0=scene.v0, horizon=float(scene.ts[-1]))
-    if objective in ("output", "h2"):
-        kwargs.update(cx=cx)
-    if objective == "h2":
-        kwargs.update(inputs=inputs.T)
-    if objective == "peak":
-        if dof is None:
-            raise ValueError(MARK + "objective 'peak' needs dof (--dof).")
-        kwargs.update(dof=dof, ts=scene.ts, horizon=None)
+        x0, v0 = scene.x0, scene.v0
+    horizon = float(scene.ts[-1])
+    if objective == "peak" and dof is None:
+        raise ValueError(MARK + "objective 'peak' needs dof (--dof).")
+    goal = {"energy": lambda: Energy(horizon, x0, v0),
+            "average_energy": lambda: AverageEnergy(lowest),
+            "output": lambda: OutputEnergy(cx, None, x0, v0, lowest,
+                                           horizon if free_vibration else None),
+            "h2": lambda: H2Norm(None if inputs is None else inputs.T, cx),
+            "peak": lambda: Peak(dof, scene.ts, x0, v0)}[objective]()
     if search == "viscosities":
-        result = optimise_viscosities(system, objective, method=method, progress=progress,
-                                      **kwargs)
-        positions = np.asarray(system.damping.positions)
-        pairs = np.asarray(system.damping.pairs) + 1
+        result = optimise(DamperDesign(system, goal),
+                          Coefficients(method=method, progress=progress))
         history = [value for value, _ in result.history]
-        extra = dict(relative_gradient=result.relative_gradient, converged=result.converged,
-                     iterations=result.iterations, evaluations=result.evaluations)
+        extra = dict(relative_gradient=result.stats["relative_gradient"],
+                     converged=result.result == "converged",
+                     iterations=result.stats["iterations"],
+                     evaluations=result.stats["evaluations"])
     else:
-        result = place_dampers(system, objective, candidates=candidates,
-                               pair_candidates=pair_candidates, method=method,
-                               progress=progress, **kwargs)
-        positions, pairs = result.positions, result.pairs
+        grounded = system.damping.positions.shape[0] > 0
+        positions = (range(1, n + 1) if candidates is None else candidates) if grounded else None
+        design = DamperDesign(system, goal, positions=positions, pairs=pair_candidates)
+        result = optimise(design, CoordinateDescent(method=method, progress=progress))
         history = [value for *_, value in result.history] or [result.value]
-        extra = dict(sweeps=result.sweeps, evaluations=result.evaluations,
-                     polishes=result.polishes, moves=result.history)
+        extra = dict(sweeps=result.stats["sweeps"], evaluations=result.stats["evaluations"],
+                     polishes=result.stats["polishes"], moves=result.history)
     report = dict(scene=scene.name, search=search, objective=objective,
-                  result=dict(status=result.status, positions=positions,
-                              pairs=np.asarray(pairs).tolist(),
+                  result=dict(status=result.stats["status"], positions=result.positions,
+                              pairs=np.asarray(result.pairs).tolist(),
                               coefficients=result.coefficients, value=result.value,
-                              seconds=result.seconds, **extra))
+                              seconds=result.stats["seconds"], **extra))
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     label = "iteration" if search == "viscosities" else "accepted move"
