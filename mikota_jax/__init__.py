@@ -10,7 +10,7 @@ Every name loads its module on first use (PEP 562), so ``import mikota_jax`` and
 
 import os as _os
 import sys as _sys
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING as _TYPE_CHECKING
 
 from . import _interrupt
 
@@ -90,7 +90,7 @@ def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_CORE_NAMES) | set(_APP_NAMES) | set(_SUBMODULES))
 
 
-if TYPE_CHECKING:  # the same names for static tools (type checkers, the API reference)
+if _TYPE_CHECKING:  # the same names for static tools (type checkers, the API reference)
     from . import analytic as analytic
     from . import io as io
     from . import metrics as metrics
