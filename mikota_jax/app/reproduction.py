@@ -21,7 +21,9 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from .. import exact_solve, galerkin, mikota_chain, modal_decomposition, pod
+from .. import exact_solve, mikota_chain, modal_decomposition
+from .._galerkin import galerkin
+from .._pod import pod
 from ..analytic import mode_shape, paper_mode_shape
 from ..metrics import phase_error
 from . import figures
