@@ -1,4 +1,4 @@
-"""The a posteriori error bound (``error_bound``) and what is built on it (``greedy_reduce``,
+"""The a posteriori error bound (``error_bound``) and what is built on it (``Greedy``,
 ``rank_for_bound``): the bounds are never below the true errors (full exact solves), vanish for
 a complete basis, and certify what they claim; bad input fails in one line."""
 
@@ -9,6 +9,7 @@ import pytest
 import scipy.linalg
 
 import mikota_jax as mj
+from mikota_jax._pod import pod
 
 N = 40
 T = 20.0
@@ -39,7 +40,7 @@ def true_errors(system, basis, x0):
     ev = full[:, N:] - reduced[:, r:] @ b.T
     state = np.sqrt(np.einsum("ti,ij,tj->t", ex, k, ex) + np.einsum("ti,ij,tj->t", ev, m, ev))
     j = float(mj.integrated_energy(system, T, x0))
-    j_r = float(mj.integrated_energy(mj.galerkin(system, basis), T, x0))
+    j_r = float(mj.integrated_energy(mj.reduce(system, mj.Projection(basis)), T, x0))
     return abs(j - j_r), float(state.max()), j, j_r
 
 
@@ -48,7 +49,7 @@ def case():
     system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(7.0, 1.0)])
     x0 = jnp.zeros(N).at[2].set(1.0)
     states = _states(*(np.asarray(a) for a in system.dense()), np.asarray(x0), 0.01, 1001)
-    return system, x0, mj.pod(jnp.asarray(states[:, :N].T))
+    return system, x0, pod(jnp.asarray(states[:, :N].T))
 
 
 @pytest.mark.parametrize("rank", [pytest.param(8, marks=pytest.mark.slow), 16,
@@ -125,10 +126,11 @@ def test_greedy_basis_certifies_the_training_designs_and_holds_between_them():
     scene = small_scene()
     training = mj.grid(positions=np.linspace(1.0, 40.0, 4)[:, None],
                        coefficients=np.geomspace(0.1, 100.0, 3)[:, None])
-    result = mj.greedy_reduce(scene, training, 1e-3, step=4)
-    assert result.certified and result.rank <= N
-    assert result.bounds.max() <= 1e-3 and result.full_solves == len(result.history) - 1
-    assert result.history[-1][1] <= 1e-3 < result.history[0][1]
+    result = mj.reduce(scene, mj.Greedy(training, 1e-3, step=4))
+    stats = result.stats
+    assert stats.certified and result.rank <= N
+    assert max(stats.bounds) <= 1e-3 and stats.full_solves == len(stats.history) - 1
+    assert stats.history[-1][1] <= 1e-3 < stats.history[0][1]
     # designs off the training grid: the bound there holds against the full model
     rng = np.random.default_rng(0)
     for position, coefficient in zip(rng.uniform(1, 40, 3), 10 ** rng.uniform(-1, 2, 3)):
@@ -141,14 +143,14 @@ def test_greedy_basis_certifies_the_training_designs_and_holds_between_them():
 @pytest.mark.slow  # ~14 s, a compile per rank tried (default-run time: CI under 15 min)
 def test_rank_for_bound_is_the_smallest_rank_that_meets_the_tolerance(case):
     scene = small_scene()
-    pod = mj.reduce(mj.exact_solve(scene.system, scene.ts, scene.x0).displacement, scene.ts,
-                    mj.Reduction((0.0, 10.0), rank=1)).pod
+    pod = mj.reduce(scene, mj.POD((0.0, 10.0), rank=1)).stats.decomposition
     rank = mj.rank_for_bound(scene, pod, 1e-4)
     relative = [float(mj.error_bound(scene.system, pod.basis(r), T, scene.x0).relative)
                 for r in (rank - 1, rank)]
     assert relative[1] <= 1e-4 < relative[0]
     j = float(mj.integrated_energy(scene.system, T, scene.x0))
-    j_r = float(mj.integrated_energy(mj.galerkin(scene.system, pod.basis(rank)), T, scene.x0))
+    rom = mj.reduce(scene.system, mj.Projection(pod.basis(rank)))
+    j_r = float(mj.integrated_energy(rom, T, scene.x0))
     assert abs(j_r / j - 1) <= 1e-4
     with pytest.raises(ValueError, match="tolerance must be in"):
         mj.rank_for_bound(scene, pod, 2.0)

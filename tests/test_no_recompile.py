@@ -14,6 +14,7 @@ import jax
 import numpy as np
 
 import mikota_jax as mj
+from mikota_jax._pod import pod
 
 TRACE = "/jax/core/compile/jaxpr_trace_duration"
 BACKEND = "/jax/core/compile/backend_compile_duration"
@@ -103,14 +104,14 @@ def test_exact_solve_dense_path_traces_once():
 
 def test_reduced_model_and_pod_trace_once():
     q = np.random.default_rng(0).standard_normal((N, 23))  # a shape no other test uses
-    assert_traced_once(lambda: mj.pod(q), "_pod_svd",
-                       {"snapshots": lambda: mj.pod(2.0 * q[:, ::-1])})
-    basis = mj.pod(q).basis(6)
-    other = mj.pod(q[:, ::-1] + 0.1 * q).basis(6)
+    assert_traced_once(lambda: pod(q), "_pod_svd",
+                       {"snapshots": lambda: pod(2.0 * q[:, ::-1])})
+    basis = pod(q).basis(6)
+    other = pod(q[:, ::-1] + 0.1 * q).basis(6)
 
     def call(system, b=basis, x0=X0, v0=None, rtol=1e-8, atol=1e-10):
-        return mj.simulate(mj.galerkin(system, b), TS, x0, v0, dofs=[4, 9], solver="tsit5",
-                           rtol=rtol, atol=atol)
+        return mj.simulate(mj.reduce(system, mj.Projection(b)), TS, x0, v0, dofs=[4, 9],
+                           solver="tsit5", rtol=rtol, atol=atol)
 
     changes = solver_changes(call)
     changes["basis"] = lambda: call(chain(), b=other)

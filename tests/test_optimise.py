@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
+from mikota_jax._pod import pod
 from mikota_jax._search import (
     _init,
     _step,
@@ -80,7 +81,7 @@ def test_gradient_near_zero_coefficient_is_finite_and_matches_differences():
 def test_truncated_basis_gradient_differs_from_the_full_one_by_the_rom_error():
     p = problem()
     snapshots = mj.simulate(p.system(p.positions, p.coefficients), p.ts, p.x0).displacement
-    basis = mj.pod(snapshots.T).basis(6)
+    basis = pod(snapshots.T).basis(6)
     reduced = jax.grad(mj.placement_objective(p, basis), argnums=1)(p.positions, p.coefficients)
     full = jax.grad(mj.placement_objective(p), argnums=1)(p.positions, p.coefficients)
     exact = jax.grad(mj.placement_objective(p, full_basis()), argnums=1)(p.positions,
@@ -196,7 +197,7 @@ def test_certification_enriches_a_poor_basis_until_the_models_agree(capsys):
         assert phase in printed, phase
     assert result.certified, result.status
     assert result.rom_error <= 1e-6 and result.gradient_error <= 1e-6
-    first_rank = mj.pod(mj.simulate(p.system(p.positions, p.coefficients), p.ts,
+    first_rank = pod(mj.simulate(p.system(p.positions, p.coefficients), p.ts,
                                     p.x0).displacement.T).rank_for_energy(0.9)
     assert result.rank > first_rank
 

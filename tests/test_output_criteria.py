@@ -166,7 +166,7 @@ def test_a_reduced_models_output_energy_and_h2_are_its_own_lyapunov_solutions(cl
     # first-order system, outputs and inputs projected on the basis
     system = two_dampers()
     basis = np.linalg.qr(RNG.standard_normal((N, 6)))[0]
-    rom = mj.galerkin(system, basis)
+    rom = mj.reduce(system, mj.Projection(basis))
     m, d, k = (np.asarray(a) for a in rom.system.dense())
     cx, cv = CX @ basis, CV @ basis
     impulses = np.concatenate([np.zeros((6, 2)), np.linalg.solve(m, basis.T @ B)])
@@ -176,7 +176,7 @@ def test_a_reduced_models_output_energy_and_h2_are_its_own_lyapunov_solutions(cl
     close(mj.output_energy(rom, CX, CV, x0=X0, v0=V0),
           lyapunov_output(rom.system, cx, cv, states @ states.T), rtol=1e-9)
     # differentiable: the H2 norm's derivative in the grounded coefficient, central differences
-    h2 = lambda c: mj.h2_norm(mj.galerkin(two_dampers(c), basis), B, CX, CV)  # noqa: E731
+    h2 = lambda c: mj.h2_norm(mj.reduce(two_dampers(c), mj.Projection(basis)), B, CX, CV)  # noqa: E731
     step = 1e-4 * 20.0
     close(jax.grad(h2)(20.0), (h2(20.0 + step) - h2(20.0 - step)) / (2 * step), rtol=1e-6)
 
@@ -184,14 +184,14 @@ def test_a_reduced_models_output_energy_and_h2_are_its_own_lyapunov_solutions(cl
 @pytest.mark.slow  # ~30 s: three spectral compiles of the full model
 def test_a_reduced_model_on_a_complete_basis_gives_the_full_models_criteria(close):
     system = two_dampers()
-    rom = mj.galerkin(system, np.linalg.qr(RNG.standard_normal((N, N)))[0])
+    rom = mj.reduce(system, mj.Projection(np.linalg.qr(RNG.standard_normal((N, N)))[0]))
     close(mj.h2_norm(rom, B, CX, CV), mj.h2_norm(system, B, CX, CV), rtol=1e-9)
     close(mj.output_energy(rom, CX, CV, x0=X0, v0=V0, horizon=3.0),
           mj.output_energy(system, CX, CV, x0=X0, v0=V0, horizon=3.0), rtol=1e-9)
     close(mj.output_energy(rom, CX, CV, lowest=4), mj.output_energy(system, CX, CV, lowest=4),
           rtol=1e-9)
     with pytest.raises(ValueError, match="lowest"):
-        mj.output_energy(mj.galerkin(system, np.eye(N)[:, :5]), CX, lowest=6)
+        mj.output_energy(mj.reduce(system, mj.Projection(np.eye(N)[:, :5])), CX, lowest=6)
 
 
 @pytest.mark.slow  # ~1 min: 300 intervals of adaptive quadrature
