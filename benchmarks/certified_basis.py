@@ -67,7 +67,7 @@ def state_errors(scene, basis, design) -> tuple[float, float]:
     system = mj.SceneFunction(scene, "energy").system(
         {k: jnp.asarray(v) for k, v in design.items()})
     full = mj.exact_solve(system, scene.ts, scene.x0, velocity=True)
-    rom = mj.exact_solve(mj.galerkin(system, basis), scene.ts, scene.x0, velocity=True)
+    rom = mj.exact_solve(mj.reduce(system, mj.Projection(basis)), scene.ts, scene.x0, velocity=True)
     ex = np.asarray(full.displacement - rom.displacement)
     ev = np.asarray(full.velocity - rom.velocity)
     kx = np.stack([np.asarray(system.stiffness.mv(jnp.asarray(row))) for row in ex])
@@ -121,10 +121,11 @@ def main(argv=None) -> dict:
     coefficients = np.geomspace(0.1, 1000.0, 3 if args.quick else 7)
     training = mj.grid(positions=positions[:, None], coefficients=coefficients[:, None])
     start = time.perf_counter()
-    greedy = mj.greedy_reduce(scene, training, TOLERANCE, step=STEP, progress=True,
-                              max_rank=150 if args.quick else MAX_RANK)
+    greedy = mj.reduce(scene, mj.Greedy(training, TOLERANCE, step=STEP, progress=True,
+                                        max_rank=150 if args.quick else MAX_RANK))
     offline = elapsed(start)
-    print(f"greedy: r = {greedy.rank}, certified {greedy.certified}, {greedy.full_solves} full "
+    print(f"greedy: r = {greedy.rank}, certified {greedy.stats.certified}, "
+          f"{greedy.stats.full_solves} full "
           f"solves, {offline:.1f} s", flush=True)
 
     points = random_designs(50 if args.quick else RANDOM)
@@ -144,14 +145,13 @@ def main(argv=None) -> dict:
                            coefficient=float(design["coefficients"][0]), true=t, bound=b))
 
     reduction = scene.reduction
-    states = mj.exact_solve(scene.system, scene.ts, scene.x0).displacement
-    pod = mj.reduce(states, scene.ts, mj.Reduction(reduction.window, rank=1)).pod
+    pod = mj.reduce(scene, mj.POD(reduction.window, rank=1)).stats.decomposition
     paper_rank = pod.rank_for_energy(reduction.energy, reduction.criterion)
     bound_rank = mj.rank_for_bound(scene, pod, TOLERANCE)
     j_full = float(mj.integrated_energy(scene.system, float(scene.ts[-1]), scene.x0))
     rank_rule = {}
     for label, r in (("energy", paper_rank), ("bound", bound_rank)):
-        j_r = float(mj.integrated_energy(mj.galerkin(scene.system, pod.basis(r)),
+        j_r = float(mj.integrated_energy(mj.reduce(scene.system, mj.Projection(pod.basis(r))),
                                          float(scene.ts[-1]), scene.x0))
         b = mj.error_bound(scene.system, pod.basis(r), float(scene.ts[-1]), scene.x0)
         rank_rule[label] = dict(rank=int(r), true=abs(j_r / j_full - 1),

@@ -55,6 +55,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 import mikota_jax as mj
+from mikota_jax.testing import pod
 
 NAME = "gradients"
 SCENE = "section5_damped"
@@ -91,7 +92,7 @@ def objectives(n, ts, x0):
 
     def reduced_system(p, c, basis):
         system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(p, c)])
-        return mj.galerkin(system, basis).system
+        return mj.reduce(system, mj.Projection(basis)).system
 
     def simulated(p, c, rtol, atol, basis, adjoint=None):
         red = reduced_system(p, c, basis)
@@ -101,8 +102,8 @@ def objectives(n, ts, x0):
 
     def lifted(p, c, rtol, atol, basis):  # the same J from all 300 lifted DOFs (a check)
         system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(p, c)])
-        out = mj.simulate(mj.galerkin(system, basis), ts, x0, displacement=True, velocity=True,
-                          rtol=rtol, atol=atol, max_steps=MAX_STEPS)
+        out = mj.simulate(mj.reduce(system, mj.Projection(basis)), ts, x0, displacement=True,
+                          velocity=True, rtol=rtol, atol=atol, max_steps=MAX_STEPS)
         return full_energy(system, out.displacement, out.velocity, ts)
 
     def exact(p, c, basis):
@@ -240,7 +241,7 @@ def main(argv=None) -> dict:
     mask = (ts_np >= window[0] - 1e-9) & (ts_np <= window[1] + 1e-9)
     start = time.perf_counter()
     snapshots = np.asarray(mj.exact_solve(system, ts, x0).displacement)[mask].T  # (n, m)
-    decomposition = mj.pod(snapshots)
+    decomposition = pod(snapshots)
     offline_s = elapsed(start)
     simulated, lifted, exact, full = objectives(n, ts, x0)
     p, c = DESIGN

@@ -56,11 +56,9 @@ def main(argv=None) -> dict:
     options = {"modes": FINE_MODES, "basis_moments": 2}
     seed = None
     if args.seed_modes:  # the scene's own POD (as the default start) + the lowest modes
-        states = mj.exact_solve(scene.system, scene.ts, scene.x0, scene.v0).displacement
-        pod = mj.reduce(states, scene.ts, scene.reduction).basis
-        seed = mj.extend_basis(pod, mj.modal_basis(scene.system, args.seed_modes))
-    result = mj.greedy_reduce(scene, training, TOL, basis=seed, step=STEP, hierarchical=options,
-                              progress=True)
+        seed = mj.reduce(scene, mj.Union(scene.reduction, mj.Modal(args.seed_modes))).basis
+    result = mj.reduce(scene, mj.Greedy(training, TOL, start=seed, step=STEP,
+                                        hierarchical=options, progress=True))
     greedy_s = elapsed(start)
     print(f"greedy: r = {result.rank} (+ 4 moment columns per design), certified "
           f"{result.certified}, {result.full_solves} full solves, {greedy_s:.0f} s", flush=True)

@@ -46,8 +46,8 @@ class Scene(eqx.Module):
     x0: Vector | None
     v0: Vector | None
     load: Pulse | None
-    reduction: POD | None = eqx.field(static=True)
-    output: Output = eqx.field(static=True)
+    reduction: POD | None = eqx.field(static=True, default=None)
+    output: Output = eqx.field(static=True, default=Output(None, ("displacement",)))
     solver: str = eqx.field(static=True, default="exact")
     rtol: float = eqx.field(static=True, default=1e-10)
     atol: float = eqx.field(static=True, default=1e-12)
