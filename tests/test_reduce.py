@@ -216,7 +216,9 @@ def test_grad_and_vmap_pass_through_a_structural_reduction():
         return mj.integrated_energy(model, 5.0, x0, method="dense")
 
     c = 2.0
-    h = 1e-6 * c  # ~sqrt(eps) x scale
+    # the dense energy carries ~1e-11 relative rounding (Van Loan step and doublings), so the
+    # step is 1e-4 x scale, not sqrt(eps) x scale (as tests/test_docs.py): truncation ~1e-8
+    h = 1e-4 * c
     central = (float(energy(c + h)) - float(energy(c - h))) / (2 * h)
     assert float(jax.grad(energy)(c)) == pytest.approx(central, rel=1e-6)
     values = jax.vmap(energy)(jnp.array([0.5, 2.0]))
@@ -234,3 +236,16 @@ def test_a_users_strategy_subclasses_abstract_reduction():
     model = mj.reduce(damped(), FirstUnitVectors(3))
     assert model.stats.strategy == "FirstUnitVectors" and model.rank == 3
     same(model.system.dense()[0], np.asarray(damped().dense()[0])[:3, :3])
+
+
+@pytest.mark.slow  # two greedy runs (~1 min each): a full solve and a compile per iteration
+def test_greedy_is_the_greedy_basis():
+    from mikota_jax._greedy import greedy_reduce
+
+    s = scene(rank=3)
+    training = mj.grid(positions=np.array([[2.0], [9.0]]), coefficients=np.array([[0.1], [5.0]]))
+    found = greedy_reduce(s, training, 1e-3, step=3, max_rank=9)
+    model = mj.reduce(s, mj.Greedy(training, 1e-3, step=3, max_rank=9))
+    same(model.basis, found.basis)
+    assert (model.rank, model.stats.certified, model.stats.full_solves, model.stats.history) == (
+        found.rank, found.certified, found.full_solves, found.history)
