@@ -37,7 +37,8 @@ DESIGN = ("positions", "coefficients")
 
 def reduce(problem, strategy: AbstractReduction) -> ReducedModel:
     """The reduced model of ``problem`` by ``strategy``: Phi^T M Phi q'' + Phi^T D Phi q' +
-    Phi^T K Phi q = Phi^T f (eq. 3.4) on the strategy's basis Phi, x ~ Phi q (eq. 3.2).
+    Phi^T K Phi q = Phi^T f (eq. 3.4) on the strategy's (n, r) orthonormal basis Phi, x ~ Phi q
+    (eq. 3.2).
 
     ``problem``: a ``SecondOrderSystem`` or a ``Scene``; ``strategy``: an ``AbstractReduction``
     (``Modal(10)``, ``POD(energy=0.9999)``, ...). The result's ``stats`` says what the reduction
@@ -77,6 +78,7 @@ class Modal(AbstractReduction):
     rank: int = eqx.field(static=True)
 
     def basis(self, problem):
+        """(n, r) the r lowest undamped modes, orthonormal, and the stats."""
         system = problem_system(problem, "Modal")
         return modal_basis(system, self.rank), ReductionStats("Modal", self.rank,
                                                               modes=self.rank)
@@ -116,6 +118,7 @@ class ModalStatic(AbstractReduction):
     states: jax.Array | None = None
 
     def basis(self, problem):
+        """(n, r) modes and static directions, orthonormal, and the stats (``modes``)."""
         system = problem_system(problem, "ModalStatic")
         _check(system, self.rank)
         extra = self.moments * ((damper_directions(system).shape[1] if self.dampers else 0)
@@ -140,6 +143,7 @@ class CraigBampton(AbstractReduction):
     states: jax.Array | None = None
 
     def basis(self, problem):
+        """(n, r) held modes and static directions, orthonormal, and the stats."""
         from ._classic import _damper_weights
 
         system = problem_system(problem, "CraigBampton")
@@ -175,6 +179,7 @@ class Krylov(AbstractReduction):
     dampers: bool = eqx.field(static=True, default=False)
 
     def basis(self, problem):
+        """(n, r) the Krylov basis of the inputs, orthonormal, and the stats."""
         system = problem_system(problem, "Krylov")
         basis = krylov_basis(system, self.rank, _inputs(system, self.inputs, self.dampers))
         basis = _exact_rank("Krylov", basis, self.rank,
@@ -198,6 +203,7 @@ class RationalKrylov(AbstractReduction):
         self.shifts, self.inputs, self.dampers = shifts, inputs, dampers
 
     def basis(self, problem):
+        """(n, r) the responses at the shifts, orthonormal, and the stats (``shifts``)."""
         from ._interpolatory import band_shifts, rational_krylov_basis
 
         system = problem_system(problem, "RationalKrylov")
@@ -224,6 +230,7 @@ class IRKA(AbstractReduction):
     dampers: bool = eqx.field(static=True, default=False)
 
     def basis(self, problem):
+        """(n, r) the IRKA-type basis, orthonormal, and the stats (iterations, convergence)."""
         from ._interpolatory import irka_basis
 
         system = problem_system(problem, "IRKA")
@@ -248,6 +255,7 @@ class Projection(AbstractReduction):
         self.matrix = jnp.asarray(basis)
 
     def basis(self, problem):
+        """(n, r) the given basis (checked against the problem's n) and the stats."""
         system = problem_system(problem, "Projection")
         return (check_basis(self.matrix, system.size),
                 ReductionStats("Projection", self.matrix.shape[1]))
@@ -267,6 +275,7 @@ class Union(AbstractReduction):
         self.strategies = tuple(strategies)
 
     def basis(self, problem):
+        """(n, r) the strategies' bases united in order, orthonormal, and the stats (``parts``)."""
         system = problem_system(problem, "Union")
         bases, parts = [], []
         for strategy in self.strategies:
@@ -294,6 +303,7 @@ class EnrichedPOD(AbstractReduction):
     energy: float | None = eqx.field(static=True, default=None)
 
     def basis(self, problem):
+        """(n, r) the enriched POD basis of the scene and the stats (``decomposition``)."""
         from ._enrichment import enriched_reduce
 
         scene = problem_scene(problem, "EnrichedPOD")
@@ -318,6 +328,7 @@ class Greedy(AbstractReduction):
     progress: bool = eqx.field(static=True, default=False)
 
     def basis(self, problem):
+        """(n, r) the greedy basis of the scene and the stats (the certificate)."""
         from ._greedy import greedy_reduce
 
         scene = problem_scene(problem, "Greedy")

@@ -106,7 +106,7 @@ def problem_scene(problem, strategy: str):
 
 
 class POD(AbstractReduction):
-    """Snapshot POD (eqs. 3.5-3.8): the snapshots of the scene's full solve in ``window``
+    """Snapshot POD (eqs. 3.5-3.8): the (n, m) snapshots of the scene's full solve in ``window``
     (t0, t1) (None: the whole grid), of ``quantity`` ("displacement", the paper's choice, or
     "velocity"); the rank is ``rank`` if given (it wins over ``energy``), else the smallest
     whose pseudo-energy fraction (eq. 3.7, under ``criterion``: "squared" or "paper") reaches
@@ -151,6 +151,8 @@ class POD(AbstractReduction):
                              "leading modes).")
 
     def basis(self, problem):
+        """(n, r) the first r POMs of the scene's (n, m) snapshot matrix (eq. 3.8), and the
+        stats (``decomposition``, ``snapshots``)."""
         from ._run import solve_scene
 
         scene = problem_scene(problem, "POD")
