@@ -3,7 +3,7 @@
 The Section 5 scene (Mikota n = 300, x_3(0) = 1, free vibration, J = int_0^20 energy dt); the
 design is the grounded damper's (position p in [1, 300], coefficient c in [0.1, 1000]).
 
-1. ``greedy_reduce`` from the scene's own POD over a training grid of 30 positions x 7
+1. ``Greedy`` (``reduce``) from the scene's own POD over a training grid of 30 positions x 7
    coefficients (log), tolerance 1e-4 on the bound of |J - J_r| / J, 30 modes per iteration, at
    most r = 250: its history (rank, largest bound), full solves and offline time.
 2. 300 random designs (seed 0; p uniform, log10 c uniform): the bound there (``BoundFunction``

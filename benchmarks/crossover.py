@@ -42,12 +42,12 @@ Per n, one process, compile time apart from run time (``Compiled``), run time = 
   the baseline. Dopri8 is not run at the random designs (a strong damper near the free end makes
   it stiff); its sweep is 1000 x its nominal time, a lower bound. The J alone is reported beside,
   a lower bound on any Dopri8 gradient (which needs at least one more solve).
-* **Reductions**: POD (the paper's), sensitivity-enriched POD (``enriched_reduce``), modal
-  truncation, modal + static correction (r - 2 modes + the split damper's two static directions),
-  modal + 2 moments (r - 4 modes + K^-1 b and K^-1 M K^-1 b of both: ``modal_static_basis(...,
-  moments=2)``), second-order Krylov (SOAR; inputs M x0 and the damper directions), built as
-  ``reductions.py`` builds them, and Craig-Bampton with the start kept (r - 7 modes held at the
-  damper + 3 moments of its two DOFs + x0: ``craig_bampton_basis(system, r - 7, states=x0)``, the
+* **Reductions**: POD (the paper's), sensitivity-enriched POD (``EnrichedPOD``), modal
+  truncation, modal + static correction (modes + the split damper's two static directions, r in
+  all: ``ModalStatic(r)``), modal + 2 moments (modes + K^-1 b and K^-1 M K^-1 b of both:
+  ``ModalStatic(r, moments=2)``), second-order Krylov (SOAR; inputs M x0 and the damper
+  directions), built as ``reductions.py`` builds them, and Craig-Bampton with the start kept (modes
+  held at the damper + 3 moments of its two DOFs + x0: ``CraigBampton(r, states=x0)``, the
   basis that holds the Section 5 gradients, ``rom_gradients.py``), at the nominal design. Rank: the
   smallest r whose ROM J is within TOL = 1e-4 (relative) of the full J at the nominal design, found
   by a ladder r = 16, 16 * 1.4, ... (up to min(n, 400, the POD's numerical rank): a ROM query at r =

@@ -3,7 +3,7 @@ how small a fixed basis (+ the design's two damper moments) the greedy finds, ag
 hand-picked POD + 40 modes of ``benchmarks/hierarchical.py``.
 
 The scene: Mikota n = 300, x_3(0) = 1, J = the energy integrated over [0, 20]; training designs:
-every TRAIN_STEP-th DOF from 1 to 300 x c in {0.1, 1, 10, 100, 1000}. ``greedy_reduce(scene,
+every TRAIN_STEP-th DOF from 1 to 300 x c in {0.1, 1, 10, 100, 1000}. ``reduce(scene, Greedy(
 training, 1e-4, step=STEP, hierarchical={"modes": FINE_MODES, "basis_moments": 2})``, starting
 from the scene's own POD (its 99 % rank, r = 76): per iteration the estimate at every training
 design (no full solve), one full solve at the worst, STEP modes of its trajectory's part outside

@@ -5,7 +5,7 @@ J = the scene's time-integrated energy; the design is the grounded damper's (pos
 coefficient c) on a grid spanning the chain (p = 7 .. 290) and the coefficient range (0.1 ..
 1000). At every design: the full model's dJ/dp, dJ/dc (``sensitivities``, spectral path) and the
 ROM's on a basis built *at that design*, (a) plain POD of the states (``reduce``) and (b) the
-sensitivity-enriched POD (``enriched_reduce``: states and their forward-mode derivatives in p and
+sensitivity-enriched POD (``EnrichedPOD``: states and their forward-mode derivatives in p and
 c, each block weighted to the states' norm), both at the paper's r = 98 and at each basis' own
 99.99 % rank (the paper's criterion), and (c) no snapshots: the 94 lowest undamped modes and two
 static moments of the damper directions (``modal_static_basis(system, 94, moments=2)``, r <= 98),

@@ -30,7 +30,7 @@ HISTORIES = ("displacement", "velocity")
 OUTPUTS: dict[str, Callable[[SceneResult], dict]] = {
     "singular_values": lambda r: {"singular_values": r.model.stats.singular_values},
     "rank": lambda r: {"rank": r.model.rank},
-    "modes": lambda r: {"modes": r.basis.basis.T},
+    "modes": lambda r: {"modes": r.model.basis.T},
     "phase_error": lambda r: {"phase_error": float(r.metrics["phase_error"]),
                               "phase_error_aggregate": r.scene.output.phase_error},
     "relative_error": lambda r: {"relative_error": float(r.metrics["relative_error"])},
