@@ -71,6 +71,13 @@ def _exact_rank(strategy: str, basis, rank: int, why: str):
     return basis
 
 
+def _complex_tuple(values):
+    """Shifts as a hashable tuple of Python complex numbers (None stays None)."""
+    if values is None:
+        return None
+    return tuple(complex(z) for z in np.atleast_1d(np.asarray(values)))
+
+
 class Modal(AbstractReduction):
     """Modal truncation: the ``rank`` lowest undamped modes, orthonormalised. Pure JAX (O(n r)
     for a fixed-free chain of n >= 256): ``jit``, ``vmap`` and ``grad`` pass through."""
@@ -199,7 +206,7 @@ class RationalKrylov(AbstractReduction):
 
     def __init__(self, shifts, inputs=None, dampers: bool = False):
         if not isinstance(shifts, int) or isinstance(shifts, bool):
-            shifts = tuple(complex(z) for z in np.atleast_1d(np.asarray(shifts)))
+            shifts = _complex_tuple(shifts)
         self.shifts, self.inputs, self.dampers = shifts, inputs, dampers
 
     def basis(self, problem):
@@ -226,7 +233,8 @@ class IRKA(AbstractReduction):
     horizon: float = eqx.field(static=True, default=1.0)
     iterations: int = eqx.field(static=True, default=30)
     tolerance: float = eqx.field(static=True, default=1e-6)
-    shifts: tuple[complex, ...] | None = eqx.field(static=True, default=None)
+    shifts: tuple[complex, ...] | None = eqx.field(static=True, default=None,
+                                                   converter=lambda z: _complex_tuple(z))
     dampers: bool = eqx.field(static=True, default=False)
 
     def basis(self, problem):
@@ -297,7 +305,7 @@ class EnrichedPOD(AbstractReduction):
     weighted to ||X||_F; the rank is ``rank``, else the smallest reaching ``energy`` (default
     the scene's rule). Stats: ``decomposition``, ``snapshots`` (Q's columns)."""
 
-    wrt: tuple[str, ...] = eqx.field(static=True, default=DESIGN)
+    wrt: tuple[str, ...] = eqx.field(static=True, default=DESIGN, converter=tuple)
     parameters: dict | None = None
     rank: int | None = eqx.field(static=True, default=None)
     energy: float | None = eqx.field(static=True, default=None)
