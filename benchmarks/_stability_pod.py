@@ -21,6 +21,7 @@ import numpy as np  # noqa: E402
 import scipy.linalg  # noqa: E402
 
 import mikota_jax as mj  # noqa: E402
+from mikota_jax.testing import pod  # noqa: E402
 
 EDGES, INVARIANTS = "POD edge cases", "Invariants (hypothesis)"
 ENERGIES = (0.5, 0.9, 0.99, 0.9999, 1 - 1e-8, 1 - 1e-12, 1 - 1e-14, 1.0)
@@ -57,7 +58,7 @@ def edge_rows() -> list[dict]:
     shape = np.asarray(mj.analytic.mode_shape(n, 1))
     q = mj.solve(mj.mikota_chain(n), ts, shape, method=mj.DenseExponential()).displacement.T
     for method in ("svd", "snapshots"):
-        result = mj.pod(q, method=method)
+        result = pod(q, method=method)
         s = np.asarray(result.singular_values)
         pom = np.max(np.abs(np.asarray(result.modes[:, 0]) - shape / np.linalg.norm(shape)))
         ranks = {result.rank_for_energy(e, c) for e in ENERGIES for c in ("squared", "paper")}
@@ -66,16 +67,16 @@ def edge_rows() -> list[dict]:
             f"numerical rank {result.numerical_rank()}, r(e) = {sorted(ranks)} for e in 0.5..1 "
             f"(both criteria), |POM_1 - u_1/|u_1|| = {pom:.0e}",
             "test_a_single_mode_excitation_gives_rank_one_with_the_mode_shape_as_first_pom")
-    result = mj.pod(q)
+    result = pod(q)
     row("rank 2 requested of rank-1 snapshots", _error(lambda: result.basis(2)),
         "test_a_rank_above_the_numerical_rank_is_refused_eagerly_for_every_method")
-    row("the same under jax.jit", _error(lambda: jax.jit(lambda q: mj.pod(q).basis(2))(q)),
+    row("the same under jax.jit", _error(lambda: jax.jit(lambda q: pod(q).basis(2))(q)),
         "test_a_rank_above_the_numerical_rank_is_refused_under_jit")
 
     # exact rank 3 of 8: energies up to 1
     rng = np.random.default_rng(2)
     u, v = _orthonormal(8, 8, rng), _orthonormal(40, 8, rng)
-    exact3 = mj.pod(u @ np.diag([3.0, 2.0, 1.0, 0, 0, 0, 0, 0]) @ v.T)
+    exact3 = pod(u @ np.diag([3.0, 2.0, 1.0, 0, 0, 0, 0, 0]) @ v.T)
     paper = [exact3.rank_for_energy(e, "paper") for e in ENERGIES]
     row("Q of exact rank 3 (8 x 40): energy e -> 1",
         f"numerical rank {exact3.numerical_rank()} of 8 values; r(e) = {paper} for "
@@ -86,7 +87,7 @@ def edge_rows() -> list[dict]:
     row("energy = 0, 1 + 1e-15, NaN",
         f"{len(refused)} of 3 refused: {_error(lambda: exact3.rank_for_energy(float('nan')))}",
         "test_energies_outside_0_1_are_refused_by_full_and_truncated_pods")
-    zero = mj.pod(np.zeros((4, 7)))
+    zero = pod(np.zeros((4, 7)))
     row("all-zero snapshots (a chain at rest)",
         f"numerical rank {zero.numerical_rank()}; basis(1): {_error(lambda: zero.basis(1))}",
         "test_all_zero_snapshots_have_rank_zero_and_give_no_basis")
@@ -95,7 +96,7 @@ def edge_rows() -> list[dict]:
     s = np.array([3.0, 2.0, 2.0, 2.0, 1.0, 1.0, 0.5])
     u, v = _orthonormal(9, 7, rng), _orthonormal(25, 7, rng)
     for method in ("svd", "snapshots"):
-        result = mj.pod(u @ np.diag(s) @ v.T, method=method)
+        result = pod(u @ np.diag(s) @ v.T, method=method)
         modes = np.asarray(result.modes)
         projector = max(np.max(np.abs(modes[:, c] @ modes[:, c].T - u[:, c] @ u[:, c].T))
                         for c in (slice(0, 1), slice(1, 4), slice(4, 6), slice(6, 7)))
@@ -108,12 +109,12 @@ def edge_rows() -> list[dict]:
     n = 7
     system = mj.mikota_chain(n)
     x0 = np.linspace(0.2, 1.0, n) ** 2
-    result = mj.pod(mj.solve(system, jnp.zeros(1), x0,
+    result = pod(mj.solve(system, jnp.zeros(1), x0,
                              method=mj.DenseExponential()).displacement.T)
     M, _, K = (np.asarray(a) for a in system.dense())
     omega = np.sqrt(x0 @ K @ x0 / (x0 @ M @ x0))
     ts = np.linspace(0.0, 10.0, 101)
-    rom = mj.solve(mj.galerkin(system, result.basis(1)), ts, x0,
+    rom = mj.solve(mj.reduce(system, mj.Projection(result.basis(1))), ts, x0,
                    method=mj.DenseExponential()).displacement
     rom_error = np.max(np.abs(rom - np.cos(omega * ts)[:, None] * x0))
     row("one-sample window (Q is 7 x 1)",
@@ -128,7 +129,7 @@ def edge_rows() -> list[dict]:
     exact = mj.solve(one, ts, np.array([0.3]), method=mj.DenseExponential()).displacement
     simulated = mj.solve(one, ts, np.array([0.3]),
                          method=mj.ODE(rtol=1e-12, atol=1e-14)).displacement
-    reduced = mj.solve(mj.galerkin(one, mj.pod(exact.T).basis(1)), ts, np.array([0.3]),
+    reduced = mj.solve(mj.reduce(one, mj.Projection(pod(exact.T).basis(1))), ts, np.array([0.3]),
                        method=mj.DenseExponential()).displacement
     error = {name: np.max(np.abs(np.asarray(out) - truth))
              for name, out in (("exact", exact), ("simulate", simulated), ("rom", reduced))}
@@ -146,11 +147,11 @@ def edge_rows() -> list[dict]:
     for case, b in bad.items():
         gram = np.max(np.abs(b.T @ b - np.eye(b.shape[1])))
         row(f"Galerkin basis with {case} (max |B^T B - I| = {gram:.0e})",
-            _error(lambda b=b: mj.galerkin(chain, jnp.asarray(b))),
+            _error(lambda b=b: mj.reduce(chain, mj.Projection(jnp.asarray(b)))),
             "test_a_singular_or_non_orthonormal_basis_is_refused_eagerly")
     row("the same (columns scaled by 2) under jax.jit",
-        _error(lambda: jax.jit(lambda b: mj.galerkin(chain, b).system.mass.as_matrix())(
-            jnp.asarray(2.0 * basis))),
+        _error(lambda: jax.jit(lambda b: mj.reduce(chain, mj.Projection(b)).system.mass
+                               .as_matrix())(jnp.asarray(2.0 * basis))),
         "test_a_non_orthonormal_basis_is_refused_under_jit_and_vmap")
     return rows
 
@@ -190,15 +191,15 @@ def invariant_rows(cases: int = 20, n: int = 5) -> list[dict]:
         e = _energy(undamped, mj.solve(undamped, ts, x0, v0, velocity=True,
                                        method=mj.DenseExponential()))
         worst["drift"] = max(worst["drift"], np.max(np.abs(e - e[0])) / e[0])
-        reduced = mj.solve(mj.galerkin(damped, jnp.asarray(_orthonormal(n, n, rng))), ts, x0, v0,
-                           velocity=True, method=mj.DenseExponential())
+        rom = mj.reduce(damped, mj.Projection(jnp.asarray(_orthonormal(n, n, rng))))
+        reduced = mj.solve(rom, ts, x0, v0, velocity=True, method=mj.DenseExponential())
         for quantity in ("displacement", "velocity"):
             reference = np.asarray(getattr(full, quantity))
             worst["galerkin"] = max(worst["galerkin"], np.max(np.abs(
                 np.asarray(getattr(reduced, quantity)) - reference)) / np.max(np.abs(reference)))
         r = int(rng.integers(1, n))
-        Mr, _, Kr = (np.asarray(a) for a in mj.galerkin(
-            undamped, jnp.asarray(_orthonormal(n, r, rng))).system.dense())
+        rom = mj.reduce(undamped, mj.Projection(jnp.asarray(_orthonormal(n, r, rng))))
+        Mr, _, Kr = (np.asarray(a) for a in rom.system.dense())
         Ms, _, Ks = (np.asarray(a) for a in undamped.dense())
         lam = scipy.linalg.eigh(Ks, Ms, eigvals_only=True)
         mu = scipy.linalg.eigh(Kr, Mr, eigvals_only=True)

@@ -3,7 +3,7 @@
 The Section 5 scene (Mikota n = 300, x_3(0) = 1, free vibration, J = int_0^20 energy dt); the
 design is the grounded damper's (position p in [1, 300], coefficient c in [0.1, 1000]).
 
-1. ``greedy_reduce`` from the scene's own POD over a training grid of 30 positions x 7
+1. ``Greedy`` (``reduce``) from the scene's own POD over a training grid of 30 positions x 7
    coefficients (log), tolerance 1e-4 on the bound of |J - J_r| / J, 30 modes per iteration, at
    most r = 250: its history (rank, largest bound), full solves and offline time.
 2. 300 random designs (seed 0; p uniform, log10 c uniform): the bound there (``BoundFunction``
@@ -67,7 +67,7 @@ def state_errors(scene, basis, design) -> tuple[float, float]:
     system = mj.SceneFunction(scene, "energy").system(
         {k: jnp.asarray(v) for k, v in design.items()})
     full = mj.solve(system, scene.ts, scene.x0, velocity=True, method=mj.Spectral())
-    rom = mj.solve(mj.galerkin(system, basis), scene.ts, scene.x0, velocity=True,
+    rom = mj.solve(mj.reduce(system, mj.Projection(basis)), scene.ts, scene.x0, velocity=True,
                    method=mj.DenseExponential())
     ex = np.asarray(full.displacement - rom.displacement)
     ev = np.asarray(full.velocity - rom.velocity)
@@ -123,10 +123,11 @@ def main(argv=None) -> dict:
     coefficients = np.geomspace(0.1, 1000.0, 3 if args.quick else 7)
     training = mj.grid(positions=positions[:, None], coefficients=coefficients[:, None])
     start = time.perf_counter()
-    greedy = mj.greedy_reduce(scene, training, TOLERANCE, step=STEP, progress=True,
-                              max_rank=150 if args.quick else MAX_RANK)
+    greedy = mj.reduce(scene, mj.Greedy(training, TOLERANCE, step=STEP, progress=True,
+                                        max_rank=150 if args.quick else MAX_RANK))
     offline = elapsed(start)
-    print(f"greedy: r = {greedy.rank}, certified {greedy.certified}, {greedy.full_solves} full "
+    print(f"greedy: r = {greedy.rank}, certified {greedy.stats.certified}, "
+          f"{greedy.stats.full_solves} full "
           f"solves, {offline:.1f} s", flush=True)
 
     points = random_designs(50 if args.quick else RANDOM)
@@ -146,15 +147,14 @@ def main(argv=None) -> dict:
                            coefficient=float(design["coefficients"][0]), true=t, bound=b))
 
     reduction = scene.reduction
-    states = mj.solve(scene.system, scene.ts, scene.x0, method=mj.Spectral()).displacement
-    pod = mj.reduce(states, scene.ts, mj.Reduction(reduction.window, rank=1)).pod
+    pod = mj.reduce(scene, mj.POD(reduction.window, rank=1)).stats.decomposition
     paper_rank = pod.rank_for_energy(reduction.energy, reduction.criterion)
     bound_rank = mj.rank_for_bound(scene, pod, TOLERANCE)
     j_full = float(mj.Energy(float(scene.ts[-1]), scene.x0)(scene.system))
     rank_rule = {}
     for label, r in (("energy", paper_rank), ("bound", bound_rank)):
         j_r = float(mj.Energy(float(scene.ts[-1]),
-                              scene.x0)(mj.galerkin(scene.system, pod.basis(r))))
+                              scene.x0)(mj.reduce(scene.system, mj.Projection(pod.basis(r)))))
         b = mj.estimate(scene.system, mj.ResidualBound(pod.basis(r)), float(scene.ts[-1]),
                         scene.x0)
         rank_rule[label] = dict(rank=int(r), true=abs(j_r / j_full - 1),

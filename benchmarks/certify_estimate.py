@@ -85,7 +85,7 @@ def certification_step(n: int, r: int, repeats: int) -> dict:
     x0 = jnp.zeros(n).at[2].set(1.0)
     problem = DamperProblem(system, jnp.linspace(0.0, HORIZON, 2001), x0)
     positions, coefficients = problem.positions, problem.coefficients
-    basis = mj.craig_bampton_basis(system, r, states=x0)
+    basis = mj.reduce(system, mj.CraigBampton(r, states=x0)).basis
     full = jax.jit(jax.value_and_grad(placement_objective(problem), argnums=(0, 1)))
 
     def estimate():

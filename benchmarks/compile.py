@@ -65,6 +65,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import mikota_jax as mj
+from mikota_jax.testing import pod
 
 NAME = "compile"
 SCENE = "section5_damped"
@@ -188,7 +189,7 @@ def make_objective(basis):
     """Energy at DOF 150 of the ROM response: d/d(position, coefficient), basis held fixed."""
 
     def energy_at_dof_150(position, coefficient):
-        rom = mj.galerkin(damped(position, coefficient), basis)
+        rom = mj.reduce(damped(position, coefficient), mj.Projection(basis))
         out = mj.solve(rom, TS, X0, dofs=[DOF], method=mj.ODE(rtol=1e-8, atol=1e-10))
         return jnp.sum(out.displacement**2) * (TS[1] - TS[0])
 
@@ -227,11 +228,11 @@ ENTRIES = [
                                             method=mj.Spectral()),
           "_exact", True),
     Entry("modal_decomposition", lambda c: mj.modal_decomposition(c["mikota_chain"])),
-    Entry("pod svd", lambda c: mj.pod(c["snapshots"]), "_pod_svd", True),
-    Entry("pod snapshots", lambda c: mj.pod(c["snapshots"], method="snapshots"),
+    Entry("pod svd", lambda c: pod(c["snapshots"]), "_pod_svd", True),
+    Entry("pod snapshots", lambda c: pod(c["snapshots"], method="snapshots"),
           "_pod_snapshots"),
     Entry("POD.basis", lambda c: c["pod svd"].basis(RANK)),
-    Entry("galerkin", lambda c: mj.galerkin(c["mikota_chain"], c["POD.basis"])),
+    Entry("galerkin", lambda c: mj.reduce(c["mikota_chain"], mj.Projection(c["POD.basis"]))),
     Entry("simulate dopri8 ROM", lambda c: mj.solve(c["galerkin"], TS, X0,
                                                     method=mj.ODE(rtol=1e-8, atol=1e-10)),
           "simulate_with_result"),
@@ -261,17 +262,17 @@ def variations(ctx, quick: bool) -> list[tuple[str, str, list]]:
     dampers = [mj.GroundedDamper(7.0, 1.0)]
     sys_a = lambda: damped(7.5, 2.0)
     snaps = ctx.get("snapshots")
-    other_basis = lambda: mj.pod(snaps[:, ::-1] * 1.5).basis(RANK)
+    other_basis = lambda: pod(snaps[:, ::-1] * 1.5).basis(RANK)
     cases = {
         "mikota_chain": {"m, k, damper": [lambda: damped(9.5, 0.3, m=2.0, k=0.5),
                                           lambda: damped(1.0, 4.0, m=0.7, k=1.9)]},
         "load_scene": {"damper, x0": [lambda: mj.load_scene(scene_dict(9, 0.5, 2.0)),
                                       lambda: mj.load_scene(scene_dict(4.5, 3.0, -1.0))]},
-        "pod svd": {"snapshots": [lambda: mj.pod(snaps * 2.0), lambda: mj.pod(snaps[:, ::-1])]},
-        "pod snapshots": {"snapshots": [lambda: mj.pod(snaps * 2.0, method="snapshots"),
-                                        lambda: mj.pod(snaps[:, ::-1], method="snapshots")]},
-        "POD.basis": {"POD values": [lambda: mj.pod(snaps * 0.5).basis(RANK)]},
-        "galerkin": {"system, basis": [lambda: mj.galerkin(sys_a(), other_basis())]},
+        "pod svd": {"snapshots": [lambda: pod(snaps * 2.0), lambda: pod(snaps[:, ::-1])]},
+        "pod snapshots": {"snapshots": [lambda: pod(snaps * 2.0, method="snapshots"),
+                                        lambda: pod(snaps[:, ::-1], method="snapshots")]},
+        "POD.basis": {"POD values": [lambda: pod(snaps * 0.5).basis(RANK)]},
+        "galerkin": {"system, basis": [lambda: mj.reduce(sys_a(), mj.Projection(other_basis()))]},
         "modal_decomposition": {"damper, masses/springs": [
             lambda: mj.modal_decomposition(sys_a()),
             lambda: mj.modal_decomposition(mj.chain(masses * 1.1, springs * 0.9, dampers))]},
@@ -304,9 +305,10 @@ def variations(ctx, quick: bool) -> list[tuple[str, str, list]]:
     if "POD.basis" in ctx:
         basis = ctx["POD.basis"]
         rom_sim = lambda s, b=basis, x0=X0, v0=None, rtol=1e-8: mj.solve(
-            mj.galerkin(s, b), TS, x0, v0, method=mj.ODE(rtol=rtol, atol=rtol * 1e-2))
-        rom_exact = lambda s, b=basis: mj.solve(mj.galerkin(s, b), TS, X0, velocity=True,
-                                                method=mj.DenseExponential())
+            mj.reduce(s, mj.Projection(b)), TS, x0, v0,
+            method=mj.ODE(rtol=rtol, atol=rtol * 1e-2))
+        rom_exact = lambda s, b=basis: mj.solve(mj.reduce(s, mj.Projection(b)), TS, X0,
+                                                velocity=True, method=mj.DenseExponential())
         full, red = ctx["exact_solve"], ctx["exact_solve ROM"]
         cases.update({
             "simulate dopri8 ROM": {
@@ -353,7 +355,7 @@ def digest(value) -> float:
     """One number per result, to check that cached executables compute what fresh ones do."""
     if isinstance(value, mj.SceneResult):  # run_scene
         return float(value.metrics["phase_error"] + value.rank
-                     + np.sum(value.basis.pod.singular_values))
+                     + np.sum(value.model.stats.singular_values))
     leaves = [np.asarray(x) for x in jax.tree.leaves(value) if isinstance(x, jax.Array)]
     return float(sum(np.sum(np.abs(x)) for x in leaves if x.dtype.kind in "fi"))
 

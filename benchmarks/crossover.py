@@ -42,12 +42,12 @@ Per n, one process, compile time apart from run time (``Compiled``), run time = 
   the baseline. Dopri8 is not run at the random designs (a strong damper near the free end makes
   it stiff); its sweep is 1000 x its nominal time, a lower bound. The J alone is reported beside,
   a lower bound on any Dopri8 gradient (which needs at least one more solve).
-* **Reductions**: POD (the paper's), sensitivity-enriched POD (``enriched_reduce``), modal
-  truncation, modal + static correction (r - 2 modes + the split damper's two static directions),
-  modal + 2 moments (r - 4 modes + K^-1 b and K^-1 M K^-1 b of both: ``modal_static_basis(...,
-  moments=2)``), second-order Krylov (SOAR; inputs M x0 and the damper directions), built as
-  ``reductions.py`` builds them, and Craig-Bampton with the start kept (r - 7 modes held at the
-  damper + 3 moments of its two DOFs + x0: ``craig_bampton_basis(system, r - 7, states=x0)``, the
+* **Reductions**: POD (the paper's), sensitivity-enriched POD (``EnrichedPOD``), modal
+  truncation, modal + static correction (modes + the split damper's two static directions, r in
+  all: ``ModalStatic(r)``), modal + 2 moments (modes + K^-1 b and K^-1 M K^-1 b of both:
+  ``ModalStatic(r, moments=2)``), second-order Krylov (SOAR; inputs M x0 and the damper
+  directions), built as ``reductions.py`` builds them, and Craig-Bampton with the start kept (modes
+  held at the damper + 3 moments of its two DOFs + x0: ``CraigBampton(r, states=x0)``, the
   basis that holds the Section 5 gradients, ``rom_gradients.py``), at the nominal design. Rank: the
   smallest r whose ROM J is within TOL = 1e-4 (relative) of the full J at the nominal design, found
   by a ladder r = 16, 16 * 1.4, ... (up to min(n, 400, the POD's numerical rank): a ROM query at r =
@@ -146,7 +146,6 @@ LARGE_METHODS = ("POD", "modal", "modal + static", "modal + 2 moments", "Craig-B
 # bases that need no full solve: rebuilt per design
 REBUILD = ("modal + static", "modal + 2 moments", "Krylov", "Craig-Bampton")
 # columns besides the modes: the split damper's 2 DOFs x moments (+ x0 for Craig-Bampton)
-STATIC_COLUMNS = {"modal + static": 2, "modal + 2 moments": 4, "Craig-Bampton": 7}
 SWEEP = 1000
 RANK_START, RANK_FACTOR, RANK_CAP = 16, 1.4, 400
 HINT_FACTOR = 1.04  # the ladder's step from a --rank-hint
@@ -341,18 +340,39 @@ def rank_search(energy_at, cap: int, j_full: float, hint: int | None = None):
     return high, errors
 
 
-def static_directions(system) -> np.ndarray:
-    """K^-1 B for the damper directions B (tridiagonal K, banded solve)."""
+def damper_columns(n: int, position: float = POSITION) -> np.ndarray:
+    """(n, 2) the directions B of one grounded damper at ``position`` (D = B diag(w) B^T): the
+    unit vectors of the two DOFs its coefficient is split over (1-based floor(p) and the next)."""
+    left = int(np.floor(position)) - 1
+    b = np.zeros((n, 2))
+    b[left, 0], b[min(left + 1, n - 1), 1] = 1.0, 1.0
+    return b
+
+
+def _stiffness_solve(system, y: np.ndarray) -> np.ndarray:
     stiffness = system.stiffness
     diagonal, off = np.asarray(stiffness.diagonal), np.asarray(stiffness.off_diagonal)
     bands = np.zeros((2, diagonal.size))
     bands[0, 1:], bands[1] = off, diagonal
-    return scipy.linalg.solveh_banded(bands, np.asarray(mj.damper_directions(system)))
+    return scipy.linalg.solveh_banded(bands, y)
+
+
+def static_directions(system) -> np.ndarray:
+    """K^-1 B for the damper directions B (tridiagonal K, banded solve)."""
+    return _stiffness_solve(system, damper_columns(system.size))
+
+
+def static_moments(system) -> np.ndarray:
+    """K^-1 B and K^-1 M K^-1 B, each column of unit length (``ModalStatic(moments=2)``'s)."""
+    first = static_directions(system)
+    second = _stiffness_solve(system, np.asarray(system.mass.diagonal)[:, None] * first)
+    moments = np.concatenate([first, second], axis=1)
+    return moments / np.linalg.norm(moments, axis=0)[None, :]
 
 
 def modal_static_columns(modes: np.ndarray, static: np.ndarray, r: int) -> np.ndarray:
-    """``modal_static_basis(system, r - s)`` in numpy, from precomputed modes and the s static
-    columns (K^-1 B, or ``static_moments``: K^-1 B and K^-1 M K^-1 B, each of unit length)."""
+    """``ModalStatic(r)`` in numpy, from precomputed modes and the s static columns (K^-1 B, or
+    ``static_moments``: K^-1 B and K^-1 M K^-1 B, each of unit length)."""
     kept = modes[:, : r - static.shape[1]]
     scale = float(np.max(np.linalg.norm(static, axis=0)))
     rest = static.copy()
@@ -364,15 +384,14 @@ def modal_static_columns(modes: np.ndarray, static: np.ndarray, r: int) -> np.nd
 
 
 def craig_bampton(system, x0, r: int):
-    """Craig-Bampton with the start kept, r columns at most: r - 7 modes held at the damper,
-    3 moments of its two DOFs and x0 (``craig_bampton_basis(..., states=x0)``)."""
-    return mj.craig_bampton_basis(system, r - STATIC_COLUMNS["Craig-Bampton"], states=x0)
+    """Craig-Bampton with the start kept, r columns: modes held at the damper, 3 moments of
+    its two DOFs and x0 (``CraigBampton(r, states=x0)``)."""
+    return mj.reduce(system, mj.CraigBampton(r, states=x0)).basis
 
 
 def krylov_inputs(system, x0) -> np.ndarray:
     """The Krylov inputs of free vibration from x0: M x0 and the damper directions."""
-    return np.column_stack([np.asarray(system.mass.mv(x0)),
-                            np.asarray(mj.damper_directions(system))])
+    return np.column_stack([np.asarray(system.mass.mv(x0)), damper_columns(system.size)])
 
 
 # --------------------------------------------------------------------------- one n
@@ -398,30 +417,29 @@ def measure(n: int, quick: bool, check_public: bool, large_from: int = LARGE,
     projection = Projection(system, x0)
     forcing = krylov_inputs(system, x0)
     cap = min(n, RANK_CAP_LARGE if large else RANK_CAP)
-    modes = np.asarray(mj.modal_basis(system, cap))
+    modes = np.asarray(mj.reduce(system, mj.Modal(cap)).basis)
     static = static_directions(system)
-    moments = np.asarray(mj.static_moments(system, mj.damper_directions(system), 2))
+    moments = static_moments(system)
     nested = {"modal": modes}
-    pod = mj.reduce(snapshots, ts_window, scene.reduction).pod  # compiles the SVD (warm-up)
+    pod = mj.reduce(window_scene, scene.reduction).stats.decomposition  # warm-up
     nested["POD"] = np.asarray(pod.basis(min(cap, pod.numerical_rank())))
     if not large:
-        enriched = mj.enriched_reduce(window_scene, WRT).pod  # compiles and runs once (warm-up)
+        enriched = mj.reduce(window_scene, mj.EnrichedPOD(WRT)).stats.decomposition  # warm-up
         nested.update({
             "enriched POD": np.asarray(enriched.basis(min(cap, enriched.numerical_rank()))),
-            "Krylov": np.asarray(mj.krylov_basis(system, cap, forcing))})
+            "Krylov": np.asarray(mj.reduce(system, mj.Krylov(cap, forcing)).basis)})
     say("bases for the rank search")
 
     def pod_build(r):
-        states = snapshot_exe(system, x0).displacement
-        return mj.reduce(states, ts_window, scene.reduction).pod.basis(r)
+        return mj.reduce(window_scene, mj.POD(scene.reduction.window, rank=r)).basis
 
     builds = {
         "POD": pod_build,
-        "enriched POD": lambda r: mj.enriched_reduce(window_scene, WRT, rank=r).basis,
-        "modal": lambda r: mj.modal_basis(system, r),
-        "modal + static": lambda r: mj.modal_static_basis(system, r - 2),
-        "modal + 2 moments": lambda r: mj.modal_static_basis(system, r - 4, moments=2),
-        "Krylov": lambda r: mj.krylov_basis(system, r, forcing),
+        "enriched POD": lambda r: mj.reduce(window_scene, mj.EnrichedPOD(WRT, rank=r)).basis,
+        "modal": lambda r: mj.reduce(system, mj.Modal(r)).basis,
+        "modal + static": lambda r: mj.reduce(system, mj.ModalStatic(r)).basis,
+        "modal + 2 moments": lambda r: mj.reduce(system, mj.ModalStatic(r, moments=2)).basis,
+        "Krylov": lambda r: mj.reduce(system, mj.Krylov(r, forcing)).basis,
         "Craig-Bampton": lambda r: craig_bampton(system, x0, r),
     }
     methods, queries = {}, {}
@@ -667,14 +685,13 @@ def measure_designs(n, quick, large, scene, function, full, queries, forcing, sa
                 continue
             t0 = time.perf_counter()
             if method == "Krylov":
-                inputs = np.column_stack([forcing[:, 0], np.asarray(mj.damper_directions(system))])
-                fresh = jax.block_until_ready(mj.krylov_basis(system, basis.shape[1], inputs))
+                strategy = mj.Krylov(basis.shape[1], forcing[:, 0], dampers=True)
+                fresh = jax.block_until_ready(mj.reduce(system, strategy).basis)
             elif method == "Craig-Bampton":
                 fresh = jax.block_until_ready(craig_bampton(system, scene.x0, basis.shape[1]))
             else:
-                fresh = jax.block_until_ready(mj.modal_static_basis(
-                    system, basis.shape[1] - STATIC_COLUMNS[method],
-                    moments=2 if method == "modal + 2 moments" else 1))
+                fresh = jax.block_until_ready(mj.reduce(system, mj.ModalStatic(
+                    basis.shape[1], moments=2 if method == "modal + 2 moments" else 1)).basis)
             build_s = elapsed(t0)
             rom = mj.SceneFunction(scene, "energy", model="reduced", basis=fresh, forward=True)
             exe = query

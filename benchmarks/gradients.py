@@ -56,6 +56,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 import mikota_jax as mj
+from mikota_jax.testing import pod
 
 NAME = "gradients"
 SCENE = "section5_damped"
@@ -92,7 +93,7 @@ def objectives(n, ts, x0):
 
     def reduced_system(p, c, basis):
         system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(p, c)])
-        return mj.galerkin(system, basis).system
+        return mj.reduce(system, mj.Projection(basis)).system
 
     def simulated(p, c, rtol, atol, basis, adjoint=None):
         red = reduced_system(p, c, basis)
@@ -102,7 +103,8 @@ def objectives(n, ts, x0):
 
     def lifted(p, c, rtol, atol, basis):  # the same J from all 300 lifted DOFs (a check)
         system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(p, c)])
-        out = mj.solve(mj.galerkin(system, basis), ts, x0, displacement=True, velocity=True,
+        rom = mj.reduce(system, mj.Projection(basis))
+        out = mj.solve(rom, ts, x0, displacement=True, velocity=True,
                        method=mj.ODE(rtol=rtol, atol=atol, max_steps=MAX_STEPS))
         return full_energy(system, out.displacement, out.velocity, ts)
 
@@ -243,7 +245,7 @@ def main(argv=None) -> dict:
     start = time.perf_counter()
     out = mj.solve(system, ts, x0, method=mj.Spectral())
     snapshots = np.asarray(out.displacement)[mask].T  # (n, m)
-    decomposition = mj.pod(snapshots)
+    decomposition = pod(snapshots)
     offline_s = elapsed(start)
     simulated, lifted, exact, full = objectives(n, ts, x0)
     p, c = DESIGN

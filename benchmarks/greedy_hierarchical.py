@@ -3,7 +3,7 @@ how small a fixed basis (+ the design's two damper moments) the greedy finds, ag
 hand-picked POD + 40 modes of ``benchmarks/hierarchical.py``.
 
 The scene: Mikota n = 300, x_3(0) = 1, J = the energy integrated over [0, 20]; training designs:
-every TRAIN_STEP-th DOF from 1 to 300 x c in {0.1, 1, 10, 100, 1000}. ``greedy_reduce(scene,
+every TRAIN_STEP-th DOF from 1 to 300 x c in {0.1, 1, 10, 100, 1000}. ``reduce(scene, Greedy(
 training, 1e-4, step=STEP, hierarchical={"modes": FINE_MODES, "basis_moments": 2})``, starting
 from the scene's own POD (its 99 % rank, r = 76): per iteration the estimate at every training
 design (no full solve), one full solve at the worst, STEP modes of its trajectory's part outside
@@ -56,12 +56,9 @@ def main(argv=None) -> dict:
     options = {"modes": FINE_MODES, "basis_moments": 2}
     seed = None
     if args.seed_modes:  # the scene's own POD (as the default start) + the lowest modes
-        states = mj.solve(scene.system, scene.ts, scene.x0, scene.v0,
-                          method=mj.Spectral()).displacement
-        pod = mj.reduce(states, scene.ts, scene.reduction).basis
-        seed = mj.extend_basis(pod, mj.modal_basis(scene.system, args.seed_modes))
-    result = mj.greedy_reduce(scene, training, TOL, basis=seed, step=STEP, hierarchical=options,
-                              progress=True)
+        seed = mj.reduce(scene, mj.Union(scene.reduction, mj.Modal(args.seed_modes))).basis
+    result = mj.reduce(scene, mj.Greedy(training, TOL, start=seed, step=STEP,
+                                        hierarchical=options, progress=True))
     greedy_s = elapsed(start)
     print(f"greedy: r = {result.rank} (+ 4 moment columns per design), certified "
           f"{result.certified}, {result.full_solves} full solves, {greedy_s:.0f} s", flush=True)

@@ -74,9 +74,8 @@ def main(argv=None) -> dict:
         return jnp.stack([e.value, e.fine, e.error, e.relative])
 
     full = Compiled(lambda p, c: mj.Energy(HORIZON, x0, method="spectral")(design(p, c)), 7.0, 1.0)
-    states = mj.solve(scene.system, scene.ts, x0, scene.v0, method=mj.Spectral()).displacement
-    pod = np.asarray(mj.reduce(states, scene.ts, scene.reduction).pod.basis(RANK))
-    modes = np.asarray(mj.modal_basis(scene.system, n))
+    pod = mj.reduce(scene, scene.reduction).stats.decomposition.basis(RANK)
+    modes = np.asarray(mj.reduce(scene.system, mj.Modal(n)).basis)
     say = lambda text: print(f"[{elapsed(start):7.1f} s] {text}", flush=True)  # noqa: E731
 
     def estimator_for(basis, fine_modes, basis_moments=0):
@@ -89,7 +88,8 @@ def main(argv=None) -> dict:
         return [(p, c) for p in positions for c in COEFFICIENTS]
 
     def screened(m, basis_moments):
-        basis = np.asarray(mj.extend_basis(pod, modes[:, :m]))
+        basis = np.asarray(mj.reduce(scene, mj.Union(mj.Projection(pod),
+                                                     mj.Projection(modes[:, :m]))).basis)
         est, run = estimator_for(basis, min(n, m + FINE_EXTRA), basis_moments)
         worst = max(float(run(est, p, c)[3]) for p, c in grid(SCREEN_STEP))
         rank = int(basis.shape[1]) + 2 * basis_moments

@@ -96,11 +96,11 @@ def main(argv=None) -> dict:
         return mj.estimate(design(p, c), estimator, HORIZON, x0).error
 
     full = Compiled(full_gradient, 7.0, 1.0)
-    states = mj.solve(scene.system, scene.ts, x0, scene.v0, method=mj.Spectral()).displacement
-    pod = np.asarray(mj.reduce(states, scene.ts, scene.reduction).pod.basis(RANK))
-    modes = np.asarray(mj.modal_basis(scene.system, n))
+    pod = mj.reduce(scene, scene.reduction).stats.decomposition.basis(RANK)
+    modes = np.asarray(mj.reduce(scene.system, mj.Modal(n)).basis)
     certified = mj.Hierarchical(
-        scene.system, jnp.asarray(mj.extend_basis(pod, modes[:, :MODES])),
+        scene.system, mj.reduce(scene, mj.Union(mj.Projection(pod),
+                                                mj.Projection(modes[:, :MODES]))).basis,
         modes=min(n, MODES + FINE_EXTRA), basis_moments=MOMENTS)
     paper = mj.Hierarchical(scene.system, jnp.asarray(pod), modes=min(n, RANK + 2 * FINE_EXTRA))
     runs = {label: (est, Compiled(estimate, est, 7.0, 1.0))

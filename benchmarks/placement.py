@@ -31,12 +31,12 @@ def snapshot_basis(problem) -> np.ndarray:
     ts = np.asarray(problem.ts)
     ts = jnp.asarray(ts[ts <= problem.snapshots[1] + 1e-12])
     model = problem.system(problem.positions, problem.coefficients)
-    full = mj.solve(model, ts, problem.x0, problem.v0, problem.load,
-                    method=mj.ODE(rtol=problem.rtol, atol=problem.rtol * 1e-2,
-                                  max_steps=problem.max_steps))
-    request = mj.Reduction(problem.snapshots, energy=problem.energy, rank=problem.rank,
-                           criterion=problem.criterion)
-    return mj.reduce(full.displacement, ts, request, cap_rank=True).basis
+    request = mj.POD(problem.snapshots, energy=problem.energy, rank=problem.rank,
+                     criterion=problem.criterion)
+    scene = mj.Scene(model, ts, problem.x0, problem.v0, problem.load, reduction=request,
+                     solver="dopri8", rtol=problem.rtol, atol=problem.rtol * 1e-2,
+                     max_steps=problem.max_steps)
+    return mj.reduce(scene, request).basis
 
 
 def plot(data: dict) -> None:

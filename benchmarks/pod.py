@@ -10,9 +10,9 @@ with a grounded damper d = 1 at DOF 7 and x_3(0) = 1, v(0) = 0:
   a dense 2n x 2n matrix exponential, too costly past n ~ 10^3; a short horizon keeps the explicit
   solve of the stiff large chains to a few thousand steps).
 
-Per matrix, all in this process: ``mj.pod(method="svd")`` (jit thin SVD), numpy
-``np.linalg.svd(full_matrices=False)`` (LAPACK gesdd; the reference), ``mj.pod(method="snapshots")``
-(eigh of the smaller Gram matrix) and ``mj.pod(method="randomized", rank=K)`` (K = 100, oversampling
+Per matrix, all in this process: ``pod(method="svd")`` (jit thin SVD), numpy
+``np.linalg.svd(full_matrices=False)`` (LAPACK gesdd; the reference), ``pod(method="snapshots")``
+(eigh of the smaller Gram matrix) and ``pod(method="randomized", rank=K)`` (K = 100, oversampling
 10, key(0); q = 2 power iterations, the default, and q = 6). The check before timing: sigma_1 of
 every method agrees with numpy's (full methods to 1e-10, randomized to 1e-3: a wrong range, not an
 inaccurate flat spectrum, is what that catches) and the leading 10 modes are orthonormal. JAX
@@ -39,6 +39,7 @@ import jax
 import numpy as np
 
 import mikota_jax as mj
+from mikota_jax.testing import pod, PODDecomposition
 
 SIZES = (300, 1000, 3000, 10000, 30000)
 QUICK_SIZES = (300, 1000)
@@ -82,10 +83,10 @@ def snapshots(n: int) -> tuple[np.ndarray, dict]:
 
 def compile_method(name: str, q, key) -> Compiled:
     if name == "mj svd (jit)":
-        return Compiled(lambda x: mj.pod(x, method="svd"), q)
+        return Compiled(lambda x: pod(x, method="svd"), q)
     if name == "mj snapshots":
-        return Compiled(lambda x: mj.pod(x, method="snapshots"), q)
-    return Compiled(lambda x, k: mj.pod(x, method="randomized", rank=RANK,
+        return Compiled(lambda x: pod(x, method="snapshots"), q)
+    return Compiled(lambda x, k: pod(x, method="randomized", rank=RANK,
                                         oversampling=OVERSAMPLING,
                                         power_iterations=POWER_ITERATIONS[name], key=k), q, key)
 
@@ -143,7 +144,7 @@ def main(argv=None) -> dict:
         u_ref, s_ref, _ = np.linalg.svd(q, full_matrices=False)
         first_numpy = elapsed(start)
         u_ref = sign_rule(u_ref)
-        rank = mj.POD(s_ref, u_ref).numerical_rank()
+        rank = PODDecomposition(s_ref, u_ref).numerical_rank()
         leading = min(RANK, rank)
         matrices[n] = dict(n=n, m=m, numerical_rank=rank, leading_compared=leading,
                            sigma_1=float(s_ref[0]), sigma_leading_over_sigma_1=float(
@@ -223,7 +224,7 @@ def main(argv=None) -> dict:
                          "rel = |sigma_j / sigma_j^np - 1|; subspace_sine = sin of the largest "
                          "principal angle; mode_error_10 = max_j<=10 ||u_j - u_j^np||_2 with "
                          "numpy's signs fixed by the package rule",
-            "compile": "jax.jit(lambda Q: mj.pod(Q, ...)).lower(Q).compile()",
+            "compile": "jax.jit(lambda Q: pod(Q, ...)).lower(Q).compile()",
             "budget_s": budget,
         },
         "rows": rows,

@@ -43,36 +43,33 @@ def builders(scene):
 
     def pod(r):
         if "pod" not in cache:
-            states = mj.solve(scene.system, scene.ts, scene.x0, scene.v0,
-                              method=mj.Spectral()).displacement
-            cache["pod"] = mj.reduce(states, scene.ts, scene.reduction).pod
+            cache["pod"] = mj.reduce(scene, scene.reduction).stats.decomposition
         return cache["pod"].basis(r)
 
     def enriched(r):
         if "enriched" not in cache:
-            cache["enriched"] = mj.enriched_reduce(scene, WRT).pod
+            cache["enriched"] = mj.reduce(scene, mj.EnrichedPOD(WRT)).stats.decomposition
         return cache["enriched"].basis(r)
 
     return {"POD": pod, "enriched POD": enriched,
-            "modal": lambda r: mj.modal_basis(scene.system, r),
-            "modal + static": lambda r: mj.modal_static_basis(scene.system, r - 2),
-            "Krylov": lambda r: mj.krylov_basis(scene.system, r, forcing(scene)),
+            "modal": lambda r: mj.reduce(scene.system, mj.Modal(r)).basis,
+            "modal + static": lambda r: mj.reduce(scene.system, mj.ModalStatic(r)).basis,
+            "Krylov": lambda r: mj.reduce(scene.system, mj.Krylov(r, forcing(scene))).basis,
             "rational Krylov": lambda r: band(scene, r),
             "IRKA": lambda r: irka(scene, r)}, cache
 
 
 def band(scene, r):
     force = forcing(scene)[:, 0]
-    shifts = mj.band_shifts(scene.system, -(-r // 2), force)
-    return mj.rational_krylov_basis(scene.system, shifts, force)[:, :r]
+    return mj.reduce(scene.system, mj.RationalKrylov(-(-r // 2), force)).basis[:, :r]
 
 
 IRKA_RUNS = {}  # r -> (iterations, converged), for the JSON
 
 
 def irka(scene, r):
-    result = mj.irka_basis(scene.system, r, forcing(scene)[:, 0], HORIZON)
-    IRKA_RUNS[r] = dict(iterations=result.iterations, converged=result.converged)
+    result = mj.reduce(scene.system, mj.IRKA(r, forcing(scene)[:, 0], HORIZON))
+    IRKA_RUNS[r] = dict(iterations=result.stats.iterations, converged=result.stats.converged)
     return result.basis
 
 
@@ -80,7 +77,10 @@ def forcing(scene):
     """The Krylov inputs of free vibration from x0: (s M + D) x0 -> M x0, and the damper's
     directions (its force acts there)."""
     mass_x0 = scene.system.mass.mv(scene.x0)
-    return np.column_stack([np.asarray(mass_x0), np.asarray(mj.damper_directions(scene.system))])
+    n, position = scene.size, float(scene.system.damping.positions[0])
+    b = np.zeros((n, 2))  # the damper's two DOFs (its coefficient split over them)
+    b[int(np.floor(position)) - 1, 0], b[min(int(np.floor(position)), n - 1), 1] = 1.0, 1.0
+    return np.column_stack([np.asarray(mass_x0), b])
 
 
 def main(argv=None) -> dict:
@@ -104,7 +104,8 @@ def main(argv=None) -> dict:
             basis = jax.block_until_ready(build(r))
             offline = elapsed(t0)
             rom = mj.sensitivities(scene, "energy", wrt=WRT, model="reduced", basis=basis)
-            history = np.asarray(mj.solve(mj.galerkin(scene.system, basis), scene.ts, scene.x0,
+            rom_model = mj.reduce(scene.system, mj.Projection(basis))
+            history = np.asarray(mj.solve(rom_model, scene.ts, scene.x0,
                                           method=mj.DenseExponential()).displacement)
             row = dict(method=method, r=int(basis.shape[1]), offline_s=offline,
                        J=abs(float(rom.value) / float(full.value) - 1),

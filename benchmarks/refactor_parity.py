@@ -44,6 +44,7 @@ from _common import (
 )
 
 import mikota_jax as mj
+from mikota_jax.testing import pod
 
 REPO = Path(__file__).resolve().parent.parent
 REFERENCE = "a202197"  # main before the package was restructured
@@ -135,7 +136,7 @@ def main(argv=None) -> None:
         reference = load_reference(args.reference, Path(tmp))
         full = mj.solve(mj.mikota_chain(300, dampers=[mj.GroundedDamper(7.0, 1.0)]),
                         jnp.linspace(0.0, 20.0, 2001), mj.unit_vector(300, 3), method=mj.Spectral())
-        decomposition = mj.pod(full.displacement[:1001].T)
+        decomposition = pod(full.displacement[:1001].T)
         basis = np.asarray(decomposition.basis(decomposition.rank_for_energy(0.99, "paper")))
         packages = {"reference": reference, "current": mj}
         work = {label: cases(pkg, basis, args.quick) for label, pkg in packages.items()}

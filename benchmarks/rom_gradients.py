@@ -5,7 +5,7 @@ J = the scene's time-integrated energy; the design is the grounded damper's (pos
 coefficient c) on a grid spanning the chain (p = 7 .. 290) and the coefficient range (0.1 ..
 1000). At every design: the full model's dJ/dp, dJ/dc (``sensitivities``, spectral path) and the
 ROM's on a basis built *at that design*, (a) plain POD of the states (``reduce``) and (b) the
-sensitivity-enriched POD (``enriched_reduce``: states and their forward-mode derivatives in p and
+sensitivity-enriched POD (``EnrichedPOD``: states and their forward-mode derivatives in p and
 c, each block weighted to the states' norm), both at the paper's r = 98 and at each basis' own
 99.99 % rank (the paper's criterion), and (c) no snapshots: the 94 lowest undamped modes and two
 static moments of the damper directions (``modal_static_basis(system, 94, moments=2)``, r <= 98),
@@ -30,6 +30,7 @@ from _common import (elapsed, figure, parse_args, print_table, read_json,  # noq
 import statistics
 import time
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
@@ -60,24 +61,24 @@ def one_design(scene, p: float, c: float) -> dict:
                dJdc=float(full.jacobian["coefficients"][0]))
     start = time.perf_counter()
     system = mj.SceneFunction(scene, "energy").system(design)
-    states = mj.solve(system, scene.ts, scene.x0, scene.v0, method=mj.Spectral()).displacement
-    plain = mj.reduce(states, scene.ts, mj.Reduction(scene.reduction.window, rank=None,
-                                                     energy=ENERGY, criterion="paper"))
+    at_design = eqx.tree_at(lambda s: s.system, scene, system)
+    plain = mj.reduce(at_design, mj.POD(scene.reduction.window, energy=ENERGY,
+                                        criterion="paper"))
     row["plain_offline_s"] = elapsed(start)
     start = time.perf_counter()
-    enriched = mj.enriched_reduce(scene, WRT, parameters=design, energy=ENERGY)
+    enriched = mj.reduce(scene, mj.EnrichedPOD(WRT, parameters=design, energy=ENERGY))
     row["enriched_offline_s"] = elapsed(start)
     row["plain_rank"], row["enriched_rank"] = plain.rank, enriched.rank
-    # no snapshots: 94 modes + 4 moment columns; 92 held modes + 3 moments x 2 columns; the
-    # same with one mode fewer and the start (x0, and v0 where the scene sets one) kept
+    # no snapshots, RANK columns each: modes + 2 moments of the damper's two DOFs; held modes +
+    # 3 moments; the same with the start (x0, and v0 where the scene sets one) kept
     start_states = jnp.stack([v for v in (scene.x0, scene.v0) if v is not None], axis=1)
     for label, build in (
-            ("moments", lambda: mj.modal_static_basis(system, RANK - 4, moments=2)),
-            ("held", lambda: mj.craig_bampton_basis(system, RANK - 6)),
-            ("moments_start", lambda: mj.modal_static_basis(system, RANK - 5, moments=2,
-                                                            states=start_states)),
-            ("held_start", lambda: mj.craig_bampton_basis(system, RANK - 7,
-                                                          states=start_states))):
+            ("moments", lambda: mj.reduce(system, mj.ModalStatic(RANK, moments=2)).basis),
+            ("held", lambda: mj.reduce(system, mj.CraigBampton(RANK)).basis),
+            ("moments_start", lambda: mj.reduce(system, mj.ModalStatic(
+                RANK, moments=2, states=start_states)).basis),
+            ("held_start", lambda: mj.reduce(system, mj.CraigBampton(
+                RANK, states=start_states)).basis)):
         start = time.perf_counter()
         basis = build()
         row[f"{label}_offline_s"] = elapsed(start)
@@ -86,8 +87,8 @@ def one_design(scene, p: float, c: float) -> dict:
         row[f"{label}_r98_J"], row[f"{label}_r98_p"], row[f"{label}_r98_c"] = (
             e["J"], e["positions"], e["coefficients"])
         row[f"{label}_rank"] = int(basis.shape[1])
-    for label, pod, own in (("plain", plain.pod, plain.rank), ("enriched", enriched.pod,
-                                                               enriched.rank)):
+    for label, pod, own in (("plain", plain.stats.decomposition, plain.rank),
+                            ("enriched", enriched.stats.decomposition, enriched.rank)):
         for tag, r in (("r98", RANK), ("own", own)):
             e = errors(scene, design, pod.basis(r), full)
             row[f"{label}_{tag}"] = max(e["positions"], e["coefficients"])

@@ -28,7 +28,7 @@ repeats ended by ``block_until_ready``:
   (measured, or its power-law fit beyond n = 1000) times the step count measured at the largest
   whole-horizon n (a lower bound: the step count grows with n);
 * ROM offline: the snapshot run (Dopri8 rtol 1e-8 on [0, T], all DOFs saved every 0.002: 501
-  snapshots), ``mj.pod`` (thin SVD) and ``mj.galerkin`` at the chosen rank;
+  snapshots), ``pod`` (thin SVD) and ``mj.reduce(system, mj.Projection(basis))`` at the chosen rank;
 * ROM rank at a fixed accuracy: the smallest r whose lifted error at the three DOFs over all 101
   outputs is below TARGET = 1e-3 max|x_ref|, found by bisection on 1..numerical rank (the error is
   assumed to fall with r; r - 1 is checked to miss the target) with a numpy modal propagator (the
@@ -160,7 +160,7 @@ class ModalRom:
     """
 
     def __init__(self, system, pod, rank_max: int, x0, dofs):
-        rom = mj.galerkin(system, pod.basis(rank_max))
+        rom = mj.reduce(system, mj.Projection(pod.basis(rank_max)))
         mass, damping, stiffness = (np.asarray(a) for a in rom.system.dense())
         self.mass, self.damping, self.stiffness = mass, damping, stiffness
         self.basis = np.asarray(pod.basis(rank_max))
@@ -305,7 +305,7 @@ def measure(n: int, quick: bool) -> dict:
     # ---- ROM offline: snapshot run, POD, Galerkin
     snap_s, snap_times = more(snap_times, snap, system, x0, RTOL, repeats=repeats)
     q = jnp.asarray(snapshots.T)  # (n, m), eq. (3.5)
-    pod_exe = Compiled(lambda a: mj.pod(a), q)
+    pod_exe = Compiled(lambda a: pod(a), q)
     pod, pod_s, pod_times = timed(pod_exe, q, repeats=repeats)
     rank_max = pod.numerical_rank()
     search_start = time.perf_counter()
@@ -332,7 +332,7 @@ def measure(n: int, quick: bool) -> dict:
                               f"{TARGET:g}: the ROM does not reach this accuracy")
         return finish(out, start)
     basis = pod.basis(rank)
-    project = Compiled(lambda s, b: mj.galerkin(s, b), system, basis)
+    project = Compiled(lambda s, b: mj.reduce(s, mj.Projection(b)), system, basis)
     model, galerkin_s, galerkin_times = timed(project, system, basis, repeats=repeats)
     out["rom"]["galerkin"] = {"compile_s": project.compile_s, "run_s": galerkin_s,
                               "run_times_s": galerkin_times, "memory": xla_memory(project)}

@@ -53,6 +53,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 import mikota_jax as mj
+from mikota_jax.testing import energy_fraction, pod
 
 NAME = "work_precision"
 SCENE = "section5_damped"
@@ -257,10 +258,10 @@ def main(argv=None) -> dict:
     window = scene.reduction.window
     mask = (ts_np >= window[0] - 1e-9) & (ts_np <= window[1] + 1e-9)
     snapshots = ref_x[mask].T  # (n, m), eq. (3.5)
-    pod_exe = Compiled(lambda q: mj.pod(q), snapshots)
+    pod_exe = Compiled(lambda q: pod(q), snapshots)
     decomposition, pod_s, pod_times = repeated(pod_exe, snapshots, repeats=jax_repeats)
     numerical_rank = decomposition.numerical_rank()
-    fraction = np.asarray(mj.energy_fraction(decomposition.singular_values,
+    fraction = np.asarray(energy_fraction(decomposition.singular_values,
                                              scene.reduction.criterion))
     modes = decomposition.modes
     reduced: list[dict] = []
@@ -268,7 +269,7 @@ def main(argv=None) -> dict:
         if rank > numerical_rank:
             raise SystemExit(f"rank {rank} exceeds the numerical rank {numerical_rank} of the "
                              "snapshots.")
-        project = Compiled(lambda sys, phi, rank=rank: mj.galerkin(sys, phi[:, :rank]),
+        project = Compiled(lambda sys, phi, rank=rank: mj.reduce(sys, mj.Projection(phi[:, :rank])),
                            system, modes)
         model, project_s, project_times = repeated(project, system, modes, repeats=jax_repeats)
         exact_rom = Compiled(lambda mdl, x: mj.solve(mdl, ts, x, velocity=True,

@@ -28,25 +28,22 @@ __version__ = "0.1.0"
 _MODULES = {
     "_cache": "enable_compilation_cache",
     "_chain": "branched_chain chain mikota_chain",
-    "_classic": ("craig_bampton_basis damper_directions extend_basis fixed_interface_modes "
-                 "krylov_basis modal_basis modal_static_basis static_moments"),
     "_dampers": "GroundedDamper RelativeDamper",
-    "_enrichment": "enriched_reduce sensitivity_snapshots",
     "_estimate": "AbstractEstimator Estimate Hierarchical ResidualBound certified_sweep estimate",
     "_excitation": "LoadFunction Pulse pulse unit_vector",
     "_frequency": "frequency_response",
-    "_galerkin": "ReducedModel galerkin",
-    "_greedy": "GreedyBasis greedy_reduce rank_for_bound",
+    "_galerkin": "ReducedModel",
+    "_greedy": "rank_for_bound",
     "_implicit": "StructuredKvaerno5",
     "_integrate": "Trajectory",
     "_internal_damping": "ModalDamping Rayleigh",
-    "_interpolatory": "IRKABasis band_shifts irka_basis rational_krylov_basis",
     "_modal": "modal_decomposition",
     "_objective_family": "AbstractObjective AverageEnergy Energy H2Norm OutputEnergy Peak",
     "_optimise": ("AbstractDesignStrategy Coefficients CoordinateDescent DamperDesign DesignResult "
                   "Grid ScreenAndCertify Solution optimise"),
-    "_pod": "POD energy_fraction pod rank_for_energy",
-    "_reduction": "ReducedBasis Reduction reduce",
+    "_reduce": ("CraigBampton EnrichedPOD Greedy IRKA Krylov Modal ModalStatic Projection "
+                "RationalKrylov Union reduce"),
+    "_reduction": "POD AbstractReduction ReductionStats",
     "_run": "SceneResult run_scene",
     "_scene": "Scene",
     "_sensitivity": "SceneFunction Sensitivities scene_parameters sensitivities",
@@ -98,18 +95,8 @@ if _TYPE_CHECKING:  # the same names for static tools (type checkers, the API re
     from ._chain import branched_chain as branched_chain
     from ._chain import chain as chain
     from ._chain import mikota_chain as mikota_chain
-    from ._classic import craig_bampton_basis as craig_bampton_basis
-    from ._classic import damper_directions as damper_directions
-    from ._classic import extend_basis as extend_basis
-    from ._classic import fixed_interface_modes as fixed_interface_modes
-    from ._classic import krylov_basis as krylov_basis
-    from ._classic import modal_basis as modal_basis
-    from ._classic import modal_static_basis as modal_static_basis
-    from ._classic import static_moments as static_moments
     from ._dampers import GroundedDamper as GroundedDamper
     from ._dampers import RelativeDamper as RelativeDamper
-    from ._enrichment import enriched_reduce as enriched_reduce
-    from ._enrichment import sensitivity_snapshots as sensitivity_snapshots
     from ._estimate import AbstractEstimator as AbstractEstimator
     from ._estimate import Estimate as Estimate
     from ._estimate import Hierarchical as Hierarchical
@@ -122,18 +109,11 @@ if _TYPE_CHECKING:  # the same names for static tools (type checkers, the API re
     from ._excitation import unit_vector as unit_vector
     from ._frequency import frequency_response as frequency_response
     from ._galerkin import ReducedModel as ReducedModel
-    from ._galerkin import galerkin as galerkin
-    from ._greedy import GreedyBasis as GreedyBasis
-    from ._greedy import greedy_reduce as greedy_reduce
     from ._greedy import rank_for_bound as rank_for_bound
     from ._implicit import StructuredKvaerno5 as StructuredKvaerno5
     from ._integrate import Trajectory as Trajectory
     from ._internal_damping import ModalDamping as ModalDamping
     from ._internal_damping import Rayleigh as Rayleigh
-    from ._interpolatory import IRKABasis as IRKABasis
-    from ._interpolatory import band_shifts as band_shifts
-    from ._interpolatory import irka_basis as irka_basis
-    from ._interpolatory import rational_krylov_basis as rational_krylov_basis
     from ._modal import modal_decomposition as modal_decomposition
     from ._objective_family import AbstractObjective as AbstractObjective
     from ._objective_family import AverageEnergy as AverageEnergy
@@ -150,13 +130,20 @@ if _TYPE_CHECKING:  # the same names for static tools (type checkers, the API re
     from ._optimise import ScreenAndCertify as ScreenAndCertify
     from ._optimise import Solution as Solution
     from ._optimise import optimise as optimise
-    from ._pod import POD as POD
-    from ._pod import energy_fraction as energy_fraction
-    from ._pod import pod as pod
-    from ._pod import rank_for_energy as rank_for_energy
-    from ._reduction import ReducedBasis as ReducedBasis
-    from ._reduction import Reduction as Reduction
-    from ._reduction import reduce as reduce
+    from ._reduce import IRKA as IRKA
+    from ._reduce import CraigBampton as CraigBampton
+    from ._reduce import EnrichedPOD as EnrichedPOD
+    from ._reduce import Greedy as Greedy
+    from ._reduce import Krylov as Krylov
+    from ._reduce import Modal as Modal
+    from ._reduce import ModalStatic as ModalStatic
+    from ._reduce import Projection as Projection
+    from ._reduce import RationalKrylov as RationalKrylov
+    from ._reduce import Union as Union
+    from ._reduce import reduce as reduce
+    from ._reduction import POD as POD
+    from ._reduction import AbstractReduction as AbstractReduction
+    from ._reduction import ReductionStats as ReductionStats
     from ._run import SceneResult as SceneResult
     from ._run import run_scene as run_scene
     from ._scene import Scene as Scene

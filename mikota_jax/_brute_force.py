@@ -28,7 +28,7 @@ import numpy as np
 
 from ._design import DamperProblem, Energy
 from ._errors import MARK, RESULTS, check_x64
-from ._galerkin import galerkin
+from ._galerkin import check_basis
 from ._limits import STIFF_RATIO
 from ._objectives import integrated_energy_exact_with_result
 from ._operators import diagonal_of
@@ -189,7 +189,7 @@ def reduced_grid(problem: DamperProblem, basis, positions, coefficients, *,
     if problem.num_dampers != 1:
         raise ValueError(MARK + "reduced_grid places one damper; the problem has "
                          f"{problem.num_dampers}.")
-    basis = galerkin(problem.base, basis).basis  # orthonormal (n, r): checked here, once
+    basis = check_basis(basis, problem.base.size)  # orthonormal (n, r): checked here, once
     positions, coefficients = _check_grid(problem, positions, coefficients)
     values, _ = _evaluate_grid(problem, basis, positions, coefficients, batch_size, progress)
     return values

@@ -54,7 +54,7 @@ from ._errors import MARK, RESULTS, check_x64
 from ._estimator import HierarchicalEstimator
 from ._integrate import simulate_with_result
 from ._plain import to_plain
-from ._reduction import Reduction, reduce, snapshot_window
+from ._reduction import POD, pod_basis, snapshot_window
 from ._search import (
     OPTIMIZERS,
     best_index,
@@ -101,9 +101,9 @@ def _snapshot_modes(problem, positions, coefficients):
                          "non-finite states) at the design "
                          f"positions={np.asarray(positions)}, "
                          f"coefficients={np.asarray(coefficients)}; increase max_steps.")
-    request = Reduction(problem.snapshots, energy=problem.energy, rank=problem.rank,
-                        criterion=problem.criterion)
-    return reduce(displacement, jnp.asarray(ts[:count]), request, cap_rank=True).basis
+    request = POD(problem.snapshots, energy=problem.energy, rank=problem.rank,
+                  criterion=problem.criterion)
+    return pod_basis(displacement, jnp.asarray(ts[:count]), request, cap_rank=True)[0]
 
 
 @dataclasses.dataclass

@@ -179,7 +179,7 @@ class DamperProblem(eqx.Module):
     ``ts`` is the time grid: the horizon T = ts[-1] - ts[0] of ``"energy"``, the samples of
     ``"peak"`` and of the snapshots. ``snapshots`` is the window (t0, t1) whose full-model
     displacements build the POD basis, ``energy`` the pseudo-energy fraction that sets its rank
-    (eq. 3.7; ``criterion`` as in ``rank_for_energy``) unless ``rank`` is given.
+    (eq. 3.7; ``criterion`` as in ``POD``) unless ``rank`` is given.
 
     Shapes: ``ts`` (N,), ``x0``, ``v0`` (n,), ``load`` as in ``solve``; the design is
     ``positions`` (g,), 1-based in [1, n], and ``coefficients`` (g,), >= 0 in force * time per

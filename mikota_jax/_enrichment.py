@@ -27,7 +27,7 @@ import numpy as np
 
 from ._errors import MARK
 from ._pod import pod
-from ._reduction import ReducedBasis, snapshot_window
+from ._reduction import ReductionStats, snapshot_window
 from ._run import solve_scene
 from ._scene import Scene
 from ._sensitivity import SceneFunction, parameters_at
@@ -83,16 +83,16 @@ def sensitivity_snapshots(scene: Scene, wrt: Sequence[str] = DESIGN, *,
 
 def enriched_reduce(scene: Scene, wrt: Sequence[str] = DESIGN, *,
                     parameters: dict | None = None, rank: int | None = None,
-                    energy: float | None = None) -> ReducedBasis:
-    """The sensitivity-enriched POD basis of ``scene`` (module docstring): a ``ReducedBasis``
-    like ``reduce``'s, whose ``pod`` is that of Q = [X, w_1 S_1, ...] (n x m (1 + P), P the
-    parameter entries in ``wrt``; ``snapshots`` = its column count).
+                    energy: float | None = None):
+    """(basis, stats): the sensitivity-enriched POD basis of ``scene`` (module docstring;
+    ``EnrichedPOD``), stats' ``decomposition`` that of Q = [X, w_1 S_1, ...] (n x m (1 + P), P
+    the parameter entries in ``wrt``; ``snapshots`` = its column count).
 
     ``wrt``: the design parameters (default the dampers' positions and coefficients);
     ``parameters``: the design to build at (default the scene's); the rank is ``rank``, else
     the smallest reaching ``energy`` (default the scene's ``[reduction]`` rule) under the
     scene's criterion. A parameter the states do not depend on (a zero derivative) adds nothing.
-    Use the basis with ``galerkin`` or ``sensitivities(..., model="reduced", basis=...)``.
+    Use the basis with ``sensitivities(..., model="reduced", basis=...)``.
     """
     x, derivatives = sensitivity_snapshots(scene, wrt, parameters=parameters)
     size = jnp.linalg.norm(x)
@@ -115,5 +115,5 @@ def enriched_reduce(scene: Scene, wrt: Sequence[str] = DESIGN, *,
                                              reduction.criterion)
     else:
         rank = reduction.rank
-    return ReducedBasis(decomposition, decomposition.basis(rank), int(rank),
-                        int(sum(b.shape[1] for b in blocks)))
+    return decomposition.basis(rank), ReductionStats(
+        "EnrichedPOD", int(rank), decomposition, snapshots=int(sum(b.shape[1] for b in blocks)))

@@ -108,7 +108,7 @@ def _residual_factor(system: SecondOrderSystem, basis):
 def _reduced_flow(system, basis, x0, v0):
     """(A, w0, Omega, U, not definite): the Galerkin model on the orthonormal ``basis`` as the
     first-order flow w' = A w in its scaled modal coordinates w = (Omega eta, eta'), q = U eta,
-    from the orthogonal projection of (x0, v0), as ``galerkin`` projects it."""
+    from the orthogonal projection of (x0, v0), as ``reduce`` projects it."""
     rom = system.project(basis)
     mass_r = rom.mass.as_matrix()
     omega, modes, damping_modal, not_definite = scaled_modal(rom)
@@ -162,7 +162,7 @@ def error_bound(system: SecondOrderSystem, basis: Basis, horizon: float,
     the module docstring): an ``ErrorBound`` with the reduced energy J_r, a bound on |J - J_r|
     and one on the state's energy-norm error.
 
-    ``basis``: (n, r) orthonormal (checked as ``galerkin`` checks it); ``x0``, ``v0``: (n,)
+    ``basis``: (n, r) orthonormal (checked as ``reduce`` checks it); ``x0``, ``v0``: (n,)
     full coordinates (default zero). Cost O(n r^2) for the residual and O(r^3) for two
     finite-horizon Gramians of size 2r: no full solve. Jit-, vmap- and grad-compatible in the
     system's values (a design sweep: ``mj.sweep`` over a function that builds the system). A
@@ -186,7 +186,7 @@ def error_bound(system: SecondOrderSystem, basis: Basis, horizon: float,
 
 def _reduced_energy(system, basis, horizon, x0, v0):
     """(J_r, not definite) of the Galerkin model on the orthonormal ``basis``: ``_bound``'s J_r
-    (the initial state projected orthogonally, as ``galerkin`` does)."""
+    (the initial state projected orthogonally, as ``reduce`` does)."""
     a, w0, _, _, not_definite = _reduced_flow(system, basis, x0, v0)
     return _flow_energy(a, w0, horizon), not_definite
 
@@ -290,7 +290,7 @@ class HierarchicalEstimator(eqx.Module):
     hierarchical a posteriori error estimator for the reduced basis method", Adv. Comput. Math.
     45 (2019) 2191-2214).
 
-    The fine space is span(basis, the ``modes`` lowest undamped modes, ``static_moments`` of the
+    The fine space is span(basis, the ``modes`` lowest undamped modes, static moments of the
     design's damper directions: K^-1 B, (K^-1 M) K^-1 B, ... , ``moments`` of them). The modes
     do not depend on the dampers, so the union of the basis and the modes is built once (here);
     per design only the damper moments are added (O(n) for a chain) and the fine model solved:

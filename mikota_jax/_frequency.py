@@ -2,7 +2,7 @@
 
 H(i omega) = (K - omega^2 M + i omega D)^-1 B: the steady-state complex amplitude of the
 displacements under forces B e^(i omega t). For a ``ReducedModel`` on Phi, H_r = Phi (K_r -
-omega^2 M_r + i omega D_r)^-1 Phi^T B: the natural check of moment matching (``krylov_basis``
+omega^2 M_r + i omega D_r)^-1 Phi^T B: the natural check of moment matching (``Krylov``
 matches H and its derivatives at omega = 0) and of any reduction in the frequency domain
 (Antoulas, "Approximation of Large-Scale Dynamical Systems", SIAM 2005, ch. 4).
 """

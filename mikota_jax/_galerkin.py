@@ -14,6 +14,7 @@ import numpy as np
 
 from ._custom_types import Basis, Vector
 from ._errors import MARK, array_module, check
+from ._reduction import ReductionStats
 from ._system import SecondOrderSystem
 
 # The error of the reduced initial state and of the lift is of this order. The bases this package
@@ -27,12 +28,14 @@ class ReducedModel(eqx.Module):
     ``system``: the projected ``SecondOrderSystem`` M_red, D_red, K_red of eq. (3.4) (dense r x r
     mass and stiffness, low-rank dampers); ``basis``: Phi, (n, r) with orthonormal columns
     (eq. 3.8). ``solve`` takes it like a full system: initial states and
-    loads in full coordinates, outputs lifted back to the 1-based full DOFs. Build with
-    ``galerkin``.
+    loads in full coordinates, outputs lifted back to the 1-based full DOFs; ``stats``: what the
+    reduction did (``ReductionStats``: the strategy, the rank, and its facts, e.g. a POD's
+    singular values; None for a model built by hand). Build with ``reduce``.
     """
 
     system: SecondOrderSystem
     basis: Basis
+    stats: ReductionStats | None = None
 
     @property
     def size(self) -> int:
@@ -53,10 +56,10 @@ class ReducedModel(eqx.Module):
         return q @ self.basis.T
 
 
-def galerkin(system: SecondOrderSystem, basis: Basis) -> ReducedModel:
+def galerkin(system: SecondOrderSystem, basis: Basis, stats=None) -> ReducedModel:
     """The reduced model of ``system`` on ``basis``: M, D, K projected as in eq. (3.4).
 
-    ``basis``: Phi, (n, r) float64 with orthonormal columns (e.g. ``POD.basis(r)``, eq. 3.8);
+    ``basis``: Phi, (n, r) float64 with orthonormal columns (e.g. a POD basis, eq. 3.8);
     x ~ Phi q (eq. 3.2). A basis that is not orthonormal to ``ORTHONORMALITY`` (1e-6, in
     max |basis^T basis - I|) is a ``ValueError`` (under ``jit`` an ``eqx.error_if``); the check
     costs O(n r^2).
@@ -64,7 +67,7 @@ def galerkin(system: SecondOrderSystem, basis: Basis) -> ReducedModel:
     if not isinstance(system, SecondOrderSystem):
         raise ValueError(MARK + f"system must be a SecondOrderSystem, got {type(system).__name__}.")
     basis = check_basis(basis, system.size)
-    return ReducedModel(_project(system, basis), basis)
+    return ReducedModel(_project(system, basis), basis, stats)
 
 
 @eqx.filter_jit

@@ -26,7 +26,7 @@ from ._errors import MARK
 from ._estimator import HierarchicalEstimator, _bound
 from ._exact import exact_solve
 from ._galerkin import check_basis
-from ._pod import POD
+from ._pod import _Decomposition
 from ._reduction import snapshot_window
 from ._scene import Scene
 from ._sensitivity import SceneFunction, _scene_basis, parameters_at
@@ -203,8 +203,8 @@ def greedy_reduce(scene: Scene, training: dict, tolerance: float = 1e-4, *, basi
                        float(tolerance), bounds, tuple(history), solves)
 
 
-def rank_for_bound(scene: Scene, pod: POD, tolerance: float, *, parameters: dict | None = None
-                   ) -> int:
+def rank_for_bound(scene: Scene, pod: _Decomposition, tolerance: float, *,
+                   parameters: dict | None = None) -> int:
     """The smallest rank r whose basis ``pod.basis(r)`` has a relative bound on |J - J_r| / J
     <= ``tolerance`` at the scene's design (or ``parameters``), by bisection on r (a bound per
     step, no full solve; the bound is nearly monotone in r, not exactly: the result is a rank

@@ -24,7 +24,7 @@ Cost: O((q + m) n^2 + k n^2) after the undamped modes, where q is the number of 
 initial states (``_spectral_objectives.output_energy_from_modes``); differentiable in every
 physical value (positions, coefficients, M, K) by the secular equation's implicit derivative.
 Applies where the spectral path does: a full system with discrete dampers and internal damping
-diagonal in modal coordinates. A ``ReducedModel`` (``galerkin``) takes both criteria densely in
+diagonal in modal coordinates. A ``ReducedModel`` (``reduce``) takes both criteria densely in
 its r scaled modal coordinates (``_reduced_output_energy``: one Van Loan integral of the
 observability Gramian by doubling, O(r^3)), with the outputs and initial states in full
 coordinates as for the full model; ``jax.grad`` passes through it too.

@@ -12,7 +12,7 @@ rounding noise: 4 max(n, m) eps for ``"svd"`` and ``"randomized"`` (a backward-s
 snapshots rounded entry by entry, as ``numpy.linalg.matrix_rank``), its square root (1e-7 to
 1e-6) for ``"snapshots"`` (the Gram matrix resolves sigma^2 to max(n, m) eps sigma_1^2). The modes
 beyond it are rounding noise (Sirovich's are not even orthonormal), so no rank choice goes past it:
-a rank above it is a ``ValueError`` (``POD.basis``; under ``jit`` an ``eqx.error_if``), and an
+a rank above it is a ``ValueError`` (``basis``; under ``jit`` an ``eqx.error_if``), and an
 energy fraction of 1, or one so close to 1 that only noise could reach it, gives the numerical rank.
 
 For large snapshot sets (n >= 10^4) ``method="randomized"`` computes only the leading k singular
@@ -44,7 +44,7 @@ METHODS = ("svd", "snapshots")  # the full PODs (all a scene file may name)
 ALL_METHODS = (*METHODS, "randomized")  # plus the truncated one, which needs a rank
 
 
-class POD(eqx.Module):
+class _Decomposition(eqx.Module):
     """Singular values (descending) and proper orthogonal modes of a snapshot matrix (eq. 3.6).
 
     ``singular_values``: sigma_1 >= ... >= sigma_k, (k,) with k = min(n, m) (or the requested
@@ -222,15 +222,16 @@ def _prng_key(key):
 
 
 def pod(snapshots: Snapshots, *, method: str = "svd", rank: int | None = None,
-        oversampling: int = 10, power_iterations: int = 2, key=None) -> POD:
-    """POD of the (n, m) snapshot matrix Q = [x_1, ..., x_m] (eqs. 3.5-3.6): a ``POD``.
+        oversampling: int = 10, power_iterations: int = 2, key=None) -> "_Decomposition":
+    """POD of the (n, m) snapshot matrix Q = [x_1, ..., x_m] (eqs. 3.5-3.6): a decomposition
+    (``ReductionStats.decomposition`` of a ``POD`` reduction).
 
     One column per time instant (n DOFs, m snapshots): from a ``Trajectory``, Q =
     ``displacement.T`` (its rows are times). ``method="svd"`` (default) is the accurate thin SVD;
     ``"snapshots"`` uses the eigenvectors of the smaller of Q Q^T and Q^T Q, for snapshot sets
     much longer (or much taller) than the other side. Returns all min(n, m) singular values and
-    modes; choose the rank with ``POD.rank_for_energy`` or pass it to ``POD.basis``: a rank above
-    the numerical rank (the values above rounding noise, ``POD.numerical_rank``) is a
+    modes; choose the rank with ``rank_for_energy`` or pass it to ``basis``: a rank above
+    the numerical rank (the values above rounding noise, ``numerical_rank``) is a
     ``ValueError``, never silently capped, and ``energy = 1`` gives the numerical rank.
     Jit-compiled; may itself be jit-ed, vmap-ed and differentiated.
 
@@ -238,8 +239,8 @@ def pod(snapshots: Snapshots, *, method: str = "svd", rank: int | None = None,
     required), from a Gaussian sketch of ``rank + oversampling`` columns (capped at min(n, m);
     oversampling >= 0) refined by ``power_iterations`` >= 0 subspace iterations; ``key`` (a
     ``jax.random.key``, default ``key(0)``) makes it deterministic. These three counts fix array
-    shapes: pass Python integers (static under ``jit``). See ``POD`` for what a truncated POD
-    can and cannot tell about the energy.
+    shapes: pass Python integers (static under ``jit``). See ``_Decomposition`` for what a
+    truncated POD can and cannot tell about the energy.
     """
     check_x64()
     if method not in ALL_METHODS:
@@ -253,17 +254,17 @@ def pod(snapshots: Snapshots, *, method: str = "svd", rank: int | None = None,
     if method != "randomized":
         if rank is not None or key is not None:
             raise ValueError(MARK + "rank and key apply to method='randomized' only; choose the "
-                             "rank of a full POD with POD.basis(rank).")
+                             "rank of a full POD with the decomposition's basis(rank).")
         if method == "svd":
-            return POD(*_pod_svd(q), rounding_level=level)
-        return POD(*_pod_snapshots(q), rounding_level=float(np.sqrt(level)))
+            return _Decomposition(*_pod_svd(q), rounding_level=level)
+        return _Decomposition(*_pod_snapshots(q), rounding_level=float(np.sqrt(level)))
     smaller = min(q.shape)
     rank = _count(rank, "rank (required for method='randomized')", 1, smaller)
     oversampling = _count(oversampling, "oversampling", 0)
     power_iterations = _count(power_iterations, "power_iterations", 0)
     s, u, total = _pod_randomized(q, _prng_key(key), rank=rank, power_iterations=power_iterations,
                                   sketch=min(rank + oversampling, smaller))
-    return POD(s, u, total, rounding_level=level)
+    return _Decomposition(s, u, total, rounding_level=level)
 
 
 def energy_fraction(singular_values, criterion: str = "squared"):
@@ -302,10 +303,10 @@ def rank_for_energy(singular_values, energy: float, criterion: str = "squared") 
     ``singular_values``: (k,), descending; 0 < energy <= 1 (eq. 5.3: 0.99); ``criterion`` as in
     ``energy_fraction`` ("paper" gives the paper's r = 76 and 98 for 0.99 and 0.9999).
 
-    Never past the numerical rank (here: values above 4 k eps sigma_1, k of them; ``POD``'s own
-    method knows the snapshot shape and method); ``energy = 1`` gives it. ``singular_values`` are
-    taken as all of them: for a truncated (randomized) POD use ``POD.rank_for_energy``, which
-    knows the total energy.
+    Never past the numerical rank (here: values above 4 k eps sigma_1, k of them; the
+    decomposition's own method knows the snapshot shape and method); ``energy = 1`` gives it.
+    ``singular_values`` are taken as all of them: for a truncated (randomized) POD use the
+    decomposition's ``rank_for_energy``, which knows the total energy.
     """
     level = 4 * np.size(singular_values) * float(np.finfo(np.float64).eps)
     return _rank_for_energy(singular_values, energy, criterion, level)

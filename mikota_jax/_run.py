@@ -18,10 +18,10 @@ import jax
 from ._custom_types import Array, Float, Times
 from ._errors import MARK
 from ._exact import exact_solve
-from ._galerkin import galerkin
+from ._galerkin import ReducedModel, galerkin
 from ._integrate import Trajectory, simulate
 from ._metrics import phase_error, relative_error
-from ._reduction import ReducedBasis, reduce
+from ._reduction import pod_basis
 from ._scene import Output, Scene
 
 
@@ -54,8 +54,9 @@ class SceneResult(eqx.Module):
 
     ``times``: the (N,) output times; ``full``: the full model's ``Trajectory`` (every DOF when a
     reduction needs the snapshots, else the 1-based output DOFs; velocities only when read);
-    ``basis``: the ``ReducedBasis`` (``pod``, ``rank``, (n, r) ``basis``, ``snapshots``) or None;
-    ``reduced``: the reduced model's ``Trajectory`` (lifted to the full DOFs) or None; ``metrics``:
+    ``model``: the ``ReducedModel`` (its (n, r) ``basis``, and ``stats``: the POD's
+    ``decomposition``, ``rank``, ``snapshots``) or None; ``reduced``: the reduced model's
+    ``Trajectory`` (lifted to the full DOFs) or None; ``metrics``:
     {"phase_error", "relative_error"}: scalars, the requested ones; ``timings``: wall seconds of
     the stages ("full_solve_s", "reduction_s", "reduced_solve_s").
     """
@@ -63,7 +64,7 @@ class SceneResult(eqx.Module):
     scene: Scene
     times: Times
     full: Trajectory
-    basis: ReducedBasis | None
+    model: ReducedModel | None
     reduced: Trajectory | None
     metrics: dict[str, Float[Array, ""]]
     timings: dict[str, float]
@@ -77,7 +78,7 @@ class SceneResult(eqx.Module):
     @property
     def rank(self) -> int | None:
         """r, the rank of the reduced model (None without a reduction)."""
-        return None if self.basis is None else self.basis.rank
+        return None if self.model is None else self.model.rank
 
 
 def run_scene(scene: Scene) -> SceneResult:
@@ -107,17 +108,16 @@ def run_scene(scene: Scene) -> SceneResult:
                        wants_v or snapshot_v)
     jax.block_until_ready(full)
     timings["full_solve_s"] = time.perf_counter() - start
-    basis = reduced = None
+    model = reduced = None
     values = {}
     if reduction is not None:
         start = time.perf_counter()
         states = full.velocity if snapshot_v else full.displacement
-        basis = reduce(states, scene.ts, reduction)
-        model = galerkin(scene.system, basis.basis)
+        model = galerkin(scene.system, *pod_basis(states, scene.ts, reduction))
         timings["reduction_s"] = time.perf_counter() - start
         start = time.perf_counter()
         reduced = solve_scene(model, scene, None if metrics else dofs, True, wants_v)
         jax.block_until_ready(reduced)
         timings["reduced_solve_s"] = time.perf_counter() - start
         values = {name: METRICS[name](full, reduced, out) for name in metrics}
-    return SceneResult(scene, scene.ts, full, basis, reduced, values, timings)
+    return SceneResult(scene, scene.ts, full, model, reduced, values, timings)

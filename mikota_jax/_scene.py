@@ -11,7 +11,7 @@ import equinox as eqx
 
 from ._custom_types import Times, Vector
 from ._excitation import Pulse
-from ._reduction import Reduction
+from ._reduction import POD
 from ._system import SecondOrderSystem
 
 # what [output] quantities may name: histories ("full"/"reduced" columns), POD outputs, metrics
@@ -35,9 +35,10 @@ class Scene(eqx.Module):
 
     ``system``: the chain or system (n DOFs); ``ts``: (N,) output times; ``x0``, ``v0``: (n,)
     initial state or None (zero); ``load``: a ``Pulse`` (eq. 4.3) or None; ``reduction``: the
-    snapshot window, rank rule and POD method (eqs. 3.5-3.8), or None; ``output``: 1-based DOFs and
-    quantities; ``solver``: "exact" (``solve``'s exact methods) or an ``ODE`` solver with ``rtol``,
-    ``atol``, ``max_steps``. Consistent units, as in the paper's dimensionless scenes.
+    ``POD`` strategy (snapshot window, rank rule, method; eqs. 3.5-3.8), or None; ``output``:
+    1-based DOFs and quantities; ``solver``: "exact" (``solve``'s exact methods) or an ``ODE``
+    solver with ``rtol``, ``atol``, ``max_steps``. Consistent units, as in the paper's dimensionless
+    scenes.
     """
 
     system: SecondOrderSystem
@@ -45,8 +46,8 @@ class Scene(eqx.Module):
     x0: Vector | None
     v0: Vector | None
     load: Pulse | None
-    reduction: Reduction | None = eqx.field(static=True)
-    output: Output = eqx.field(static=True)
+    reduction: POD | None = eqx.field(static=True, default=None)
+    output: Output = eqx.field(static=True, default=Output(None, ("displacement",)))
     solver: str = eqx.field(static=True, default="exact")
     rtol: float = eqx.field(static=True, default=1e-10)
     atol: float = eqx.field(static=True, default=1e-12)

@@ -49,7 +49,7 @@ from ._limits import FEW_PARAMETERS
 from ._metrics import phase_error
 from ._objectives import integrated_energy
 from ._parameters import check_parameters, is_chain, with_parameters
-from ._reduction import reduce, snapshot_window
+from ._reduction import pod_basis, snapshot_window
 from ._run import solve_scene as _solve
 from ._scene import Scene
 from ._system import SecondOrderSystem
@@ -151,7 +151,7 @@ def _scene_basis(scene: Scene) -> jax.Array:
                          "give basis=... or a scene with a [reduction] table.")
     velocity = reduction.quantity == "velocity"
     full = _solve(scene.system, scene, None, not velocity, velocity, None)
-    return reduce(full.velocity if velocity else full.displacement, scene.ts, reduction).basis
+    return pod_basis(full.velocity if velocity else full.displacement, scene.ts, reduction)[0]
 
 
 class SceneFunction(eqx.Module):

@@ -62,7 +62,7 @@ class SecondOrderSystem(eqx.Module):
 
         ``basis`` is (n, r); the result has dense r x r mass and stiffness and low-rank dampers;
         Rayleigh damping stays Rayleigh damping of the projected M and K (exact), modal or a
-        user's damping becomes a dense r x r matrix. ``galerkin`` checks the basis and keeps it
+        user's damping becomes a dense r x r matrix. ``reduce`` checks the basis and keeps it
         for the lift (eq. 3.2); prefer it.
         """
         damping = None if self.damping is None else self.damping.project(basis)

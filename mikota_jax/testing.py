@@ -20,7 +20,11 @@ the private modules:
   search) of the polish, for ``ScreenAndCertify(optimizer=LBFGS)``;
 * ``spectral_energy_with_result(system, horizon, x0, v0, block=None)``: (J, ok) of
   ``integrated_energy(method="spectral")``; ``block=0`` forms the O(n^2) work all at once from
-  U (the layout before the blocks, for the benchmarks' comparison), None is the library's choice.
+  U (the layout before the blocks, for the benchmarks' comparison), None is the library's choice;
+* ``pod(snapshots, method=..., rank=...)``: the POD of an (n, m) snapshot matrix as it is (the
+  decomposition a ``POD`` reduction keeps in ``stats.decomposition``), ``PODDecomposition`` its
+  class and ``energy_fraction(singular_values, criterion)`` eq. (3.7), for benchmarks that time
+  or probe the decomposition itself (a reduced model: ``reduce(scene, POD(...))``).
 """
 
 from ._certify import LBFGS as LBFGS
@@ -33,6 +37,9 @@ from ._operators import Dense as Dense
 from ._operators import Diagonal as Diagonal
 from ._operators import Sparse as Sparse
 from ._placement_objective import placement_objective as placement_objective
+from ._pod import _Decomposition as PODDecomposition
+from ._pod import energy_fraction as energy_fraction
+from ._pod import pod as pod
 from ._solver_choice import choose_solver as choose_solver
 from ._solver_choice import stiffness_rate as stiffness_rate
 from ._spectral_objectives import spectral_energy_with_result as spectral_energy_with_result
@@ -43,4 +50,5 @@ from ._viscosity import criterion_function as criterion_function
 __all__ = ["Dense", "Diagonal", "Sparse", "chain_mode_data", "chain_modes", "damped_modes",
            "dense_solve_with_result", "generalized_modes", "spectral_solve_with_result",
            "spectral_energy_with_result", "stiffness_rate", "choose_solver", "criterion_function",
-           "DamperProblem", "placement_objective", "LBFGS"]
+           "DamperProblem", "placement_objective", "LBFGS", "pod", "PODDecomposition",
+           "energy_fraction"]

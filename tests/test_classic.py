@@ -8,16 +8,25 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
+from mikota_jax._classic import (
+    craig_bampton_basis,
+    damper_directions,
+    extend_basis,
+    fixed_interface_modes,
+    modal_static_basis,
+    static_moments,
+)
 
 
 def test_modal_basis_gives_the_exact_free_vibration_of_a_kept_mode():
     # undamped Mikota chain started in mode 3 (eq. 2.5): x(t) = cos(3 t) u_3 (omega_3 = 3)
     system = mj.mikota_chain(20)
-    basis = mj.modal_basis(system, 5)
+    basis = mj.reduce(system, mj.Modal(5)).basis
     assert np.max(np.abs(basis.T @ basis - np.eye(5))) < 1e-12
     x0 = mj.analytic.mode_shape(20, 3)
     ts = jnp.linspace(0.0, 10.0, 101)
-    rom = mj.solve(mj.galerkin(system, basis), ts, x0, method=mj.DenseExponential()).displacement
+    model = mj.reduce(system, mj.Projection(basis))
+    rom = mj.solve(model, ts, x0, method=mj.DenseExponential()).displacement
     exact = np.cos(3.0 * np.asarray(ts))[:, None] * np.asarray(x0)[None, :]
     assert np.max(np.abs(np.asarray(rom) - exact)) < 1e-10
 
@@ -26,7 +35,7 @@ def test_modal_basis_of_a_long_chain_computes_only_the_modes_it_keeps():
     # n >= 256: the r lowest modes by bisection (no n x n modes); the same span as the full
     # decomposition's r lowest (Mikota n = 400: the modes of omega = 1..40), orthonormal
     system = mj.mikota_chain(400)
-    basis = np.asarray(mj.modal_basis(system, 40))
+    basis = np.asarray(mj.reduce(system, mj.Modal(40)).basis)
     _, modes = mj.modal_decomposition(system)
     reference, _ = np.linalg.qr(np.asarray(modes[:, :40]))
     assert np.max(np.abs(basis.T @ basis - np.eye(40))) < 1e-12
@@ -36,9 +45,9 @@ def test_modal_basis_of_a_long_chain_computes_only_the_modes_it_keeps():
 def test_modal_static_basis_holds_the_static_response_of_every_damper_direction():
     system = mj.mikota_chain(30, dampers=[mj.GroundedDamper(12.4, 5.0),
                                           mj.RelativeDamper((3, 20), 2.0)])
-    b = np.asarray(mj.damper_directions(system))
+    b = np.asarray(damper_directions(system))
     assert b.shape == (30, 3)  # DOFs 12 and 13 of the split damper, e_3 - e_20
-    basis = np.asarray(mj.modal_static_basis(system, 6))
+    basis = np.asarray(modal_static_basis(system, 6))
     assert basis.shape == (30, 9)
     assert np.max(np.abs(basis.T @ basis - np.eye(9))) < 1e-12
     static = np.linalg.solve(np.asarray(system.stiffness.as_matrix()), b)
@@ -46,7 +55,7 @@ def test_modal_static_basis_holds_the_static_response_of_every_damper_direction(
     assert np.max(np.linalg.norm(outside, axis=0) / np.linalg.norm(static, axis=0)) < 1e-10
     load = np.zeros(30)
     load[29] = 1.0
-    assert mj.modal_static_basis(system, 6, loads=load).shape == (30, 10)
+    assert modal_static_basis(system, 6, loads=load).shape == (30, 10)
 
 
 @pytest.mark.slow
@@ -58,10 +67,10 @@ def test_the_static_correction_improves_on_modal_truncation_at_a_damper():
     x0 = sum(mj.analytic.mode_shape(60, l) for l in (1, 2, 3))
     full = float(mj.Energy(20.0, x0)(system))
     errors = {}
-    for name, basis in (("modal", mj.modal_basis(system, 12)),
-                        ("static", mj.modal_static_basis(system, 10))):  # + DOFs 45, 46
+    for name, basis in (("modal", mj.reduce(system, mj.Modal(12)).basis),
+                        ("static", modal_static_basis(system, 10))):  # + DOFs 45, 46
         assert basis.shape == (60, 12)
-        value = float(mj.Energy(20.0, x0)(mj.galerkin(system, basis)))
+        value = float(mj.Energy(20.0, x0)(mj.reduce(system, mj.Projection(basis))))
         errors[name] = abs(value / full - 1)
     assert errors["modal"] > 1e-2
     assert errors["static"] < min(1e-3, errors["modal"] / 100)
@@ -70,11 +79,11 @@ def test_the_static_correction_improves_on_modal_truncation_at_a_damper():
 def test_bad_input_fails_in_one_line():
     system = mj.mikota_chain(10)
     with pytest.raises(ValueError, match=r"rank must be an integer in 1\.\.10"):
-        mj.modal_basis(system, 0)
+        mj.reduce(system, mj.Modal(0))
     with pytest.raises(ValueError, match=r"loads must be \(n,\) or \(n, s\)"):
-        mj.modal_static_basis(system, 3, loads=np.ones(4))
-    with pytest.raises(ValueError, match="system must be a SecondOrderSystem"):
-        mj.modal_basis("chain", 3)
+        mj.reduce(system, mj.ModalStatic(3, loads=np.ones(4)))
+    with pytest.raises(ValueError, match="problem must be a SecondOrderSystem or a Scene"):
+        mj.reduce("chain", mj.Modal(3))
 
 
 def test_extend_basis_adds_only_the_directions_outside_the_span():
@@ -83,16 +92,16 @@ def test_extend_basis_adds_only_the_directions_outside_the_span():
     inside = basis @ rng.standard_normal((4, 2))  # adds nothing
     new = rng.standard_normal((20, 2))
     extra = np.concatenate([inside, new, new @ np.array([[1.0], [2.0]])], axis=1)
-    out = np.asarray(mj.extend_basis(basis, extra))
+    out = np.asarray(extend_basis(basis, extra))
     assert out.shape == (20, 6)  # two new directions, the third new column is their sum
     assert np.max(np.abs(out.T @ out - np.eye(6))) < 1e-12
     assert np.array_equal(out[:, :4], basis)
     assert np.max(np.abs(extra - out @ (out.T @ extra))) < 1e-12
-    assert mj.extend_basis(basis, basis[:, 0]).shape == (20, 4)
+    assert extend_basis(basis, basis[:, 0]).shape == (20, 4)
     with pytest.raises(ValueError, match="extra must have shape"):
-        mj.extend_basis(basis, np.ones(19))
+        extend_basis(basis, np.ones(19))
     with pytest.raises(ValueError, match="tol must lie in"):
-        mj.extend_basis(basis, new, tol=-1.0)
+        extend_basis(basis, new, tol=-1.0)
 
 
 def _frequencies(system, modes):
@@ -109,14 +118,14 @@ def test_fixed_interface_modes_of_a_uniform_chain_held_at_a_dof_are_the_two_piec
     system = mj.chain(np.ones(n), np.ones(n))
     c = np.zeros(n)
     c[held - 1] = 1.0
-    modes = np.asarray(mj.fixed_interface_modes(system, c, n - 1))
+    modes = np.asarray(fixed_interface_modes(system, c, n - 1))
     omega, _, _ = _frequencies(system, modes)
     exact = np.sort(np.concatenate([2 * np.sin(np.arange(1, 5) * np.pi / 10),
                                     2 * np.sin((2 * np.arange(1, 8) - 1) * np.pi / 30)]))
     np.testing.assert_allclose(omega, exact, rtol=1e-12)
     assert np.max(np.abs(modes[held - 1])) == 0.0
     with pytest.raises(ValueError, match=r"rank must be an integer in 1\.\.11"):
-        mj.fixed_interface_modes(system, c, n)
+        fixed_interface_modes(system, c, n)
 
 
 def test_fixed_interface_modes_of_a_long_chain_take_the_o_n_r_path_to_full_accuracy():
@@ -125,7 +134,7 @@ def test_fixed_interface_modes_of_a_long_chain_take_the_o_n_r_path_to_full_accur
     # (omega_j = 2 sin((2j - 1) pi / 1002)), the 60 lowest to 1e-12 relative
     n = 400
     system = mj.chain(np.ones(n), np.ones(n))
-    modes = np.asarray(mj.fixed_interface_modes(system, np.eye(n)[149], 60))
+    modes = np.asarray(fixed_interface_modes(system, np.eye(n)[149], 60))
     omega, _, _ = _frequencies(system, modes)
     exact = np.sort(np.concatenate([2 * np.sin(np.arange(1, 150) * np.pi / 300),
                                     2 * np.sin((2 * np.arange(1, 251) - 1) * np.pi / 1002)]))
@@ -138,7 +147,7 @@ def test_fixed_interface_modes_of_a_long_chain_take_the_o_n_r_path_to_full_accur
     n, held = 300, [0, 120, 121, 299]
     masses, springs = rng.uniform(0.2, 5.0, n), rng.uniform(0.2, 5.0, n)
     system = mj.chain(masses, springs)
-    modes = np.asarray(mj.fixed_interface_modes(system, np.eye(n)[:, held], 40))
+    modes = np.asarray(fixed_interface_modes(system, np.eye(n)[:, held], 40))
     omega, k, m = _frequencies(system, modes)
     keep = np.setdiff1d(np.arange(n), held)
     scale = 1 / np.sqrt(masses[keep])
@@ -156,13 +165,13 @@ def test_a_long_chain_takes_the_same_o_n_r_path_under_jit():
     # no dense eigensolver; truth for the frequencies: 2 sin((2j - 1) pi / (2 (2n + 1))), exact
     n = 300
     system = mj.chain(np.ones(n), np.ones(n))
-    eager = np.asarray(mj.modal_basis(system, 12))
-    jitted = np.asarray(jax.jit(lambda s: mj.modal_basis(s, 12))(system))
+    eager = np.asarray(mj.reduce(system, mj.Modal(12)).basis)
+    jitted = np.asarray(jax.jit(lambda s: mj.reduce(s, mj.Modal(12)).basis)(system))
     np.testing.assert_array_equal(jitted, eager)
     omega, _, _ = _frequencies(system, eager)
     np.testing.assert_allclose(omega, 2 * np.sin((2 * np.arange(1, 13) - 1) * np.pi / 1202),
                                rtol=1e-12)
-    program = str(jax.make_jaxpr(lambda s: mj.modal_basis(s, 12))(system))
+    program = str(jax.make_jaxpr(lambda s: mj.reduce(s, mj.Modal(12)).basis)(system))
     assert "eigh" not in program and "svd" not in program
 
 
@@ -172,7 +181,7 @@ def test_fixed_interface_modes_with_a_tie_are_stationary_on_the_constraint():
     system = mj.mikota_chain(12)
     c = np.zeros(12)
     c[2], c[8] = 1.0, -1.0
-    modes = np.asarray(mj.fixed_interface_modes(system, c, 6))
+    modes = np.asarray(fixed_interface_modes(system, c, 6))
     omega, k, m = _frequencies(system, modes)
     np.testing.assert_allclose(modes[2], modes[8], atol=1e-12)
     residual = k @ modes - m @ modes * omega**2
@@ -187,18 +196,18 @@ def test_craig_bampton_basis_holds_the_acting_dampers_and_the_constraint_moments
     # damper columns
     system = mj.mikota_chain(30, dampers=[mj.GroundedDamper(12.0, 50.0),
                                           mj.GroundedDamper(20.0, 0.0)])
-    basis = np.asarray(mj.craig_bampton_basis(system, 10, moments=2))
+    basis = np.asarray(craig_bampton_basis(system, 10, moments=2))
     assert basis.shape == (30, 18)
     assert np.max(np.abs(basis.T @ basis - np.eye(18))) < 1e-12
     c = np.zeros(30)
     c[11] = 1.0
-    held = np.asarray(mj.fixed_interface_modes(system, c, 10))
-    static = np.asarray(mj.static_moments(system, mj.damper_directions(system), 2))
+    held = np.asarray(fixed_interface_modes(system, c, 10))
+    static = np.asarray(static_moments(system, damper_directions(system), 2))
     for part in (held, static):
         outside = part - basis @ (basis.T @ part)
         assert np.max(np.linalg.norm(outside, axis=0) / np.linalg.norm(part, axis=0)) < 1e-10
     with pytest.raises(ValueError, match="moments must be an integer >= 1"):
-        mj.craig_bampton_basis(system, 10, moments=0)
+        craig_bampton_basis(system, 10, moments=0)
 
 
 def test_craig_bampton_basis_takes_a_strong_damper_that_pins_its_dof():
@@ -211,9 +220,9 @@ def test_craig_bampton_basis_takes_a_strong_damper_that_pins_its_dof():
     full = float(mj.Energy(10.0, x0, method="dense")(system))
     errors = []
     for rank in (26, 30):
-        basis = mj.craig_bampton_basis(system, rank)
+        basis = craig_bampton_basis(system, rank)
         assert basis.shape == (n, rank + 6)
-        errors.append(abs(float(mj.Energy(10.0, x0)(mj.galerkin(system, basis)))
+        errors.append(abs(float(mj.Energy(10.0, x0)(mj.reduce(system, mj.Projection(basis))))
                           / full - 1))
     assert errors[1] < 1e-5 < errors[0] < 1e-3
 
@@ -228,7 +237,7 @@ def test_craig_bampton_basis_with_the_start_kept_gives_the_gradients():
 
     def energy(position, coefficient, basis=None):
         system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(position, coefficient)])
-        model = system if basis is None else mj.galerkin(system, basis)
+        model = system if basis is None else mj.reduce(system, mj.Projection(basis))
         return mj.Energy(10.0, x0, method="dense")(model)
 
     values = jax.value_and_grad(energy, argnums=(0, 1))
@@ -236,13 +245,13 @@ def test_craig_bampton_basis_with_the_start_kept_gives_the_gradients():
     full, (dp, dc) = values(20.0, 1e4)
     errors = {}
     for kept in (False, True):
-        basis = mj.craig_bampton_basis(system, 24, states=x0 if kept else None)
+        basis = craig_bampton_basis(system, 24, states=x0 if kept else None)
         assert basis.shape == (n, 31 if kept else 30)
         value, (rp, rc) = values(20.0, 1e4, basis)
         errors[kept] = (abs(value / full - 1), abs(rc / dc - 1), abs(rp / dp - 1))
-    basis = np.asarray(mj.craig_bampton_basis(system, 24, states=x0))
+    basis = np.asarray(craig_bampton_basis(system, 24, states=x0))
     assert np.linalg.norm(x0 - basis @ (basis.T @ x0)) < 1e-12
     assert errors[True][0] < 1e-6 and errors[True][1] < 1e-3 and errors[True][2] < 1e-2
     assert errors[False][0] > 1e-3 and errors[False][2] > 1.0
     with pytest.raises(ValueError, match=r"states must be \(n,\) or \(n, s\)"):
-        mj.craig_bampton_basis(system, 10, states=np.ones(4))
+        craig_bampton_basis(system, 10, states=np.ones(4))

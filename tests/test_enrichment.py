@@ -1,4 +1,4 @@
-"""Sensitivity-enriched POD (``enriched_reduce``): the ROM's gradient follows the full model's
+"""Sensitivity-enriched POD (``EnrichedPOD``): the ROM's gradient follows the full model's
 where a POD of the states alone does not; the sensitivity snapshots are the states' derivatives
 (central differences); a complete basis is exact; bad input fails in one line."""
 
@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
+from mikota_jax._enrichment import sensitivity_snapshots
 
 WRT = ("positions", "coefficients")
 
@@ -31,7 +32,7 @@ def case():
     """n = 40, a damper near the free end (DOF 37, c = 100): the scene, the full model's
     sensitivities of J and the enriched basis (one compile of each for the whole module)."""
     scene = scene_for()
-    return scene, mj.sensitivities(scene, "energy", wrt=WRT), mj.enriched_reduce(scene, WRT)
+    return scene, mj.sensitivities(scene, "energy", wrt=WRT), mj.reduce(scene, mj.EnrichedPOD(WRT))
 
 
 @pytest.mark.slow
@@ -39,11 +40,11 @@ def test_enriched_basis_gives_the_full_gradient_where_plain_pod_does_not(case):
     # r = 30: the plain POD ROM's J is 4e-3 off but its dJ/dp 34x and dJ/dc 55 % (measured);
     # the enriched ROM's 9.4e-5 and 5.2e-6
     scene, full, enriched = case
-    plain = mj.run_scene(scene).basis.pod
-    assert enriched.snapshots == 3 * 201  # states and one block per parameter, window [0, 10]
+    plain = mj.run_scene(scene).model.stats.decomposition
+    assert enriched.stats.snapshots == 3 * 201  # states and one block per parameter, window [0, 10]
     assert enriched.rank <= scene.size
     plain_errors = relative_errors(scene, plain.basis(30), full)
-    enriched_errors = relative_errors(scene, enriched.pod.basis(30), full)
+    enriched_errors = relative_errors(scene, enriched.stats.decomposition.basis(30), full)
     assert plain_errors["positions"] > 1.0 and plain_errors["coefficients"] > 0.1
     assert max(enriched_errors.values()) < 1e-3
 
@@ -51,14 +52,14 @@ def test_enriched_basis_gives_the_full_gradient_where_plain_pod_does_not(case):
 @pytest.mark.slow  # ~21 s of finite differences (default-run time: CI under 15 min)
 def test_sensitivity_snapshots_are_the_states_derivatives():
     scene = scene_for(position=36.5, coefficient=3.0)  # off the integer kink of the position
-    x, derivatives = mj.sensitivity_snapshots(scene, WRT)
+    x, derivatives = sensitivity_snapshots(scene, WRT)
     assert x.shape == (40, 201) and derivatives["positions"].shape == (40, 201, 1)
     h = 1e-5
     for name in WRT:
         def states(step, name=name):
             design = {"positions": jnp.array([36.5]), "coefficients": jnp.array([3.0])}
             design[name] = design[name] + step
-            return np.asarray(mj.sensitivity_snapshots(scene, WRT, parameters=design)[0])
+            return np.asarray(sensitivity_snapshots(scene, WRT, parameters=design)[0])
         central = (states(h) - states(-h)) / (2 * h)
         forward = np.asarray(derivatives[name][..., 0])
         assert np.max(np.abs(forward - central)) < 1e-6 * np.max(np.abs(central))
@@ -66,15 +67,15 @@ def test_sensitivity_snapshots_are_the_states_derivatives():
 
 def test_a_complete_enriched_basis_is_exact(case):
     scene, full, enriched = case
-    complete = enriched.pod.basis(scene.size)
+    complete = enriched.stats.decomposition.basis(scene.size)
     assert max(relative_errors(scene, complete, full).values()) < 1e-9
 
 
 def test_bad_input_fails_in_one_line(case):
     scene = case[0]
     with pytest.raises(ValueError, match=r"\[reduction\] table"):
-        mj.enriched_reduce(scene_for(reduction=False))
+        mj.reduce(scene_for(reduction=False), mj.EnrichedPOD())
     with pytest.raises(ValueError, match=r"rank must be an integer in 1\.\."):
-        mj.enriched_reduce(scene, rank=0)
+        mj.reduce(scene, mj.EnrichedPOD(rank=0))
     with pytest.raises(ValueError, match="wrt: unknown parameter"):
-        mj.enriched_reduce(scene, ("stiffness",))
+        mj.reduce(scene, mj.EnrichedPOD(("stiffness",)))

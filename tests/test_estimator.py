@@ -1,4 +1,4 @@
-"""The a posteriori error bound (``error_bound``) and what is built on it (``greedy_reduce``,
+"""The a posteriori error bound (``error_bound``) and what is built on it (``Greedy``,
 ``rank_for_bound``): the bounds are never below the true errors (full exact solves), vanish for
 a complete basis, and certify what they claim; bad input fails in one line."""
 
@@ -10,6 +10,7 @@ import scipy.linalg
 
 import mikota_jax as mj
 from mikota_jax._estimator import error_bound
+from mikota_jax._pod import pod
 
 N = 40
 T = 20.0
@@ -40,7 +41,7 @@ def true_errors(system, basis, x0):
     ev = full[:, N:] - reduced[:, r:] @ b.T
     state = np.sqrt(np.einsum("ti,ij,tj->t", ex, k, ex) + np.einsum("ti,ij,tj->t", ev, m, ev))
     j = float(mj.Energy(T, x0)(system))
-    j_r = float(mj.Energy(T, x0)(mj.galerkin(system, basis)))
+    j_r = float(mj.Energy(T, x0)(mj.reduce(system, mj.Projection(basis))))
     return abs(j - j_r), float(state.max()), j, j_r
 
 
@@ -49,7 +50,7 @@ def case():
     system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(7.0, 1.0)])
     x0 = jnp.zeros(N).at[2].set(1.0)
     states = _states(*(np.asarray(a) for a in system.dense()), np.asarray(x0), 0.01, 1001)
-    return system, x0, mj.pod(jnp.asarray(states[:, :N].T))
+    return system, x0, pod(jnp.asarray(states[:, :N].T))
 
 
 @pytest.mark.parametrize("rank", [pytest.param(8, marks=pytest.mark.slow), 16,
@@ -116,7 +117,7 @@ def test_bad_input_fails_in_one_line(case):
 def test_the_estimators_are_one_family_behind_estimate(case):
     system, x0, pod = case
     basis = pod.basis(16)
-    rom = mj.galerkin(system, basis)
+    rom = mj.reduce(system, mj.Projection(basis))
     # a ReducedModel or its basis: the same bound (the same computation, to rounding)
     a = mj.estimate(system, mj.ResidualBound(rom), T, x0)
     b = mj.estimate(system, mj.ResidualBound(basis), T, x0)
@@ -142,10 +143,11 @@ def test_greedy_basis_certifies_the_training_designs_and_holds_between_them():
     scene = small_scene()
     training = mj.grid(positions=np.linspace(1.0, 40.0, 4)[:, None],
                        coefficients=np.geomspace(0.1, 100.0, 3)[:, None])
-    result = mj.greedy_reduce(scene, training, 1e-3, step=4)
-    assert result.certified and result.rank <= N
-    assert result.bounds.max() <= 1e-3 and result.full_solves == len(result.history) - 1
-    assert result.history[-1][1] <= 1e-3 < result.history[0][1]
+    result = mj.reduce(scene, mj.Greedy(training, 1e-3, step=4))
+    stats = result.stats
+    assert stats.certified and result.rank <= N
+    assert max(stats.bounds) <= 1e-3 and stats.full_solves == len(stats.history) - 1
+    assert stats.history[-1][1] <= 1e-3 < stats.history[0][1]
     # designs off the training grid: the bound there holds against the full model
     rng = np.random.default_rng(0)
     for position, coefficient in zip(rng.uniform(1, 40, 3), 10 ** rng.uniform(-1, 2, 3)):
@@ -158,15 +160,13 @@ def test_greedy_basis_certifies_the_training_designs_and_holds_between_them():
 @pytest.mark.slow  # ~14 s, a compile per rank tried (default-run time: CI under 15 min)
 def test_rank_for_bound_is_the_smallest_rank_that_meets_the_tolerance(case):
     scene = small_scene()
-    snapshots = mj.solve(scene.system, scene.ts, scene.x0, method=mj.Spectral()).displacement
-    pod = mj.reduce(snapshots, scene.ts,
-                    mj.Reduction((0.0, 10.0), rank=1)).pod
+    pod = mj.reduce(scene, mj.POD((0.0, 10.0), rank=1)).stats.decomposition
     rank = mj.rank_for_bound(scene, pod, 1e-4)
     relative = [float(mj.estimate(scene.system, mj.ResidualBound(pod.basis(r)), T,
                                   scene.x0).relative) for r in (rank - 1, rank)]
     assert relative[1] <= 1e-4 < relative[0]
     j = float(mj.Energy(T, scene.x0)(scene.system))
-    j_r = float(mj.Energy(T, scene.x0)(mj.galerkin(scene.system, pod.basis(rank))))
+    j_r = float(mj.Energy(T, scene.x0)(mj.reduce(scene.system, mj.Projection(pod.basis(rank)))))
     assert abs(j_r / j - 1) <= 1e-4
     with pytest.raises(ValueError, match="tolerance must be in"):
         mj.rank_for_bound(scene, pod, 2.0)

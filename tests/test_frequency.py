@@ -33,7 +33,7 @@ def test_the_response_is_the_direct_complex_solve():
         expected = direct(system, omega, forces)[[0, 14, 29]]
         assert np.max(np.abs(h[i] - expected)) < 1e-12 * np.max(np.abs(expected))
     # a complete basis reduces nothing
-    rom = mj.galerkin(system, jnp.eye(N))
+    rom = mj.reduce(system, mj.Projection(jnp.eye(N)))
     h_r = np.asarray(mj.frequency_response(rom, omegas, forces, dofs=[1, 15, 30]))
     assert np.max(np.abs(h_r - h)) < 1e-11 * np.max(np.abs(h))
 
@@ -42,12 +42,12 @@ def test_krylov_basis_matches_the_moments_at_zero_where_modal_truncation_does_no
     system = chain()
     force = np.zeros(N)
     force[N - 1] = 1.0
-    basis = mj.krylov_basis(system, 6, force)
+    basis = mj.reduce(system, mj.Krylov(6, force)).basis
     assert basis.shape == (N, 6) and np.max(np.abs(basis.T @ basis - np.eye(6))) < 1e-12
     full = lambda w: np.asarray(mj.frequency_response(system, np.array([w]), force))[0, :, 0]  # noqa: E731
     errors = {}
-    for name, b in (("krylov", basis), ("modal", mj.modal_basis(system, 6))):
-        rom = mj.galerkin(system, b)
+    for name, b in (("krylov", basis), ("modal", mj.reduce(system, mj.Modal(6)).basis)):
+        rom = mj.reduce(system, mj.Projection(b))
         reduced = lambda w, rom=rom: np.asarray(  # noqa: E731
             mj.frequency_response(rom, np.array([w]), force))[0, :, 0]
         errors[name] = [np.linalg.norm(reduced(w) - full(w)) / np.linalg.norm(full(w))
@@ -80,6 +80,6 @@ def test_bad_input_fails_in_one_line():
     with pytest.raises(ValueError, match=r"inputs must be \(n,\) or \(n, s\) with n = 30"):
         mj.frequency_response(system, np.array([1.0]), np.ones(3))
     with pytest.raises(ValueError, match="rank must be an integer in 1..30"):
-        mj.krylov_basis(system, 0, np.ones(N))
+        mj.reduce(system, mj.Krylov(0, np.ones(N)))
     with pytest.raises(ValueError, match=r"inputs must be \(n,\) or \(n, s\)"):
-        mj.krylov_basis(system, 3, np.ones(4))
+        mj.reduce(system, mj.Krylov(3, np.ones(4)))

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
+from mikota_jax._pod import pod
 
 N, RANK, SNAPSHOT_END = 30, 10, 2.5
 TS = jnp.linspace(0.0, 5.0, 201)
@@ -21,7 +22,7 @@ def basis():
     """POD of exact snapshots on [0, 2.5], damper d = 1 at DOF 7; held fixed, not differentiated."""
     system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(7.0, 1.0)])
     snapshots = mj.solve(system, TS, X0, method=mj.Spectral()).displacement[TS <= SNAPSHOT_END].T
-    return jax.lax.stop_gradient(mj.pod(snapshots).basis(RANK))
+    return jax.lax.stop_gradient(pod(snapshots).basis(RANK))
 
 
 def objective(basis, adjoint=None):
@@ -29,7 +30,7 @@ def objective(basis, adjoint=None):
 
     def energy(position, coefficient):
         system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(position, coefficient)])
-        reduced = mj.galerkin(system, basis).system
+        reduced = mj.reduce(system, mj.Projection(basis)).system
         out = mj.solve(reduced, TS, basis.T @ X0, displacement=True, velocity=True,
                        method=mj.ODE(rtol=RTOL, atol=ATOL, adjoint=adjoint))
         q, qd = out.displacement, out.velocity

@@ -10,6 +10,8 @@ import pytest
 import scipy.linalg
 
 import mikota_jax as mj
+from mikota_jax._classic import damper_directions, modal_static_basis, static_moments
+from mikota_jax._pod import pod
 
 N, T = 40, 20.0
 
@@ -31,7 +33,7 @@ def case():
     for _ in range(501):
         states.append(z[:N])
         z = step @ z
-    return x0, nominal, mj.pod(jnp.asarray(np.array(states).T)).basis(12)
+    return x0, nominal, pod(jnp.asarray(np.array(states).T)).basis(12)
 
 
 # (position, coefficient): the nominal design, a weak damper mid-chain, strong ones that pin
@@ -46,7 +48,7 @@ def test_the_estimate_is_above_the_true_error_and_within_safety_times_it(case):
         system = chain(position, coefficient)
         e = mj.estimate(system, estimator, T, x0)
         j = float(mj.Energy(T, x0, method="dense")(system))
-        j_r = float(mj.Energy(T, x0, method="dense")(mj.galerkin(system, basis)))
+        j_r = float(mj.Energy(T, x0, method="dense")(mj.reduce(system, mj.Projection(basis))))
         assert float(e.value) == pytest.approx(j_r, rel=1e-9)
         true = abs(j - j_r)
         assert true > 1e-6 * j  # the basis is off at these designs: the check is not vacuous
@@ -64,7 +66,7 @@ def test_the_fine_space_holds_the_basis_and_the_damper_moments(case):
     system = chain(25.0, 300.0)
     fine = np.asarray(estimator.fine_basis(system))
     np.testing.assert_allclose(fine.T @ fine, np.eye(fine.shape[1]), atol=1e-12)
-    moments = np.asarray(mj.static_moments(system, mj.damper_directions(system), 2))
+    moments = np.asarray(static_moments(system, damper_directions(system), 2))
     for columns in (np.asarray(basis), moments):
         outside = columns - fine @ (fine.T @ columns)
         assert np.max(np.abs(outside)) < 1e-10
@@ -80,7 +82,7 @@ def smooth():
     """A start in the three lowest modes and the 12 lowest modes as the basis: the reduced
     model's error is the damper's alone (not a truncated start's)."""
     nominal = chain(7.0, 1.0)
-    basis = mj.modal_basis(nominal, 12)
+    basis = mj.reduce(nominal, mj.Modal(12)).basis
     return basis[:, :3] @ jnp.ones(3), nominal, basis
 
 
@@ -92,18 +94,19 @@ def test_a_reduced_basis_with_the_dampers_moments_is_estimated_and_nested(smooth
     reduced = np.asarray(estimator.reduced_basis(system))
     fine = np.asarray(estimator.fine_basis(system))
     np.testing.assert_allclose(reduced.T @ reduced, np.eye(reduced.shape[1]), atol=1e-12)
-    moments = np.asarray(mj.static_moments(system, mj.damper_directions(system), 2))
+    moments = np.asarray(static_moments(system, damper_directions(system), 2))
     for columns in (np.asarray(basis), moments):
         assert np.max(np.abs(columns - reduced @ (reduced.T @ columns))) < 1e-10
         assert np.max(np.abs(columns - fine @ (fine.T @ columns))) < 1e-10
     e = mj.estimate(system, estimator, T, x0)
     j = float(mj.Energy(T, x0, method="dense")(system))
-    j_r = float(mj.Energy(T, x0, method="dense")(mj.galerkin(system, jnp.asarray(reduced))))
+    rom = mj.reduce(system, mj.Projection(jnp.asarray(reduced)))
+    j_r = float(mj.Energy(T, x0, method="dense")(rom))
     assert float(e.value) == pytest.approx(j_r, rel=1e-9)
     assert abs(j - j_r) <= float(e.error) <= 2.2 * abs(j - j_r)
     # the moments take the fixed basis' error at this strong damper down by decades
     # (measured: 7.2e-3 -> 2.9e-5)
-    fixed = float(mj.Energy(T, x0, method="dense")(mj.galerkin(system, basis)))
+    fixed = float(mj.Energy(T, x0, method="dense")(mj.reduce(system, mj.Projection(basis))))
     assert abs(j - j_r) < 1e-2 * abs(j - fixed)
     with pytest.raises(ValueError, match="basis_moments must be"):
         mj.Hierarchical(nominal, basis, moments=1, basis_moments=2)
@@ -142,7 +145,8 @@ def test_the_gradients_estimate_is_above_the_true_error_and_within_safety_times_
 
         def energy(design, rom, reduced=reduced):
             s = chain(design[0], design[1])
-            return mj.Energy(T, x0, method="dense")(mj.galerkin(s, reduced) if rom else s)
+            model = mj.reduce(s, mj.Projection(reduced)) if rom else s
+            return mj.Energy(T, x0, method="dense")(model)
 
         design = jnp.array([position, coefficient])
         j = float(energy(design, False))
@@ -182,9 +186,9 @@ def test_the_gradients_estimate_runs_under_vmap(smooth):
 
 def test_static_moments_follow_the_krylov_recurrence_and_nest():
     system = chain(25.0, 300.0)
-    forces = mj.damper_directions(system)
+    forces = damper_directions(system)
     g = forces.shape[1]
-    moments = np.asarray(mj.static_moments(system, forces, 3))
+    moments = np.asarray(static_moments(system, forces, 3))
     k, m = (np.asarray(a) for a in (system.stiffness.as_matrix(), system.mass.as_matrix()))
     np.testing.assert_allclose(np.linalg.norm(moments, axis=0), 1.0, rtol=1e-12)
     for j in (1, 2):  # K R_j is parallel to M R_(j-1), column by column
@@ -193,8 +197,8 @@ def test_static_moments_follow_the_krylov_recurrence_and_nest():
             assert abs(abs(a @ b) / (np.linalg.norm(a) * np.linalg.norm(b)) - 1) < 1e-10
     np.testing.assert_allclose(k @ moments[:, :g] * np.linalg.norm(
         np.linalg.solve(k, np.asarray(forces)), axis=0), forces, atol=1e-10)
-    one = np.asarray(mj.modal_static_basis(system, 14))
-    two = np.asarray(mj.modal_static_basis(system, 14, moments=2))
+    one = np.asarray(modal_static_basis(system, 14))
+    two = np.asarray(modal_static_basis(system, 14, moments=2))
     assert two.shape[1] > one.shape[1]
     assert np.max(np.abs(one - two @ (two.T @ one))) < 1e-10  # span(one) in span(two)
 
@@ -207,7 +211,7 @@ def test_bad_input_fails_in_one_line(case):
         with pytest.raises(ValueError, match=match):
             mj.Hierarchical(nominal, basis, **kwargs)
     with pytest.raises(ValueError, match="moments must be"):
-        mj.modal_static_basis(nominal, 10, moments=0)
+        modal_static_basis(nominal, 10, moments=0)
     estimator = mj.Hierarchical(nominal, basis, modes=24, moments=3)  # as the first
     with pytest.raises(ValueError, match=r"x0 must have shape \(40,\)"):
         mj.estimate(nominal, estimator, T, jnp.zeros(3))
@@ -256,13 +260,15 @@ def test_greedy_driven_by_the_estimate_certifies_the_training_designs_against_th
     scene = small_scene(np.asarray(x0))
     training = mj.grid(positions=np.array([[4.0], [20.0], [33.0]]),
                        coefficients=np.array([[0.3], [30.0]]))
-    result = mj.greedy_reduce(scene, training, 1e-3, step=4, hierarchical={"modes": 24})
-    assert result.certified and result.history[0][1] > 1e-3 >= result.bounds.max()
-    assert result.full_solves == len(result.history) - 1 >= 1 and result.rank < N
+    result = mj.reduce(scene, mj.Greedy(training, 1e-3, step=4, hierarchical={"modes": 24}))
+    stats = result.stats
+    assert stats.certified and stats.history[0][1] > 1e-3 >= max(stats.bounds)
+    assert stats.full_solves == len(stats.history) - 1 >= 1 and result.rank < N
     for p, c in zip(training["positions"][:, 0], training["coefficients"][:, 0], strict=True):
         system = small_scene(np.asarray(x0), p, c).system
         j = float(mj.Energy(T, x0, method="dense")(system))
-        j_r = float(mj.Energy(T, x0, method="dense")(mj.galerkin(system, result.basis)))
+        rom = mj.reduce(system, mj.Projection(result.basis))
+        j_r = float(mj.Energy(T, x0, method="dense")(rom))
         assert abs(j_r / j - 1) <= 1e-3
     with pytest.raises(ValueError, match="hierarchical must be None or a dict"):
-        mj.greedy_reduce(scene, training, 1e-3, hierarchical={"mode": 3})
+        mj.reduce(scene, mj.Greedy(training, 1e-3, hierarchical={"mode": 3}))

@@ -15,6 +15,7 @@ import jax
 import numpy as np
 
 import mikota_jax as mj
+from mikota_jax._pod import pod
 
 TRACE = "/jax/core/compile/jaxpr_trace_duration"
 BACKEND = "/jax/core/compile/backend_compile_duration"
@@ -105,13 +106,13 @@ def test_exact_solve_dense_path_traces_once():
 
 def test_reduced_model_and_pod_trace_once():
     q = np.random.default_rng(0).standard_normal((N, 23))  # a shape no other test uses
-    assert_traced_once(lambda: mj.pod(q), "_pod_svd",
-                       {"snapshots": lambda: mj.pod(2.0 * q[:, ::-1])})
-    basis = mj.pod(q).basis(6)
-    other = mj.pod(q[:, ::-1] + 0.1 * q).basis(6)
+    assert_traced_once(lambda: pod(q), "_pod_svd",
+                       {"snapshots": lambda: pod(2.0 * q[:, ::-1])})
+    basis = pod(q).basis(6)
+    other = pod(q[:, ::-1] + 0.1 * q).basis(6)
 
     def call(system, b=basis, x0=X0, v0=None, rtol=1e-8, atol=1e-10):
-        return mj.solve(mj.galerkin(system, b), TS, x0, v0, dofs=[4, 9],
+        return mj.solve(mj.reduce(system, mj.Projection(b)), TS, x0, v0, dofs=[4, 9],
                         method=mj.ODE(diffrax.Tsit5(), rtol=rtol, atol=atol))
 
     changes = solver_changes(call)

@@ -69,7 +69,7 @@ def test_total_average_energy_equals_scipys_lyapunov_solution(lowest, close):
 def test_objectives_of_a_full_rank_reduced_model_equal_the_full_model(close):
     system = damped()
     basis, _ = np.linalg.qr(np.random.default_rng(1).standard_normal((N, N)))
-    reduced = mj.galerkin(system, basis)
+    reduced = mj.reduce(system, mj.Projection(basis))
     close(mj.Energy(T, X0, V0)(reduced), mj.Energy(T, X0, V0)(system),
           rtol=1e-10)
     close(mj.AverageEnergy()(reduced), mj.AverageEnergy()(system), rtol=1e-9)

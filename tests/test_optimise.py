@@ -16,6 +16,7 @@ import pytest
 import mikota_jax as mj
 from mikota_jax._design import DamperProblem
 from mikota_jax._placement_objective import placement_objective
+from mikota_jax._pod import pod
 from mikota_jax._search import (
     _init,
     _step,
@@ -98,7 +99,7 @@ def test_truncated_basis_gradient_differs_from_the_full_one_by_the_rom_error():
     p = problem()
     snapshots = mj.solve(p.system(p.positions, p.coefficients), p.ts, p.x0,
                          method=mj.ODE()).displacement
-    basis = mj.pod(snapshots.T).basis(6)
+    basis = pod(snapshots.T).basis(6)
     reduced = jax.grad(placement_objective(p, basis), argnums=1)(p.positions, p.coefficients)
     full = jax.grad(placement_objective(p), argnums=1)(p.positions, p.coefficients)
     exact = jax.grad(placement_objective(p, full_basis()), argnums=1)(p.positions,
@@ -219,7 +220,7 @@ def test_certification_enriches_a_poor_basis_until_the_models_agree(capsys):
         assert phase in printed, phase
     assert stats["certified"] and result.result == "converged", stats["status"]
     assert stats["rom_error"] <= 1e-6 and stats["gradient_error"] <= 1e-6
-    first_rank = mj.pod(mj.solve(p.system(p.positions, p.coefficients), p.ts, p.x0,
+    first_rank = pod(mj.solve(p.system(p.positions, p.coefficients), p.ts, p.x0,
                                  method=mj.ODE()).displacement.T).rank_for_energy(0.9)
     assert stats["rank"] > first_rank
 

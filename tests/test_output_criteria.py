@@ -168,7 +168,7 @@ def test_a_reduced_models_output_energy_and_h2_are_its_own_lyapunov_solutions(cl
     # first-order system, outputs and inputs projected on the basis
     system = two_dampers()
     basis = np.linalg.qr(RNG.standard_normal((N, 6)))[0]
-    rom = mj.galerkin(system, basis)
+    rom = mj.reduce(system, mj.Projection(basis))
     m, d, k = (np.asarray(a) for a in rom.system.dense())
     cx, cv = CX @ basis, CV @ basis
     impulses = np.concatenate([np.zeros((6, 2)), np.linalg.solve(m, basis.T @ B)])
@@ -178,7 +178,7 @@ def test_a_reduced_models_output_energy_and_h2_are_its_own_lyapunov_solutions(cl
     close(mj.OutputEnergy(CX, CV, x0=X0, v0=V0)(rom),
           lyapunov_output(rom.system, cx, cv, states @ states.T), rtol=1e-9)
     # differentiable: the H2 norm's derivative in the grounded coefficient, central differences
-    h2 = lambda c: mj.H2Norm(B, CX, CV)(mj.galerkin(two_dampers(c), basis))  # noqa: E731
+    h2 = lambda c: mj.H2Norm(B, CX, CV)(mj.reduce(two_dampers(c), mj.Projection(basis)))  # noqa: E731
     step = 1e-4 * 20.0
     close(jax.grad(h2)(20.0), (h2(20.0 + step) - h2(20.0 - step)) / (2 * step), rtol=1e-6)
 
@@ -186,14 +186,14 @@ def test_a_reduced_models_output_energy_and_h2_are_its_own_lyapunov_solutions(cl
 @pytest.mark.slow  # ~30 s: three spectral compiles of the full model
 def test_a_reduced_model_on_a_complete_basis_gives_the_full_models_criteria(close):
     system = two_dampers()
-    rom = mj.galerkin(system, np.linalg.qr(RNG.standard_normal((N, N)))[0])
+    rom = mj.reduce(system, mj.Projection(np.linalg.qr(RNG.standard_normal((N, N)))[0]))
     close(mj.H2Norm(B, CX, CV)(rom), mj.H2Norm(B, CX, CV)(system), rtol=1e-9)
     close(mj.OutputEnergy(CX, CV, x0=X0, v0=V0, horizon=3.0)(rom),
           mj.OutputEnergy(CX, CV, x0=X0, v0=V0, horizon=3.0)(system), rtol=1e-9)
     close(mj.OutputEnergy(CX, CV, lowest=4)(rom), mj.OutputEnergy(CX, CV, lowest=4)(system),
           rtol=1e-9)
     with pytest.raises(ValueError, match="lowest"):
-        mj.OutputEnergy(CX, lowest=6)(mj.galerkin(system, np.eye(N)[:, :5]))
+        mj.OutputEnergy(CX, lowest=6)(mj.reduce(system, mj.Projection(np.eye(N)[:, :5])))
 
 
 @pytest.mark.slow  # ~1 min: 300 intervals of adaptive quadrature

@@ -13,6 +13,7 @@ import pytest
 from _helpers import orthonormal, sign_rule
 
 import mikota_jax as mj
+from mikota_jax._pod import pod, rank_for_energy
 
 # under a user's jax.jit, equinox's runtime error arrives wrapped in jax's (which some jax versions
 # raise as a ValueError); the message is what the tests check
@@ -44,7 +45,7 @@ def single_mode(request):
 def test_a_single_mode_excitation_gives_rank_one_with_the_mode_shape_as_first_pom(
         single_mode, method, close):
     n, l, ts, shape, q = single_mode
-    result = mj.pod(q, method=method)
+    result = pod(q, method=method)
     assert result.numerical_rank() == 1
     s = np.asarray(result.singular_values)
     # sigma_1^2 = sum_t cos(l t)^2 |u_l|^2 (omega_l = l for m = k = 1, eq. 2.4)
@@ -56,8 +57,8 @@ def test_a_single_mode_excitation_gives_rank_one_with_the_mode_shape_as_first_po
 
 def test_a_rank_above_the_numerical_rank_is_refused_eagerly_for_every_method(single_mode):
     q = single_mode[4]
-    for result in (mj.pod(q), mj.pod(q, method="snapshots"),
-                   mj.pod(q, method="randomized", rank=3)):
+    for result in (pod(q), pod(q, method="snapshots"),
+                   pod(q, method="randomized", rank=3)):
         assert result.basis(1).shape == (q.shape[0], 1)
         with pytest.raises(ValueError, match="rank = 2 exceeds the numerical rank 1"):
             result.basis(2)
@@ -65,7 +66,7 @@ def test_a_rank_above_the_numerical_rank_is_refused_eagerly_for_every_method(sin
 
 def test_a_rank_above_the_numerical_rank_is_refused_under_jit(single_mode):
     q = jnp.asarray(single_mode[4])
-    one, two = (jax.jit(lambda snapshots, r=r: mj.pod(snapshots).basis(r)) for r in (1, 2))
+    one, two = (jax.jit(lambda snapshots, r=r: pod(snapshots).basis(r)) for r in (1, 2))
     assert jax.block_until_ready(one(q)).shape == (q.shape[0], 1)
     with pytest.raises(TRACED_ERRORS, match="rank = 2 exceeds the numerical rank"):
         jax.block_until_ready(two(q))
@@ -74,19 +75,19 @@ def test_a_rank_above_the_numerical_rank_is_refused_under_jit(single_mode):
 def test_energy_one_gives_the_exact_rank_and_no_energy_goes_past_it():
     # rank 3 by construction; the other 5 singular values are rounding noise (~1e-16)
     q, _ = known(8, 40, [3.0, 2.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0], seed=2)
-    result = mj.pod(q)
+    result = pod(q)
     assert result.numerical_rank() == 3 and result.modes.shape[1] == 8
     for criterion in ("squared", "paper"):
         ranks = [result.rank_for_energy(e, criterion) for e in ENERGIES]
         assert ranks == sorted(ranks) and ranks[-1] == 3, ranks  # monotone, capped at 3
-        free = [mj.rank_for_energy(result.singular_values, e, criterion) for e in ENERGIES]
+        free = [rank_for_energy(result.singular_values, e, criterion) for e in ENERGIES]
         assert free == ranks
     with pytest.raises(ValueError, match="rank = 4 exceeds the numerical rank 3"):
         result.basis(4)
 
 
 def test_all_zero_snapshots_have_rank_zero_and_give_no_basis():
-    result = mj.pod(np.zeros((4, 7)))  # a chain at rest
+    result = pod(np.zeros((4, 7)))  # a chain at rest
     assert result.numerical_rank() == 0
     with pytest.raises(ValueError, match="singular values must be finite and not all zero"):
         result.rank_for_energy(0.9)
@@ -97,7 +98,7 @@ def test_all_zero_snapshots_have_rank_zero_and_give_no_basis():
 @pytest.mark.parametrize("energy", [0, 0.0, -0.0, -1e-300, 1 + 1e-15, 1.5, np.nan, np.inf, None])
 def test_energies_outside_0_1_are_refused_by_full_and_truncated_pods(energy):
     q, _ = known(6, 9, [3.0, 2.0, 1.0], seed=4)
-    for result in (mj.pod(q), mj.pod(q, method="randomized", rank=2)):
+    for result in (pod(q), pod(q, method="randomized", rank=2)):
         with pytest.raises(ValueError, match=r"energy must be a number in \(0, 1\]"):
             result.rank_for_energy(energy)
 
@@ -109,7 +110,7 @@ def test_energies_outside_0_1_are_refused_by_full_and_truncated_pods(energy):
 def test_repeated_singular_values_are_exact_and_their_poms_span_the_right_subspace(method, close):
     s = np.array([3.0, 2.0, 2.0, 2.0, 1.0, 1.0, 0.5])
     q, u = known(9, 25, s, seed=6)  # rank 7 of 9
-    result = mj.pod(q, method=method)
+    result = pod(q, method=method)
     assert result.numerical_rank() == len(s)
     close(result.singular_values[: len(s)], s, rtol=1e-13)
     modes = np.asarray(result.basis(len(s)))
@@ -131,7 +132,7 @@ def test_a_one_sample_window_gives_one_pom_and_the_rayleigh_quotient_rom(method,
     sample = mj.solve(system, jnp.zeros(1), x0,
                       method=mj.DenseExponential()).displacement.T  # Q is n x 1
     assert sample.shape == (n, 1)
-    result = mj.pod(sample, method=method)
+    result = pod(sample, method=method)
     close(result.singular_values, [np.linalg.norm(x0)], rtol=1e-14)
     close(result.modes[:, 0], x0 / np.linalg.norm(x0), rtol=1e-14)
     assert result.numerical_rank() == 1 and result.rank_for_energy(1.0) == 1
@@ -141,7 +142,8 @@ def test_a_one_sample_window_gives_one_pom_and_the_rayleigh_quotient_rom(method,
     M, _, K = (np.asarray(a) for a in system.dense())
     omega = np.sqrt(x0 @ K @ x0 / (x0 @ M @ x0))
     ts = np.linspace(0.0, 10.0, 101)
-    out = mj.solve(mj.galerkin(system, result.basis(1)), ts, x0, method=mj.DenseExponential())
+    rom = mj.reduce(system, mj.Projection(result.basis(1)))
+    out = mj.solve(rom, ts, x0, method=mj.DenseExponential())
     close(out.displacement, np.cos(omega * ts)[:, None] * x0[None, :], atol=1e-13)
 
 
@@ -154,10 +156,10 @@ def test_a_one_mass_chain_is_simulated_solved_reduced_and_agrees_with_the_cosine
     close(exact.displacement, analytic, atol=1e-14)
     simulated = mj.solve(system, ts, np.array([x0]), method=mj.ODE(rtol=1e-12, atol=1e-14))
     close(simulated.displacement, analytic, atol=1e-9 * x0)
-    result = mj.pod(exact.displacement.T)
+    result = pod(exact.displacement.T)
     close(result.singular_values, [np.linalg.norm(analytic)], rtol=1e-13)
     close(result.modes, [[1.0]], rtol=1e-15)
-    reduced = mj.galerkin(system, result.basis(1))
+    reduced = mj.reduce(system, mj.Projection(result.basis(1)))
     close(mj.solve(reduced, ts, np.array([x0]), method=mj.DenseExponential()).displacement,
           analytic, atol=1e-14)
 
@@ -199,11 +201,11 @@ BAD_BASES = {
 @pytest.mark.parametrize("basis", BAD_BASES.values(), ids=BAD_BASES.keys())
 def test_a_singular_or_non_orthonormal_basis_is_refused_eagerly(chain, basis):
     with pytest.raises(ValueError, match=NOT_ORTHONORMAL):
-        mj.galerkin(chain, jnp.asarray(basis))
+        mj.reduce(chain, mj.Projection(jnp.asarray(basis)))
 
 
 def test_a_non_orthonormal_basis_is_refused_under_jit_and_vmap(chain, close):
-    project = jax.jit(lambda basis: mj.galerkin(chain, basis).system.mass.as_matrix())
+    project = jax.jit(lambda basis: mj.reduce(chain, mj.Projection(basis)).system.mass.as_matrix())
     M = np.asarray(chain.dense()[0])
     close(project(jnp.asarray(BASIS)), BASIS.T @ M @ BASIS, atol=1e-15)
     with pytest.raises(TRACED_ERRORS, match=NOT_ORTHONORMAL):
@@ -218,6 +220,6 @@ def test_a_basis_orthonormal_to_rounding_is_accepted_and_reproduces_the_projecti
     # QR of a nearly dependent set: orthonormal to ~1e-15 however ill-conditioned the input
     raw = BASIS @ np.diag([1.0, 1.0, 1.0, 1e-9]) + BASIS[:, :1]
     basis = np.linalg.qr(raw)[0]
-    reduced = mj.galerkin(chain, jnp.asarray(basis))
+    reduced = mj.reduce(chain, mj.Projection(jnp.asarray(basis)))
     K = np.asarray(chain.dense()[2])
     close(reduced.system.dense()[2], basis.T @ K @ basis, atol=1e-13)

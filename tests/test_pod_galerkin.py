@@ -9,6 +9,7 @@ import pytest
 from _helpers import orthonormal, sign_rule
 
 import mikota_jax as mj
+from mikota_jax._pod import _Decomposition, energy_fraction, pod, rank_for_energy
 
 # --- POD of matrices with a known SVD ---------------------------------------------------------
 
@@ -17,7 +18,7 @@ def test_pod_recovers_a_known_svd(close):
     n, m = 12, 30
     u, v = orthonormal(n, n, 0), orthonormal(m, n, 1)
     s = 2.0 ** -np.arange(n) * 7.0
-    result = mj.pod(u @ np.diag(s) @ v.T)
+    result = pod(u @ np.diag(s) @ v.T)
     close(result.singular_values, s, rtol=1e-12)
     close(result.modes, sign_rule(u), atol=1e-10)
     close(result.modes.T @ result.modes, np.eye(n), atol=1e-14)
@@ -28,7 +29,7 @@ def test_pod_recovers_a_known_svd(close):
 
 def test_pod_basis_is_the_leading_modes(close):
     u, v = orthonormal(9, 5, 2), orthonormal(7, 5, 3)
-    result = mj.pod(u @ np.diag([5.0, 4.0, 3.0, 2.0, 1.0]) @ v.T)
+    result = pod(u @ np.diag([5.0, 4.0, 3.0, 2.0, 1.0]) @ v.T)
     basis = result.basis(3)
     assert basis.shape == (9, 3)
     close(basis, sign_rule(u[:, :3]), atol=1e-12)
@@ -41,7 +42,7 @@ def test_method_of_snapshots_agrees_with_the_svd(n, m, close):
     u, v = orthonormal(n, k, 4), orthonormal(m, k, 5)
     s = np.geomspace(10.0, 0.01, k)  # sigma_k / sigma_1 >= 1e-3: squaring keeps 1e-10
     q = u @ np.diag(s) @ v.T
-    svd, snapshots = mj.pod(q), mj.pod(q, method="snapshots")
+    svd, snapshots = pod(q), pod(q, method="snapshots")
     close(snapshots.singular_values, svd.singular_values, rtol=1e-8)
     close(snapshots.singular_values, s, rtol=1e-8)
     close(snapshots.modes[:, :5], svd.modes[:, :5], atol=1e-8)
@@ -54,7 +55,7 @@ def test_first_mode_excitation_gives_rank_one_snapshots_with_pom_1_parallel_to_i
     ts = np.linspace(0.0, 20.0, 2001)
     q = mj.solve(mj.mikota_chain(n), ts, mj.analytic.mode_shape(n, 1),
                  method=mj.DenseExponential()).displacement.T
-    result = mj.pod(q)
+    result = pod(q)
     assert result.numerical_rank() == 1
     s = np.asarray(result.singular_values)
     assert s[1] / s[0] < 1e-13  # the paper: sigma_k>1 / sigma_1 < 1e-15, up to rounding
@@ -69,9 +70,9 @@ def test_first_mode_excitation_gives_rank_one_snapshots_with_pom_1_parallel_to_i
 
 def test_energy_fractions_for_both_criteria(close):
     s = jnp.array([3.0, 2.0, 1.0])
-    close(mj.energy_fraction(s), [9 / 14, 13 / 14, 1.0], rtol=1e-15)
-    close(mj.energy_fraction(s, "paper"), [(3 / 6) ** 2, (5 / 6) ** 2, 1.0], rtol=1e-15)
-    close(mj.POD(s, jnp.eye(3)).energy_fraction("paper"), [0.25, 25 / 36, 1.0], rtol=1e-15)
+    close(energy_fraction(s), [9 / 14, 13 / 14, 1.0], rtol=1e-15)
+    close(energy_fraction(s, "paper"), [(3 / 6) ** 2, (5 / 6) ** 2, 1.0], rtol=1e-15)
+    close(_Decomposition(s, jnp.eye(3)).energy_fraction("paper"), [0.25, 25 / 36, 1.0], rtol=1e-15)
 
 
 @pytest.mark.parametrize("energy, criterion, rank", [
@@ -81,26 +82,26 @@ def test_energy_fractions_for_both_criteria(close):
 ])
 def test_rank_for_energy_is_the_smallest_rank_reaching_the_fraction(energy, criterion, rank):
     s = jnp.array([3.0, 2.0, 1.0, 0.0])  # a zero singular value carries no energy
-    assert mj.rank_for_energy(s, energy, criterion) == rank
-    assert mj.POD(s, jnp.eye(4)).rank_for_energy(energy, criterion) == rank
+    assert rank_for_energy(s, energy, criterion) == rank
+    assert _Decomposition(s, jnp.eye(4)).rank_for_energy(energy, criterion) == rank
 
 
 @pytest.mark.parametrize("energy", [0, 0.0, -0.1, 1.5, np.nan, True, "0.9", None])
 def test_bad_energy_values_are_rejected(energy):
     with pytest.raises(ValueError, match="energy must be a number in"):
-        mj.rank_for_energy(jnp.array([2.0, 1.0]), energy)
+        rank_for_energy(jnp.array([2.0, 1.0]), energy)
 
 
 def test_unknown_criterion_and_method_are_rejected():
     with pytest.raises(ValueError, match="criterion must be one of"):
-        mj.energy_fraction(jnp.array([2.0, 1.0]), "cubed")
+        energy_fraction(jnp.array([2.0, 1.0]), "cubed")
     with pytest.raises(ValueError, match="method must be one of"):
-        mj.pod(np.eye(3), method="eig")
+        pod(np.eye(3), method="eig")
 
 
 @pytest.mark.parametrize("rank", [0, -1, 4, 2.0, True, None])
 def test_pod_basis_rejects_bad_ranks(rank):
-    result = mj.pod(orthonormal(5, 3, 6) @ np.diag([3.0, 2.0, 1.0]) @ orthonormal(4, 3, 7).T)
+    result = pod(orthonormal(5, 3, 6) @ np.diag([3.0, 2.0, 1.0]) @ orthonormal(4, 3, 7).T)
     # (a rank above the numerical rank 3 may be refused for that reason instead)
     with pytest.raises(ValueError, match=r"rank must|rank = 4 exceeds the numerical rank"):
         result.basis(rank)
@@ -114,7 +115,7 @@ def test_pod_basis_rejects_bad_ranks(rank):
 ])
 def test_pod_rejects_bad_snapshots(snapshots, match):
     with pytest.raises(ValueError, match=match):
-        mj.pod(snapshots)
+        pod(snapshots)
 
 
 # --- metrics ------------------------------------------------------------------------------------
@@ -174,7 +175,7 @@ def x0():
 @pytest.mark.slow  # 24 s; test_properties checks a full basis on random chains
 def test_full_rank_galerkin_with_a_random_orthonormal_basis_is_the_full_model(damped, x0, close):
     basis = orthonormal(N, N, 8)
-    reduced = mj.galerkin(damped, jnp.asarray(basis))
+    reduced = mj.reduce(damped, mj.Projection(jnp.asarray(basis)))
     assert reduced.rank == N and reduced.size == N
     full = mj.solve(damped, TS, x0, velocity=True, method=mj.Spectral())
     exact = mj.solve(reduced, TS, x0, velocity=True, method=mj.DenseExponential())
@@ -187,7 +188,7 @@ def test_full_rank_galerkin_with_a_random_orthonormal_basis_is_the_full_model(da
 
 def test_galerkin_projects_each_operator_and_lifts_back(damped, close):
     basis = orthonormal(N, 4, 9)
-    reduced = mj.galerkin(damped, jnp.asarray(basis))
+    reduced = mj.reduce(damped, mj.Projection(jnp.asarray(basis)))
     M, D, K = (np.asarray(a) for a in damped.dense())
     rM, rD, rK = (np.asarray(a) for a in reduced.system.dense())
     close(rM, basis.T @ M @ basis, atol=1e-14)
@@ -200,19 +201,19 @@ def test_galerkin_projects_each_operator_and_lifts_back(damped, close):
 
 def test_galerkin_rejects_bad_bases(damped):
     with pytest.raises(ValueError, match="basis must have shape"):
-        mj.galerkin(damped, jnp.ones((N + 1, 2)))
+        mj.reduce(damped, mj.Projection(jnp.ones((N + 1, 2))))
     with pytest.raises(ValueError, match="basis must have shape"):
-        mj.galerkin(damped, jnp.ones((N, 0)))
+        mj.reduce(damped, mj.Projection(jnp.ones((N, 0))))
     with pytest.raises(ValueError, match="basis must be float64"):
-        mj.galerkin(damped, jnp.ones((N, 2), jnp.float32))
+        mj.reduce(damped, mj.Projection(jnp.ones((N, 2), jnp.float32)))
     with pytest.raises(ValueError, match="basis must be finite"):
-        mj.galerkin(damped, jnp.full((N, 2), jnp.nan))
+        mj.reduce(damped, mj.Projection(jnp.full((N, 2), jnp.nan)))
 
 
 @pytest.fixture(scope="module")
 def snapshot_run(damped, x0):
     full = mj.solve(damped, TS, x0, velocity=True, method=mj.Spectral())
-    return full, mj.pod(full.displacement.T)
+    return full, pod(full.displacement.T)
 
 
 def test_pod_galerkin_error_in_the_snapshot_window_is_small_and_decreases_with_rank(
@@ -220,7 +221,7 @@ def test_pod_galerkin_error_in_the_snapshot_window_is_small_and_decreases_with_r
     full, result = snapshot_run
     errors = []
     for rank in (2, 4, 6):
-        reduced = mj.galerkin(damped, result.basis(rank))
+        reduced = mj.reduce(damped, mj.Projection(result.basis(rank)))
         out = mj.solve(reduced, TS, x0, velocity=True, method=mj.DenseExponential())
         errors.append(float(mj.metrics.phase_error(full.displacement, full.velocity,
                                                    out.displacement, out.velocity,
@@ -246,7 +247,7 @@ def basis(snapshot_run):
 def make_objective(solve, basis, x0):
     def objective(position, coefficient):
         system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(position, coefficient)])
-        out = solve(mj.galerkin(system, basis), TS, x0, dofs=[DOF])
+        out = solve(mj.reduce(system, mj.Projection(basis)), TS, x0, dofs=[DOF])
         return jnp.sum(out.displacement**2)
 
     return objective

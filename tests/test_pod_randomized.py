@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from _helpers import orthonormal, sign_rule
 
-import mikota_jax as mj
+from mikota_jax._pod import pod
 
 
 def known(n, m, s, seed=0):
@@ -29,13 +29,13 @@ N, M, RANK = 300, 80, 10
 def test_leading_values_and_modes_match_a_known_decaying_spectrum(n, m, close):
     s = 10.0 * 0.5 ** np.arange(60)  # sigma_{k+p+1} / sigma_k = 2^-10: rounding after 2 rounds
     q, u = known(n, m, s)
-    result = mj.pod(q, method="randomized", rank=RANK)
+    result = pod(q, method="randomized", rank=RANK)
     assert result.singular_values.shape == (RANK,) and result.modes.shape == (n, RANK)
     close(result.singular_values, s[:RANK], rtol=1e-12)
     close(result.modes, sign_rule(u[:, :RANK]), atol=1e-9)
     close(result.modes.T @ result.modes, np.eye(RANK), atol=1e-13)
     assert largest_angle_sine(np.asarray(result.modes), u[:, :RANK]) < 1e-9
-    exact = mj.pod(q)
+    exact = pod(q)
     close(result.singular_values, exact.singular_values[:RANK], rtol=1e-12)
     close(result.total_energy, np.sum(s**2), rtol=1e-13)
 
@@ -45,7 +45,7 @@ def test_power_iterations_sharpen_a_slowly_decaying_spectrum():
     q, u = known(N, M, s, seed=4)
 
     def errors(power_iterations):
-        result = mj.pod(q, method="randomized", rank=RANK, power_iterations=power_iterations)
+        result = pod(q, method="randomized", rank=RANK, power_iterations=power_iterations)
         value = np.max(np.abs(np.asarray(result.singular_values) / s[:RANK] - 1))
         return value, largest_angle_sine(np.asarray(result.modes[:, :3]), u[:, :3])
 
@@ -58,7 +58,7 @@ def test_a_fixed_key_is_deterministic_and_the_default_is_key_0():
     q, _ = known(N, M, 3.0 * 0.8 ** np.arange(M), seed=6)
 
     def run(**kwargs):
-        return mj.pod(q, method="randomized", rank=RANK, power_iterations=0, **kwargs)
+        return pod(q, method="randomized", rank=RANK, power_iterations=0, **kwargs)
 
     a, b, c, d = run(), run(), run(key=jax.random.key(0)), run(key=jax.random.key(1))
     for other in (b, c):
@@ -72,12 +72,12 @@ def test_works_under_jit_with_a_traced_legacy_key(close):
 
     @jax.jit
     def leading(snapshots, key):
-        result = mj.pod(snapshots, method="randomized", rank=RANK, key=key)
+        result = pod(snapshots, method="randomized", rank=RANK, key=key)
         return result.singular_values, result.basis(RANK)
 
     raw = jax.random.PRNGKey(3)  # a raw uint32 key, traced here
     s, basis = leading(jnp.asarray(q), raw)
-    eager = mj.pod(q, method="randomized", rank=RANK, key=jax.random.wrap_key_data(raw))
+    eager = pod(q, method="randomized", rank=RANK, key=jax.random.wrap_key_data(raw))
     close(s, eager.singular_values, rtol=1e-13)
     close(basis, eager.modes, atol=1e-12)
 
@@ -85,7 +85,7 @@ def test_works_under_jit_with_a_traced_legacy_key(close):
 def test_the_sketch_is_capped_at_the_smaller_side(close):
     s = np.array([4.0, 3.0, 2.0, 1.0, 0.5])
     q, u = known(30, 5, s, seed=10)
-    result = mj.pod(q, method="randomized", rank=5, oversampling=10)  # sketch 15 -> 5 columns
+    result = pod(q, method="randomized", rank=5, oversampling=10)  # sketch 15 -> 5 columns
     close(result.singular_values, s, rtol=1e-13)
     close(result.modes, sign_rule(u), atol=1e-12)
 
@@ -93,7 +93,7 @@ def test_the_sketch_is_capped_at_the_smaller_side(close):
 def test_energy_of_a_truncated_pod_uses_the_total_and_refuses_the_paper_criterion(close):
     s = 10.0 * 0.6 ** np.arange(50)
     q, _ = known(N, M, s, seed=12)
-    full, part = mj.pod(q), mj.pod(q, method="randomized", rank=RANK)
+    full, part = pod(q), pod(q, method="randomized", rank=RANK)
     close(part.energy_fraction(), full.energy_fraction()[:RANK], rtol=1e-12)
     for energy in (0.5, 0.9, 0.99):
         assert part.rank_for_energy(energy) == full.rank_for_energy(energy)
@@ -121,10 +121,10 @@ def test_energy_of_a_truncated_pod_uses_the_total_and_refuses_the_paper_criterio
 ])
 def test_bad_randomized_arguments_are_rejected(kwargs, match):
     with pytest.raises(ValueError, match=match):
-        mj.pod(np.ones((9, 5)), method="randomized", **kwargs)
+        pod(np.ones((9, 5)), method="randomized", **kwargs)
 
 
 def test_randomized_arguments_are_refused_for_the_full_methods():
     for method in ("svd", "snapshots"):
         with pytest.raises(ValueError, match="rank and key apply to method='randomized' only"):
-            mj.pod(np.ones((4, 3)), method=method, rank=2)
+            pod(np.ones((4, 3)), method=method, rank=2)

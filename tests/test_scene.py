@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
+from mikota_jax._pod import rank_for_energy
 from mikota_jax._scene import QUANTITIES
 from mikota_jax.app import result_dict, write_json
 from mikota_jax.app.results import HISTORIES, OUTPUTS
@@ -135,7 +136,7 @@ def test_a_scene_without_reduction_or_velocity_computes_neither():
     assert isinstance(result, mj.SceneResult)
     full = result.full
     assert full.velocity is None and full.dofs == (2, 5) and result.dofs == (2, 5)
-    assert result.basis is None and result.reduced is None and result.metrics == {}
+    assert result.model is None and result.reduced is None and result.metrics == {}
     data = result_dict(result)
     assert set(data["full"]) == {"displacement"} and "reduced" not in data
     assert "singular_values" not in data
@@ -152,9 +153,9 @@ def test_a_reduced_scene_reports_rank_singular_values_and_phase_error():
         output='dofs = [12]\nquantities = ["displacement", "velocity", "rank", '
                '"singular_values", "phase_error", "relative_error"]\nphase_error = "sum"'))
     result = mj.run_scene(scene)
-    assert result.basis.snapshots == 41  # t = 0, 0.05, ..., 2.0
-    s = np.asarray(result.basis.pod.singular_values)
-    assert result.rank == mj.rank_for_energy(s, 0.999) and 1 <= result.rank < 12
+    assert result.model.stats.snapshots == 41  # t = 0, 0.05, ..., 2.0
+    s = np.asarray(result.model.stats.singular_values)
+    assert result.rank == rank_for_energy(s, 0.999) and 1 <= result.rank < 12
     full, reduced = result.full, result.reduced
     expected = mj.metrics.phase_error(full.displacement, full.velocity, reduced.displacement,
                               reduced.velocity, aggregate="sum")

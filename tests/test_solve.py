@@ -60,7 +60,7 @@ def test_auto_selects_from_the_structure_for_every_kind_of_system():
     assert select(mj.mikota_chain(8), TS) == mj.ODE()
     assert select(mj.mikota_chain(8, internal_damping=mj.Rayleigh(0.01, 0.001)), TS) == mj.ODE()
     assert select(mj.system(m, k, d), TS) == mj.ODE()
-    assert select(mj.galerkin(chain, mj.modal_basis(chain, 4)), TS) == mj.ODE()
+    assert select(mj.reduce(chain, mj.Modal(4)), TS) == mj.ODE()
     # stiff: rho T above 1e5 (rho >= n sqrt(k/m) = 2000 for Mikota's chain, T = 100)
     stiff = select(mj.mikota_chain(2000), jnp.linspace(0.0, 100.0, 3))
     assert isinstance(stiff, mj.ODE) and isinstance(stiff.solver, mj.StructuredKvaerno5)

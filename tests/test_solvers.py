@@ -211,7 +211,7 @@ def test_reduced_model_on_the_span_of_three_modes_is_exact_in_both_solvers(undam
     # x0 in span(u_1, u_2, u_3): the Galerkin model on that span carries the exact solution
     U = np.stack([np.asarray(mj.analytic.mode_shape(N, l)) for l in (1, 2, 3)], axis=1)
     basis, _ = np.linalg.qr(U)
-    reduced = mj.galerkin(undamped, jnp.asarray(basis))
+    reduced = mj.reduce(undamped, mj.Projection(jnp.asarray(basis)))
     amplitudes = np.array([1.0, -0.5, 0.25])
     x0 = U @ amplitudes
     expected = sum(a * np.cos(l * OMEGA * TS)[:, None] * U[:, l - 1]
@@ -227,7 +227,7 @@ def test_reduced_model_on_the_span_of_three_modes_is_exact_in_both_solvers(undam
 
 def test_damped_reduced_model_gives_the_same_answer_in_both_solvers(damped, state, close):
     basis, _ = np.linalg.qr(np.random.default_rng(3).standard_normal((N, 4)))
-    reduced = mj.galerkin(damped, jnp.asarray(basis))
+    reduced = mj.reduce(damped, mj.Projection(jnp.asarray(basis)))
     exact = mj.solve(reduced, TS, *state, velocity=True, method=mj.DenseExponential())
     out = mj.solve(reduced, TS, *state, velocity=True, method=mj.ODE(rtol=1e-11, atol=1e-13))
     close(out.displacement, exact.displacement, atol=1e-8)

@@ -44,7 +44,7 @@ def test_kvaerno5_solves_a_reduced_model_in_its_modal_structure(close):
     system = mj.mikota_chain(N, dampers=DAMPERS)
     x0, v0 = state(N, 1)
     basis, _ = np.linalg.qr(np.random.default_rng(2).standard_normal((N, 7)))
-    reduced = mj.galerkin(system, jnp.asarray(basis))
+    reduced = mj.reduce(system, mj.Projection(jnp.asarray(basis)))
     exact = mj.solve(reduced, TS, x0, v0, method=mj.DenseExponential())
     out = mj.solve(reduced, TS, x0, v0,
                    method=mj.ODE(mj.StructuredKvaerno5(), rtol=1e-10, atol=1e-12))

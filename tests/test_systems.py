@@ -19,6 +19,7 @@ from mikota_jax._design import DamperProblem
 from mikota_jax._objectives import integrated_energy
 from mikota_jax._operators import Dense, Diagonal, Sparse, SymmetricBanded, SymmetricTridiagonal
 from mikota_jax._placement_objective import placement_objective
+from mikota_jax._pod import pod
 
 N = 8
 TS = jnp.linspace(0.0, 6.0, 61)
@@ -334,8 +335,8 @@ def test_a_full_rank_rom_reproduces_every_internal_damping_model():
                        internal_damping=(mj.Rayleigh(0.02, 0.003), mj.ModalDamping(0.01)))
     x0 = jnp.linspace(1.0, 0.0, N)
     full = mj.solve(system, TS, x0=x0, method=mj.DenseExponential()).displacement
-    basis = mj.pod(full.T).basis(N)
-    rom = mj.galerkin(system, basis)
+    basis = pod(full.T).basis(N)
+    rom = mj.reduce(system, mj.Projection(basis))
     np.testing.assert_allclose(mj.solve(rom, TS, x0=x0, method=mj.DenseExponential()).displacement,
                                full, atol=1e-11)
     np.testing.assert_allclose(mj.solve(rom, TS, x0=x0, method=mj.ODE(rtol=1e-10)).displacement,
@@ -352,7 +353,7 @@ def test_gradients_in_alpha_beta_zeta_and_the_damper_match_central_differences()
     def energy(p, reduced):
         system = mj.system(m, k, dampers=[mj.GroundedDamper(3.0, p[3])],
                            internal_damping=(mj.Rayleigh(p[0], p[1]), mj.ModalDamping(p[2])))
-        model = mj.galerkin(system, basis) if reduced else system
+        model = mj.reduce(system, mj.Projection(basis)) if reduced else system
         return mj.Energy(8.0, x0=x0)(model)
 
     energy = jax.jit(energy, static_argnums=1)

@@ -143,13 +143,13 @@ def scene_figures(result, folder) -> list[Path]:
     pick = [full.dofs.index(d) for d in dofs]
     written = [histories(folder / "displacement.png", ts, np.asarray(full.displacement)[:, pick],
                          dofs=dofs, title=f"{name}: full model")]
-    if result.basis is not None:
-        reduced, rank = result.reduced, result.basis.rank
+    if result.model is not None:
+        reduced, rank = result.reduced, result.model.rank
         pick_r = [reduced.dofs.index(d) for d in dofs]
         written.append(histories(folder / "reduced_displacement.png", ts,
                                  np.asarray(reduced.displacement)[:, pick_r], dofs=dofs,
                                  title=f"{name}: reduced model, r = {rank}"))
-        decomposition = result.basis.pod
+        decomposition = result.model.stats.decomposition
         written.append(singular_values_and_modes(
             folder / "singular_values.png", np.asarray(decomposition.singular_values),
             np.asarray(decomposition.modes), list(range(1, min(5, rank) + 1)),

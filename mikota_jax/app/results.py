@@ -28,9 +28,9 @@ HISTORIES = ("displacement", "velocity")
 # [output] quantity -> the JSON entries it adds (after "full"/"reduced", in this order). Adding an
 # output is one entry here (and its name in ``mikota_jax._scene.QUANTITIES``).
 OUTPUTS: dict[str, Callable[[SceneResult], dict]] = {
-    "singular_values": lambda r: {"singular_values": r.basis.pod.singular_values},
-    "rank": lambda r: {"rank": r.basis.rank},
-    "modes": lambda r: {"modes": r.basis.basis.T},
+    "singular_values": lambda r: {"singular_values": r.model.stats.singular_values},
+    "rank": lambda r: {"rank": r.model.rank},
+    "modes": lambda r: {"modes": r.model.basis.T},
     "phase_error": lambda r: {"phase_error": float(r.metrics["phase_error"]),
                               "phase_error_aggregate": r.scene.output.phase_error},
     "relative_error": lambda r: {"relative_error": float(r.metrics["relative_error"])},
@@ -73,13 +73,13 @@ def run_summary(result: SceneResult, out: Path, figures=()) -> str:
              f"{len(result.dofs)} output DOF(s); outputs: {', '.join(scene.output.quantities)}"]
     timings = result.timings
     stages = [f"full solve {timings['full_solve_s']:.2f} s"] if "full_solve_s" in timings else []
-    if result.basis is not None:
+    if result.model is not None:
         reduction = scene.reduction
         rule = (f"rank {reduction.rank}" if reduction.rank is not None
                 else f"{100 * reduction.energy:g} % pseudo-energy")
-        lines.append(f"  POD of {result.basis.snapshots} snapshots on "
+        lines.append(f"  POD of {result.model.stats.snapshots} snapshots on "
                      f"[{reduction.window[0]:g}, {reduction.window[1]:g}]: r = "
-                     f"{result.basis.rank} ({rule})")
+                     f"{result.model.rank} ({rule})")
         stages += [f"{name.removesuffix('_s').replace('_', ' ')} {timings[name]:.2f} s"
                    for name in ("reduction_s", "reduced_solve_s") if name in timings]
     for name, value in result.metrics.items():

@@ -21,7 +21,7 @@ from .._excitation import Pulse, pulse
 from .._integrate import SOLVERS
 from .._metrics import AGGREGATES
 from .._pod import CRITERIA, METHODS
-from .._reduction import Reduction
+from .._reduction import POD
 from .._scene import QUANTITIES, REDUCED_QUANTITIES, Output, Scene
 from .scene_systems import system_from
 from .toml_checks import choice as _choice
@@ -108,7 +108,7 @@ def _times_from(data) -> Times:
     return jnp.asarray(start + step * np.arange(round(count) + 1, dtype=np.float64))
 
 
-def _reduction_from(data, ts, n: int) -> Reduction | None:
+def _reduction_from(data, ts, n: int) -> POD | None:
     table = _table(data, "reduction", {"snapshots", "energy", "rank", "criterion", "quantity",
                                        "method"})
     if not table:
@@ -130,7 +130,7 @@ def _reduction_from(data, ts, n: int) -> Reduction | None:
         energy = float(_number(table, "[reduction]", "energy", low=0, high=1, strict_low=True))
     else:
         rank = _number(table, "[reduction]", "rank", low=1, high=n, integer=True)
-    return Reduction(
+    return POD(
         window=(float(window[0]), float(window[1])),
         quantity=_choice(table, "[reduction]", "quantity", ("displacement", "velocity"),
                          "displacement"),
