@@ -73,7 +73,8 @@ def main(argv=None) -> dict:
         e = mj.estimate(design(p, c), estimator, HORIZON, x0)
         return jnp.stack([e.value, e.fine, e.error, e.relative])
 
-    full = Compiled(lambda p, c: mj.Energy(HORIZON, x0, method="spectral")(design(p, c)), 7.0, 1.0)
+    full = Compiled(lambda p, c: mj.Energy(HORIZON, x0, method=mj.Spectral())(design(p, c)),
+                    7.0, 1.0)
     states = mj.solve(scene.system, scene.ts, x0, scene.v0, method=mj.Spectral()).displacement
     pod = np.asarray(mj.reduce(states, scene.ts, scene.reduction).pod.basis(RANK))
     modes = np.asarray(mj.modal_basis(scene.system, n))
