@@ -8,7 +8,8 @@ Three parts, in one process (the memory figures in child processes, one per meas
   trace, x(t) (max over 41 times, relative to max |x|) and dJ/dc, dtrace/dc against the tests'
   truths (closed forms for one mass, mpmath's eigen-expansion at 80 digits and its central
   differences otherwise). Targets: values within 1e-9, gradients within 1e-7, nothing negative.
-  With each case, the compiled J + gradient of the default path against ``method="dense"``.
+  With each case, the compiled J + gradient of the default path against
+  ``method=DenseExponential()``.
 * **Memory under jit and vmap** (peak resident memory of a child process that runs only that):
   ``jax.jit(jax.value_and_grad(energy))`` of the full Mikota chain with one grounded damper
   against the eager ``jax.grad`` at the same n; ``jax.jit(jax.vmap(energy))`` over 64 designs at
@@ -91,8 +92,8 @@ def accuracy(quick):
         table[name] = rows
         c = jnp.array(cases.probe(name, 0.0))
         both = {}
-        for method in ("exact", "dense"):
-            fn = Compiled(jax.value_and_grad(lambda c, make=make, x0=x0, v0=v0, m=method:
+        for method, spelling in (("exact", mj.Auto()), ("dense", mj.DenseExponential())):
+            fn = Compiled(jax.value_and_grad(lambda c, make=make, x0=x0, v0=v0, m=spelling:
                                              mj.Energy(10.0, x0, v0, method=m)(make(c))), c)
             (value, _), seconds, _ = timed(fn, c, repeats=5)
             both[method] = dict(seconds=seconds, compile_s=fn.compile_s, value=float(value))

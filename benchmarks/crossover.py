@@ -27,12 +27,12 @@ Per n, one process, compile time apart from run time (``Compiled``), run time = 
 (3 at n <= 1000, 2 beyond and in ``--quick``):
 
 * **Full model, spectral** (the reference and the first baseline): J + dJ/dp + dJ/dc as
-  ``integrated_energy(method="spectral")`` under ``jax.jacfwd``, compiled ahead of time. This is
+  ``Energy(method=Spectral())`` under ``jax.jacfwd``, compiled ahead of time. This is
   what ``sensitivities(scene, "energy", model="full")`` computes (checked equal at the smallest
   n), without its dense fallback (compiled into ``sensitivities`` as a ``lax.cond`` branch): a
   spectral failure at a random design raises here (the design is skipped and recorded) instead
   of running a 4n x 4n matrix exponential for hours at n = 3000.
-* **Full model, Dopri8**: J alone (``integrated_energy(method="ode")``, tolerances traced) at
+* **Full model, Dopri8**: J alone (``Energy(method=ODE(...))``, tolerances traced) at
   rtol in {1e-5, 1e-6, 1e-8} (atol = 1e-2 rtol; 1e-4 is 1e-3 off in J); "equal accuracy" is the
   loosest rtol whose J is within TOL of the spectral J. Then J + gradient from that rtol down until
   J and gradient both meet TOL, in forward mode (``diffrax.ForwardMode()``) as two ``jax.jvp``
@@ -196,7 +196,7 @@ def full_query(function, parameters):
     # J rides along as jacfwd's aux: one forward pass (J computed beside jacfwd found the roots
     # twice, 1.7x the time at n = 5000; the committed results before 2026-11-27 did that)
     def energy(p):
-        value = mj.Energy(HORIZON, function.scene.x0, method="spectral")(function.system(p))
+        value = mj.Energy(HORIZON, function.scene.x0, method=mj.Spectral())(function.system(p))
         return value, value
     jacobian, value = jax.jacfwd(energy, has_aux=True)(parameters)
     return value, jacobian
@@ -209,9 +209,8 @@ def rom_query(function, parameters):
 
 
 def dopri_energy(function, parameters, rtol):
-    return mj.integrated_energy(function.system(parameters), HORIZON, function.scene.x0,
-                                method="ode", rtol=rtol, atol=DOPRI_ATOL * rtol,
-                                max_steps=DOPRI_MAX_STEPS)
+    method = mj.ODE(rtol=rtol, atol=DOPRI_ATOL * rtol, max_steps=DOPRI_MAX_STEPS)
+    return mj.Energy(HORIZON, function.scene.x0, method=method)(function.system(parameters))
 
 
 def dopri_query(function, parameters, rtol, batched: bool = False):
@@ -219,9 +218,9 @@ def dopri_query(function, parameters, rtol, batched: bool = False):
     per parameter (J comes with the first), or ``batched``: ``jax.jacfwd`` (a vmapped jvp, which
     ``sensitivities`` uses: ~13 x the cost of one jvp here, see the module docstring)."""
     def energy(p):
-        return mj.integrated_energy(function.system(p), HORIZON, function.scene.x0,
-                                    method="ode", rtol=rtol, atol=DOPRI_ATOL * rtol,
-                                    max_steps=DOPRI_MAX_STEPS, adjoint=diffrax.ForwardMode())
+        method = mj.ODE(rtol=rtol, atol=DOPRI_ATOL * rtol, max_steps=DOPRI_MAX_STEPS,
+                        adjoint=diffrax.ForwardMode())
+        return mj.Energy(HORIZON, function.scene.x0, method=method)(function.system(p))
     if batched:
         return energy(parameters), jax.jacfwd(energy)(parameters)
     value, jacobian = None, {}

@@ -73,7 +73,8 @@ def main(argv=None) -> dict:
         e = mj.estimate(design(p, c), estimator, HORIZON, x0)
         return jnp.stack([e.value, e.fine, e.error, e.relative])
 
-    full = Compiled(lambda p, c: mj.Energy(HORIZON, x0, method="spectral")(design(p, c)), 7.0, 1.0)
+    full = Compiled(lambda p, c: mj.Energy(HORIZON, x0, method=mj.Spectral())(design(p, c)),
+                    7.0, 1.0)
     pod = mj.reduce(scene, scene.reduction).stats.decomposition.basis(RANK)
     modes = np.asarray(mj.reduce(scene.system, mj.Modal(n)).basis)
     say = lambda text: print(f"[{elapsed(start):7.1f} s] {text}", flush=True)  # noqa: E731

@@ -80,7 +80,7 @@ def main(argv=None) -> dict:
                                 "coefficients": jnp.reshape(c, (1,))})
 
     def full_energy(pc):
-        return mj.Energy(HORIZON, x0, method="spectral")(design(pc[0], pc[1]))
+        return mj.Energy(HORIZON, x0, method=mj.Spectral())(design(pc[0], pc[1]))
 
     def full_gradient(p, c):
         value, gradient = jax.value_and_grad(full_energy)(jnp.stack([p, c]))

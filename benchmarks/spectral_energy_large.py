@@ -8,7 +8,7 @@ and projections without U (``chain_mode_data``).
 
 Problem (crossover's nominal design, the Section 5 setting at size n): Mikota's chain (m = k =
 1), a grounded damper at p = 7 with c = 1, x_3(0) = 1, v(0) = 0, J = the energy on [0, 20];
-J and dJ/d(p, c) by ``jax.jacfwd`` of ``integrated_energy(method="spectral")`` (what
+J and dJ/d(p, c) by ``jax.jacfwd`` of ``Energy(method=Spectral())`` (what
 ``crossover.py`` times as the full spectral query).
 
 * Part A (one process, n = 1000 and 3000): the library's choice (blocks) against the same
@@ -167,8 +167,8 @@ def one_size(n, dopri, rom_rank=None):
         system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(*DESIGN)])
 
         def dopri8(x0):
-            return mj.integrated_energy(system, HORIZON, x0, method="ode", rtol=1e-6,
-                                        atol=1e-8, max_steps=10**6)
+            method = mj.ODE(rtol=1e-6, atol=1e-8, max_steps=10**6)
+            return mj.Energy(HORIZON, x0, method=method)(system)
 
         exe = Compiled(dopri8, start(n))
         dopri_value, dopri_s, _ = timed(exe, start(n), repeats=1)

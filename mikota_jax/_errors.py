@@ -103,7 +103,7 @@ class RESULTS(eqx.Enumeration):
         "Energy: the fastest rate times the horizon (||A|| T) exceeds 4.5e11, beyond "
         "which the dense (Van Loan) energy loses more than ~1e-5 to rounding (or the result is "
         "not finite); a full system with discrete dampers takes the spectral path "
-        "(method='exact'), which has no such limit; else shorten the horizon, or model a DOF "
+        "(method=Auto()), which has no such limit; else shorten the horizon, or model a DOF "
         "that a strong damper pins as fixed.")
     not_damped = (
         "AverageEnergy: some mode is undamped (the Lyapunov solution does not exist); "
@@ -111,7 +111,7 @@ class RESULTS(eqx.Enumeration):
         "the refusal names the undamped modes).")
     spectral_failed = (
         "the spectral path did not hold here (a root did not converge, or roots nearly "
-        "coincide beyond a critically damped pair); use method='dense'.")
+        "coincide beyond a critically damped pair); use method=DenseExponential().")
 
 
 # every failure, in the order a batch reports them (the first that holds anywhere wins)
@@ -217,7 +217,7 @@ def check_dense_memory(size: int, matrices: float, what: str) -> None:
         raise ValueError(
             MARK + f"{what} works with dense matrices: at n = {size} it needs about "
             f"{need / 2**30:.1f} GiB, more than the {available / 2**30:.1f} GiB available. Use "
-            "solve(..., method=ODE(StructuredKvaerno5())) or Energy(..., method='ode') (O(n) "
+            "solve(..., method=ODE(StructuredKvaerno5())) or Energy(..., method=ODE()) (O(n) "
             "memory), or a reduced model.")
 
 

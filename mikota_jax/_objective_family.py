@@ -24,10 +24,12 @@ They replace the functions of the same names (``integrated_energy``, ``total_ave
 
 import abc
 
+import diffrax
 import equinox as eqx
 
 from ._custom_types import Array
-from ._solve import AbstractMethod, Auto
+from ._errors import MARK
+from ._solve import ODE, AbstractMethod, Auto, DenseExponential, Spectral
 
 
 class AbstractObjective(eqx.Module):
@@ -44,22 +46,42 @@ class Energy(AbstractObjective):
     each (n,) in full coordinates, under ``load`` (default: free vibration from rest, which is
     zero), T = ``horizon``.
 
-    ``method``: "exact" (the damped modes where they apply, else the Van Loan integral; free
-    vibration only), "spectral", "dense" or "ode" (Dopri8 with the energy as one more state,
-    any load, at rtol 1e-9, atol 1e-11). Units energy x time."""
+    ``method``, ``solve``'s method objects: ``Auto()`` (default: the damped modes where they
+    apply, else the Van Loan integral, chosen from the structure; free vibration only),
+    ``Spectral()`` (the damped modes in closed form), ``DenseExponential()`` (the Van Loan
+    matrix-exponential integral, O(n^3): the choice for a reduced model) or ``ODE(rtol=...,
+    atol=..., max_steps=..., adjoint=...)`` (Dopri8 with the energy as one more state, any load;
+    ``atol=None`` means 1e-11; its ``solver`` must be ``diffrax.Dopri8()``). Units energy x time.
+    """
 
     horizon: float
     x0: Array | None = None
     v0: Array | None = None
     load: object = None
-    method: str = eqx.field(static=True, default="exact")
+    method: AbstractMethod = Auto()
 
     def __call__(self, model) -> Array:
         """J of ``model``."""
         from ._objectives import integrated_energy
 
         return integrated_energy(model, self.horizon, self.x0, self.v0, self.load,
-                                 method=self.method)
+                                 **_energy_options(self.method))
+
+
+def _energy_options(method) -> dict:
+    """``integrated_energy``'s method and options for a method object of ``Energy``."""
+    if isinstance(method, ODE):
+        if not isinstance(method.solver, diffrax.Dopri8):
+            raise ValueError(MARK + "Energy(method=ODE(...)) integrates with Dopri8 (the energy "
+                             f"as one more state): leave ODE's solver out, got {method.solver!r}.")
+        atol = 1e-11 if method.atol is None else method.atol
+        return dict(method="ode", rtol=method.rtol, atol=atol, max_steps=method.max_steps,
+                    adjoint=method.adjoint)
+    for kind, name in ((Auto, "exact"), (Spectral, "spectral"), (DenseExponential, "dense")):
+        if type(method) is kind:
+            return dict(method=name)
+    raise ValueError(MARK + "Energy's method must be Auto(), Spectral(), DenseExponential() or "
+                     f"ODE(...), got {method!r}.")
 
 
 class AverageEnergy(AbstractObjective):

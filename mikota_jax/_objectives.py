@@ -194,12 +194,13 @@ def _modal_size(model) -> int:
 
 
 _EXACT_METHODS = ("exact", "spectral", "dense")
+_SPELLING = {"exact": "Auto()", "spectral": "Spectral()", "dense": "DenseExponential()"}
 
 
 def _check_spectral(model, method):
     why = spectral_applies(model) if method == "spectral" else None
     if why is not None:
-        raise ValueError(MARK + f"method='spectral' does not apply: {why}; use method='exact'.")
+        raise ValueError(MARK + f"method=Spectral() does not apply: {why}; use method=Auto().")
 
 
 @raises_value_error
@@ -242,8 +243,8 @@ def integrated_energy(model, horizon: float, x0: Vector | None = None,
     x0, v0, load = check_problem(model, x0, v0, load)
     if method in _EXACT_METHODS:
         if load is not None:
-            raise ValueError(MARK + f"method={method!r} integrates free vibration only; for a "
-                             "load use method='ode'.")
+            raise ValueError(MARK + f"method={_SPELLING[method]} integrates free vibration only; "
+                             "for a load use Energy(..., method=ODE()).")
         _check_spectral(model, method)
         # a chain above n = 4096 with dampers alone: the spectral path in O(n) memory, and no
         # dense fallback (it could not run there either: a failure is reported, not hidden)
@@ -252,7 +253,7 @@ def integrated_energy(model, horizon: float, x0: Vector | None = None,
             method = "spectral"
         else:
             check_dense_memory(_modal_size(model), 100 if not takes_spectral(model) else 12,
-                               "Energy(method='exact')")
+                               "Energy(method=Auto())")
         value, result = integrated_energy_exact_with_result(model, horizon, x0, v0, method)
         return raise_result(value, result)
     rtol, atol, adjoint = check_solve_options(rtol, atol, max_steps, adjoint)

@@ -14,6 +14,7 @@ from mikota_jax._classic import damper_directions, modal_static_basis, static_mo
 from mikota_jax._pod import pod
 
 N, T = 40, 20.0
+DENSE = mj.DenseExponential()
 
 
 def chain(position, coefficient):
@@ -47,8 +48,8 @@ def test_the_estimate_is_above_the_true_error_and_within_safety_times_it(case):
     for position, coefficient in DESIGNS:
         system = chain(position, coefficient)
         e = mj.estimate(system, estimator, T, x0)
-        j = float(mj.Energy(T, x0, method="dense")(system))
-        j_r = float(mj.Energy(T, x0, method="dense")(mj.reduce(system, mj.Projection(basis))))
+        j = float(mj.Energy(T, x0, method=DENSE)(system))
+        j_r = float(mj.Energy(T, x0, method=DENSE)(mj.reduce(system, mj.Projection(basis))))
         assert float(e.value) == pytest.approx(j_r, rel=1e-9)
         true = abs(j - j_r)
         assert true > 1e-6 * j  # the basis is off at these designs: the check is not vacuous
@@ -73,7 +74,7 @@ def test_the_fine_space_holds_the_basis_and_the_damper_moments(case):
     # a complete fine space: the fine J is the full J, the estimate 2 |J - J_r|
     whole = mj.Hierarchical(nominal, basis, modes=N, moments=0)
     e = mj.estimate(system, whole, T, x0)
-    j = float(mj.Energy(T, x0, method="dense")(system))
+    j = float(mj.Energy(T, x0, method=DENSE)(system))
     assert float(e.fine) == pytest.approx(j, rel=1e-9)
 
 
@@ -99,14 +100,14 @@ def test_a_reduced_basis_with_the_dampers_moments_is_estimated_and_nested(smooth
         assert np.max(np.abs(columns - reduced @ (reduced.T @ columns))) < 1e-10
         assert np.max(np.abs(columns - fine @ (fine.T @ columns))) < 1e-10
     e = mj.estimate(system, estimator, T, x0)
-    j = float(mj.Energy(T, x0, method="dense")(system))
+    j = float(mj.Energy(T, x0, method=DENSE)(system))
     rom = mj.reduce(system, mj.Projection(jnp.asarray(reduced)))
-    j_r = float(mj.Energy(T, x0, method="dense")(rom))
+    j_r = float(mj.Energy(T, x0, method=DENSE)(rom))
     assert float(e.value) == pytest.approx(j_r, rel=1e-9)
     assert abs(j - j_r) <= float(e.error) <= 2.2 * abs(j - j_r)
     # the moments take the fixed basis' error at this strong damper down by decades
     # (measured: 7.2e-3 -> 2.9e-5)
-    fixed = float(mj.Energy(T, x0, method="dense")(mj.reduce(system, mj.Projection(basis))))
+    fixed = float(mj.Energy(T, x0, method=DENSE)(mj.reduce(system, mj.Projection(basis))))
     assert abs(j - j_r) < 1e-2 * abs(j - fixed)
     with pytest.raises(ValueError, match="basis_moments must be"):
         mj.Hierarchical(nominal, basis, moments=1, basis_moments=2)
@@ -146,7 +147,7 @@ def test_the_gradients_estimate_is_above_the_true_error_and_within_safety_times_
         def energy(design, rom, reduced=reduced):
             s = chain(design[0], design[1])
             model = mj.reduce(s, mj.Projection(reduced)) if rom else s
-            return mj.Energy(T, x0, method="dense")(model)
+            return mj.Energy(T, x0, method=DENSE)(model)
 
         design = jnp.array([position, coefficient])
         j = float(energy(design, False))
@@ -237,7 +238,7 @@ def test_certified_sweep_uses_the_full_model_only_where_the_estimate_misses(smoo
     points = mj.grid(positions=np.array([[7.0], [25.0]]),
                      coefficients=np.array([[0.01], [300.0]]))
     result = mj.certified_sweep(scene, points, estimator, 1e-3)
-    full = [float(mj.Energy(T, scene.x0, method="dense")(small_scene(np.asarray(x0), p, c).system))
+    full = [float(mj.Energy(T, scene.x0, method=DENSE)(small_scene(np.asarray(x0), p, c).system))
             for p, c in zip(points["positions"][:, 0], points["coefficients"][:, 0], strict=True)]
     # a weak damper is certified, the strong one (7e-3 off) is not
     assert result.certified[0] and not result.certified[-1]
@@ -266,9 +267,9 @@ def test_greedy_driven_by_the_estimate_certifies_the_training_designs_against_th
     assert stats.full_solves == len(stats.history) - 1 >= 1 and result.rank < N
     for p, c in zip(training["positions"][:, 0], training["coefficients"][:, 0], strict=True):
         system = small_scene(np.asarray(x0), p, c).system
-        j = float(mj.Energy(T, x0, method="dense")(system))
+        j = float(mj.Energy(T, x0, method=DENSE)(system))
         rom = mj.reduce(system, mj.Projection(result.basis))
-        j_r = float(mj.Energy(T, x0, method="dense")(rom))
+        j_r = float(mj.Energy(T, x0, method=DENSE)(rom))
         assert abs(j_r / j - 1) <= 1e-3
     with pytest.raises(ValueError, match="hierarchical must be None or a dict"):
         mj.reduce(scene, mj.Greedy(training, 1e-3, hierarchical={"mode": 3}))

@@ -7,6 +7,9 @@ x'' + c x' + x = 0), where every objective is known exactly:
 * the energy on [0, T] by mpmath quadrature of the analytic x(t) at 30 digits.
 """
 
+import functools
+
+import diffrax
 import jax
 import jax.numpy as jnp
 import mpmath as mp
@@ -82,3 +85,59 @@ def test_a_user_objective_subclasses_the_abstract_one():
             return jnp.max(mj.modal_decomposition(model)[0])
 
     assert float(Stiffest()(one_mass())) == pytest.approx(1.0, rel=1e-14)
+
+
+@functools.lru_cache
+def quadrature_energy(c=C):
+    """J on [0, T] from x0 = 1 by mpmath quadrature of the analytic x(t) at 30 digits (~1e-25)."""
+    mp.mp.dps = 30
+    c = mp.mpf(c)
+
+    def integrand(t):
+        x = displacement(t, c, mp)
+        v = mp.diff(lambda s: displacement(s, c, mp), t)
+        return (x**2 + v**2) / 2
+
+    return float(mp.quad(integrand, [0, 2, 5, T]))
+
+
+@pytest.mark.parametrize(("method", "rel"), [(mj.Auto(), 1e-12), (mj.Spectral(), 1e-12),
+                                             (mj.DenseExponential(), 1e-10)],
+                         ids=["auto", "spectral", "dense"])
+def test_energy_takes_the_exact_methods_of_solve(method, rel):
+    # truth: the quadrature (~1e-25); the damped modes hold it to rounding, Van Loan's doubling
+    # to 3e-12 (measured)
+    value = mj.Energy(T, x0=jnp.ones(1), method=method)(one_mass())
+    assert float(value) == pytest.approx(quadrature_energy(), rel=rel)
+
+
+def test_energy_by_ode_takes_its_tolerances():
+    # Dopri8 with the energy as one more state: rtol 1e-9, atol 1e-11 (the old "ode") to ~1e-7;
+    # ODE()'s own rtol 1e-8 (atol None: 1e-11) to ~1e-6
+    truth = quadrature_energy()
+    tight = mj.Energy(T, x0=jnp.ones(1), method=mj.ODE(rtol=1e-9, atol=1e-11))(one_mass())
+    assert float(tight) == pytest.approx(truth, rel=1e-7)
+    default = mj.Energy(T, x0=jnp.ones(1), method=mj.ODE())(one_mass())
+    assert float(default) == pytest.approx(truth, rel=1e-6)
+
+
+def test_energy_with_a_method_object_passes_through_jit_vmap_and_grad():
+    # truths: the quadrature (~1e-25) and its central difference in c (h = 1e-5: ~1e-9 relative)
+    for method in (mj.Spectral(), mj.DenseExponential(), mj.ODE(rtol=1e-9, atol=1e-11)):
+        energy = mj.Energy(T, x0=jnp.ones(1), method=method)
+        value, slope = jax.jit(jax.value_and_grad(lambda c, e=energy: e(one_mass(c))))(C)
+        assert float(value) == pytest.approx(quadrature_energy(), rel=1e-7)
+        h = 1e-5
+        central = (quadrature_energy(C + h) - quadrature_energy(C - h)) / (2 * h)
+        assert float(slope) == pytest.approx(central, rel=1e-6)
+    values = jax.vmap(lambda c: mj.Energy(T, x0=jnp.ones(1), method=mj.Spectral())(one_mass(c)))(
+        jnp.array([0.5, C]))
+    assert float(values[1]) == pytest.approx(quadrature_energy(), rel=1e-12)
+
+
+@pytest.mark.parametrize("method", ["exact", mj.ODE(diffrax.Kvaerno5()), None],
+                         ids=["string", "kvaerno5", "none"])
+def test_energy_refuses_other_methods_in_one_line(method):
+    with pytest.raises(ValueError, match="method") as info:
+        mj.Energy(T, x0=jnp.ones(1), method=method)(one_mass())
+    assert "\n" not in str(info.value)

@@ -213,7 +213,7 @@ def test_grad_and_vmap_pass_through_a_structural_reduction():
 
     def energy(c):
         model = mj.reduce(damped(7.0, c), mj.Modal(10))
-        return mj.Energy(5.0, x0, method="dense")(model)
+        return mj.Energy(5.0, x0, method=mj.DenseExponential())(model)
 
     c = 2.0
     # the dense energy carries ~1e-11 relative rounding (Van Loan step and doublings), so the

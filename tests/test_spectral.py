@@ -18,12 +18,15 @@ from mikota_jax._spectral_system import damped_modes
 T = 20.0
 
 
-def spectral_energy(system, horizon, x0=None, v0=None, method="spectral"):
+SPECTRAL = mj.Spectral()
+
+
+def spectral_energy(system, horizon, x0=None, v0=None, method=SPECTRAL):
     return mj.Energy(horizon, x0, v0, method=method)(system)
 
 
 def dense_energy(system, horizon, x0=None, v0=None):
-    return mj.Energy(horizon, x0, v0, method="dense")(system)
+    return mj.Energy(horizon, x0, v0, method=mj.DenseExponential())(system)
 
 
 def unit(n, i):
@@ -304,7 +307,7 @@ def test_systems_outside_the_slice_are_refused_with_the_argument_named():
         spectral_energy(mj.mikota_chain(5, dampers=[mj.GroundedDamper(2.0, 1.0)]), -1.0)
     with pytest.raises(ValueError, match="does not apply: the system is undamped"):
         spectral_energy(mj.mikota_chain(5), 1.0, unit(5, 1))
-    with pytest.raises(ValueError, match="method='spectral' does not apply: the spectral path"):
+    with pytest.raises(ValueError, match=r"method=Spectral\(\) does not apply: the spectral path"):
         total_average_energy(mj.system(np.ones(n), mj.mikota_chain(n).stiffness,
                                           0.1 * np.eye(n)), method="spectral")
     with pytest.raises(ValueError, match="method must be"):

@@ -55,7 +55,7 @@ def test_the_large_chain_path_equals_the_whole_one_and_the_dense_energy():
     np.testing.assert_allclose(float(blocked_modes.separation), float(modes.separation),
                                rtol=1e-9)
     # J against the dense (Van Loan) energy, an independent path
-    dense = mj.Energy(T, X0, method="dense")(chain(12.4, 40.0))
+    dense = mj.Energy(T, X0, method=mj.DenseExponential())(chain(12.4, 40.0))
     np.testing.assert_allclose(float(blocked), float(dense), rtol=1e-10)
     np.testing.assert_allclose(float(blocked), float(whole), rtol=1e-12)
     # the gradient (reverse mode through the checkpointed blocks and the modes' rows) against

@@ -112,5 +112,5 @@ def test_exact_solve_and_the_energy_take_the_large_chain_path_above_the_threshol
                                atol=1e-11)
     # the energy's default method takes the same O(n)-memory path there (no dense fallback)
     np.testing.assert_allclose(float(mj.Energy(20.0, x0)(system)),
-                               float(mj.Energy(20.0, x0, method="dense")(system)),
+                               float(mj.Energy(20.0, x0, method=mj.DenseExponential())(system)),
                                rtol=1e-10)
