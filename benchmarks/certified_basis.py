@@ -131,9 +131,9 @@ def main(argv=None) -> dict:
           f"solves, {offline:.1f} s", flush=True)
 
     points = random_designs(50 if args.quick else RANDOM)
-    bounds, bound_s = swept(mj._greedy.BoundFunction(scene, greedy.basis), points)
+    bounds, bound_s = swept(mj._estimation.greedy.BoundFunction(scene, greedy.basis), points)
     full, full_s = swept(mj.SceneFunction(scene, "energy"), points)
-    relative = mj._greedy.relative_bounds(bounds)
+    relative = mj._estimation.greedy.relative_bounds(bounds)
     true = np.abs(bounds[:, 0] - full) / full
     effectivity = relative / np.maximum(true, 1e-300)
     rows = [dict(position=float(p), coefficient=float(c), J=float(j), true=float(t),

@@ -27,30 +27,31 @@ __version__ = "0.1.0"
 # Each core module and the public names it defines, loaded on first use.
 _MODULES = {
     "_cache": "enable_compilation_cache",
-    "_chain": "branched_chain chain mikota_chain",
-    "_dampers": "GroundedDamper RelativeDamper",
-    "_estimate": "AbstractEstimator Estimate Hierarchical ResidualBound certified_sweep estimate",
-    "_excitation": "LoadFunction Pulse pulse unit_vector",
-    "_frequency": "frequency_response",
-    "_galerkin": "ReducedModel",
-    "_greedy": "rank_for_bound",
-    "_implicit": "StructuredKvaerno5",
-    "_integrate": "Trajectory",
-    "_internal_damping": "ModalDamping Rayleigh",
-    "_modal": "modal_decomposition",
-    "_objective_family": "AbstractObjective AverageEnergy Energy H2Norm OutputEnergy Peak",
-    "_optimise": ("AbstractDesignStrategy Coefficients CoordinateDescent DamperDesign DesignResult "
-                  "Grid ScreenAndCertify Solution optimise"),
-    "_reduce": ("CraigBampton EnrichedPOD Greedy IRKA Krylov Modal ModalStatic Projection "
-                "RationalKrylov Union reduce"),
-    "_reduction": "POD AbstractReduction ReductionStats",
-    "_run": "SceneResult run_scene",
-    "_scene": "Scene",
-    "_sensitivity": "SceneFunction Sensitivities scene_parameters sensitivities",
-    "_solve": "AbstractMethod Auto DenseExponential ODE Spectral solve",
+    "_estimation.estimate": ("AbstractEstimator Estimate Hierarchical ResidualBound "
+                             "certified_sweep estimate"),
+    "_estimation.greedy": "rank_for_bound",
+    "_model.chain": "branched_chain chain mikota_chain",
+    "_model.dampers": "GroundedDamper RelativeDamper",
+    "_model.internal_damping": "ModalDamping Rayleigh",
+    "_model.loads": "LoadFunction Pulse pulse unit_vector",
+    "_model.modal": "modal_decomposition",
+    "_model.reduced": "ReducedModel ReductionStats",
+    "_model.system": "SecondOrderSystem",
+    "_model.user_matrices": "system",
+    "_objective.family": "AbstractObjective AverageEnergy Energy H2Norm OutputEnergy Peak",
+    "_placement.optimise": ("AbstractDesignStrategy Coefficients CoordinateDescent DamperDesign "
+                            "DesignResult Grid ScreenAndCertify Solution optimise"),
+    "_rom.base": "POD AbstractReduction",
+    "_rom.reduce": ("CraigBampton EnrichedPOD Greedy IRKA Krylov Modal ModalStatic Projection "
+                    "RationalKrylov Union reduce"),
+    "_scenes.run": "SceneResult run_scene",
+    "_scenes.scene": "Scene",
+    "_scenes.sensitivity": "SceneFunction Sensitivities scene_parameters sensitivities",
+    "_solver.frequency": "frequency_response",
+    "_solver.implicit": "StructuredKvaerno5",
+    "_solver.trajectory": "Trajectory",
+    "_solver.solve": "AbstractMethod Auto DenseExponential ODE Spectral solve",
     "_sweep": "grid sweep",
-    "_system": "SecondOrderSystem",
-    "_user_matrices": "system",
 }
 _CORE_NAMES = {name: module for module, names in _MODULES.items() for name in names.split()}
 
@@ -92,72 +93,72 @@ if _TYPE_CHECKING:  # the same names for static tools (type checkers, the API re
     from . import io as io
     from . import metrics as metrics
     from ._cache import enable_compilation_cache as enable_compilation_cache
-    from ._chain import branched_chain as branched_chain
-    from ._chain import chain as chain
-    from ._chain import mikota_chain as mikota_chain
-    from ._dampers import GroundedDamper as GroundedDamper
-    from ._dampers import RelativeDamper as RelativeDamper
-    from ._estimate import AbstractEstimator as AbstractEstimator
-    from ._estimate import Estimate as Estimate
-    from ._estimate import Hierarchical as Hierarchical
-    from ._estimate import ResidualBound as ResidualBound
-    from ._estimate import certified_sweep as certified_sweep
-    from ._estimate import estimate as estimate
-    from ._excitation import LoadFunction as LoadFunction
-    from ._excitation import Pulse as Pulse
-    from ._excitation import pulse as pulse
-    from ._excitation import unit_vector as unit_vector
-    from ._frequency import frequency_response as frequency_response
-    from ._galerkin import ReducedModel as ReducedModel
-    from ._greedy import rank_for_bound as rank_for_bound
-    from ._implicit import StructuredKvaerno5 as StructuredKvaerno5
-    from ._integrate import Trajectory as Trajectory
-    from ._internal_damping import ModalDamping as ModalDamping
-    from ._internal_damping import Rayleigh as Rayleigh
-    from ._modal import modal_decomposition as modal_decomposition
-    from ._objective_family import AbstractObjective as AbstractObjective
-    from ._objective_family import AverageEnergy as AverageEnergy
-    from ._objective_family import Energy as Energy
-    from ._objective_family import H2Norm as H2Norm
-    from ._objective_family import OutputEnergy as OutputEnergy
-    from ._objective_family import Peak as Peak
-    from ._optimise import AbstractDesignStrategy as AbstractDesignStrategy
-    from ._optimise import Coefficients as Coefficients
-    from ._optimise import CoordinateDescent as CoordinateDescent
-    from ._optimise import DamperDesign as DamperDesign
-    from ._optimise import DesignResult as DesignResult
-    from ._optimise import Grid as Grid
-    from ._optimise import ScreenAndCertify as ScreenAndCertify
-    from ._optimise import Solution as Solution
-    from ._optimise import optimise as optimise
-    from ._reduce import IRKA as IRKA
-    from ._reduce import CraigBampton as CraigBampton
-    from ._reduce import EnrichedPOD as EnrichedPOD
-    from ._reduce import Greedy as Greedy
-    from ._reduce import Krylov as Krylov
-    from ._reduce import Modal as Modal
-    from ._reduce import ModalStatic as ModalStatic
-    from ._reduce import Projection as Projection
-    from ._reduce import RationalKrylov as RationalKrylov
-    from ._reduce import Union as Union
-    from ._reduce import reduce as reduce
-    from ._reduction import POD as POD
-    from ._reduction import AbstractReduction as AbstractReduction
-    from ._reduction import ReductionStats as ReductionStats
-    from ._run import SceneResult as SceneResult
-    from ._run import run_scene as run_scene
-    from ._scene import Scene as Scene
-    from ._sensitivity import SceneFunction as SceneFunction
-    from ._sensitivity import Sensitivities as Sensitivities
-    from ._sensitivity import scene_parameters as scene_parameters
-    from ._sensitivity import sensitivities as sensitivities
-    from ._solve import ODE as ODE
-    from ._solve import AbstractMethod as AbstractMethod
-    from ._solve import Auto as Auto
-    from ._solve import DenseExponential as DenseExponential
-    from ._solve import Spectral as Spectral
-    from ._solve import solve as solve
+    from ._estimation.estimate import AbstractEstimator as AbstractEstimator
+    from ._estimation.estimate import Estimate as Estimate
+    from ._estimation.estimate import Hierarchical as Hierarchical
+    from ._estimation.estimate import ResidualBound as ResidualBound
+    from ._estimation.estimate import certified_sweep as certified_sweep
+    from ._estimation.estimate import estimate as estimate
+    from ._estimation.greedy import rank_for_bound as rank_for_bound
+    from ._model.chain import branched_chain as branched_chain
+    from ._model.chain import chain as chain
+    from ._model.chain import mikota_chain as mikota_chain
+    from ._model.dampers import GroundedDamper as GroundedDamper
+    from ._model.dampers import RelativeDamper as RelativeDamper
+    from ._model.internal_damping import ModalDamping as ModalDamping
+    from ._model.internal_damping import Rayleigh as Rayleigh
+    from ._model.loads import LoadFunction as LoadFunction
+    from ._model.loads import Pulse as Pulse
+    from ._model.loads import pulse as pulse
+    from ._model.loads import unit_vector as unit_vector
+    from ._model.modal import modal_decomposition as modal_decomposition
+    from ._model.reduced import ReducedModel as ReducedModel
+    from ._model.reduced import ReductionStats as ReductionStats
+    from ._model.system import SecondOrderSystem as SecondOrderSystem
+    from ._model.user_matrices import system as system
+    from ._objective.family import AbstractObjective as AbstractObjective
+    from ._objective.family import AverageEnergy as AverageEnergy
+    from ._objective.family import Energy as Energy
+    from ._objective.family import H2Norm as H2Norm
+    from ._objective.family import OutputEnergy as OutputEnergy
+    from ._objective.family import Peak as Peak
+    from ._placement.optimise import AbstractDesignStrategy as AbstractDesignStrategy
+    from ._placement.optimise import Coefficients as Coefficients
+    from ._placement.optimise import CoordinateDescent as CoordinateDescent
+    from ._placement.optimise import DamperDesign as DamperDesign
+    from ._placement.optimise import DesignResult as DesignResult
+    from ._placement.optimise import Grid as Grid
+    from ._placement.optimise import ScreenAndCertify as ScreenAndCertify
+    from ._placement.optimise import Solution as Solution
+    from ._placement.optimise import optimise as optimise
+    from ._rom.base import POD as POD
+    from ._rom.base import AbstractReduction as AbstractReduction
+    from ._rom.reduce import IRKA as IRKA
+    from ._rom.reduce import CraigBampton as CraigBampton
+    from ._rom.reduce import EnrichedPOD as EnrichedPOD
+    from ._rom.reduce import Greedy as Greedy
+    from ._rom.reduce import Krylov as Krylov
+    from ._rom.reduce import Modal as Modal
+    from ._rom.reduce import ModalStatic as ModalStatic
+    from ._rom.reduce import Projection as Projection
+    from ._rom.reduce import RationalKrylov as RationalKrylov
+    from ._rom.reduce import Union as Union
+    from ._rom.reduce import reduce as reduce
+    from ._scenes.run import SceneResult as SceneResult
+    from ._scenes.run import run_scene as run_scene
+    from ._scenes.scene import Scene as Scene
+    from ._scenes.sensitivity import SceneFunction as SceneFunction
+    from ._scenes.sensitivity import Sensitivities as Sensitivities
+    from ._scenes.sensitivity import scene_parameters as scene_parameters
+    from ._scenes.sensitivity import sensitivities as sensitivities
+    from ._solver.frequency import frequency_response as frequency_response
+    from ._solver.implicit import StructuredKvaerno5 as StructuredKvaerno5
+    from ._solver.solve import ODE as ODE
+    from ._solver.solve import AbstractMethod as AbstractMethod
+    from ._solver.solve import Auto as Auto
+    from ._solver.solve import DenseExponential as DenseExponential
+    from ._solver.solve import Spectral as Spectral
+    from ._solver.solve import solve as solve
+    from ._solver.trajectory import Trajectory as Trajectory
     from ._sweep import grid as grid
     from ._sweep import sweep as sweep
-    from ._system import SecondOrderSystem as SecondOrderSystem
-    from ._user_matrices import system as system

@@ -27,25 +27,25 @@ the private modules:
   or probe the decomposition itself (a reduced model: ``reduce(scene, POD(...))``).
 """
 
-from ._certify import LBFGS as LBFGS
-from ._chain_modes import chain_mode_data as chain_mode_data
-from ._chain_modes import chain_modes as chain_modes
-from ._design import DamperProblem as DamperProblem
-from ._exact import dense_solve_with_result as dense_solve_with_result
-from ._modal import generalized_modes as generalized_modes
-from ._operators import Dense as Dense
-from ._operators import Diagonal as Diagonal
-from ._operators import Sparse as Sparse
-from ._placement_objective import placement_objective as placement_objective
-from ._pod import _Decomposition as PODDecomposition
-from ._pod import energy_fraction as energy_fraction
-from ._pod import pod as pod
-from ._solver_choice import choose_solver as choose_solver
-from ._solver_choice import stiffness_rate as stiffness_rate
-from ._spectral_objectives import spectral_energy_with_result as spectral_energy_with_result
-from ._spectral_solve import spectral_solve_with_result as spectral_solve_with_result
-from ._spectral_system import damped_modes as damped_modes
-from ._viscosity import criterion_function as criterion_function
+from ._model.chain_modes import chain_mode_data as chain_mode_data
+from ._model.chain_modes import chain_modes as chain_modes
+from ._model.modal import generalized_modes as generalized_modes
+from ._model.operators import Dense as Dense
+from ._model.operators import Diagonal as Diagonal
+from ._model.operators import Sparse as Sparse
+from ._placement.certify import LBFGS as LBFGS
+from ._placement.objective import placement_objective as placement_objective
+from ._placement.problem import DamperProblem as DamperProblem
+from ._placement.viscosity import criterion_function as criterion_function
+from ._rom.pod import _Decomposition as PODDecomposition
+from ._rom.pod import energy_fraction as energy_fraction
+from ._rom.pod import pod as pod
+from ._solver.exact import dense_solve_with_result as dense_solve_with_result
+from ._solver.select import choose_solver as choose_solver
+from ._solver.select import stiffness_rate as stiffness_rate
+from ._solver.spectral.energy import spectral_energy_with_result as spectral_energy_with_result
+from ._solver.spectral.modes import damped_modes as damped_modes
+from ._solver.spectral.response import spectral_solve_with_result as spectral_solve_with_result
 
 __all__ = ["Dense", "Diagonal", "Sparse", "chain_mode_data", "chain_modes", "damped_modes",
            "dense_solve_with_result", "generalized_modes", "spectral_solve_with_result",

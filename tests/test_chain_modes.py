@@ -12,8 +12,8 @@ from _helpers import sign_rule
 from test_extremes import ORDERS, SPRINGS, bisection_eigenvalues
 
 import mikota_jax as mj
-from mikota_jax._chain_modes import _bisection, _mikota_ratio, chain_mode_data, chain_modes
-from mikota_jax._modal import generalized_modes
+from mikota_jax._model.chain_modes import _bisection, _mikota_ratio, chain_mode_data, chain_modes
+from mikota_jax._model.modal import generalized_modes
 
 M_, K_ = 1.3, 0.9
 

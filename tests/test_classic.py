@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
-from mikota_jax._classic import (
+from mikota_jax._rom.classic import (
     craig_bampton_basis,
     damper_directions,
     extend_basis,

@@ -26,7 +26,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import mikota_jax as mj
-from mikota_jax._spectral_system import damped_modes
+from mikota_jax._solver.spectral.modes import damped_modes
 
 T = 10.0
 TS = np.linspace(0.0, T, 41)

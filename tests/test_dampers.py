@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
-from mikota_jax._design import DamperProblem
+from mikota_jax._placement.problem import DamperProblem
 
 N = 6
 

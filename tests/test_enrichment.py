@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
-from mikota_jax._enrichment import sensitivity_snapshots
+from mikota_jax._estimation.enrichment import sensitivity_snapshots
 
 WRT = ("positions", "coefficients")
 

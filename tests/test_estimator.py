@@ -9,8 +9,8 @@ import pytest
 import scipy.linalg
 
 import mikota_jax as mj
-from mikota_jax._estimator import error_bound
-from mikota_jax._pod import pod
+from mikota_jax._estimation.estimator import error_bound
+from mikota_jax._rom.pod import pod
 
 N = 40
 T = 20.0
@@ -72,7 +72,7 @@ def test_a_complete_basis_has_a_zero_bound(case):
     system, x0, _ = case
     bound = mj.estimate(system, mj.ResidualBound(jnp.eye(N)), T, x0)
     # only the rounding floor is left (ROUNDING J_r)
-    assert float(bound.error) < 1.01 * mj._estimator.ROUNDING * float(bound.value)
+    assert float(bound.error) < 1.01 * mj._estimation.estimator.ROUNDING * float(bound.value)
     assert float(bound.state) < 1e-9
 
 

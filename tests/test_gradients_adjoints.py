@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
-from mikota_jax._pod import pod
+from mikota_jax._rom.pod import pod
 
 N, RANK, SNAPSHOT_END = 30, 10, 2.5
 TS = jnp.linspace(0.0, 5.0, 201)

@@ -10,8 +10,8 @@ import pytest
 import scipy.linalg
 
 import mikota_jax as mj
-from mikota_jax._classic import damper_directions, modal_static_basis, static_moments
-from mikota_jax._pod import pod
+from mikota_jax._rom.classic import damper_directions, modal_static_basis, static_moments
+from mikota_jax._rom.pod import pod
 
 N, T = 40, 20.0
 DENSE = mj.DenseExponential()

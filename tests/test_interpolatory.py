@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
-from mikota_jax._interpolatory import (
+from mikota_jax._rom.interpolatory import (
     _pencil,
     _reduced_poles,
     band_shifts,

@@ -16,7 +16,8 @@ import mikota_jax as mj
 import mikota_jax.app as app
 
 PACKAGE = Path(mj.__file__).parent
-CORE = sorted(p for p in PACKAGE.glob("*.py") if p.name != "__main__.py")
+CORE = sorted(p for p in PACKAGE.rglob("*.py")
+              if "app" not in p.relative_to(PACKAGE).parts and p.name != "__main__.py")
 APP_NAMES = ("load_scene", "reproduce", "optimise_scene", "problem_from_scene")
 
 
@@ -28,8 +29,10 @@ def imported_modules(path: Path) -> set[str]:
             found |= {alias.name for alias in node.names}
         elif isinstance(node, ast.ImportFrom):
             base = node.module or ""
-            if node.level:  # relative to the package mikota_jax (core modules are top level)
-                base = ".".join(["mikota_jax", *([base] if base else [])])
+            if node.level:  # relative to the module's own package
+                package = path.parent.relative_to(PACKAGE.parent).parts
+                package = package[: len(package) - (node.level - 1)]
+                base = ".".join([*package, *([base] if base else [])])
             found.add(base)
             found |= {f"{base}.{alias.name}" for alias in node.names}
         elif isinstance(node, ast.Call) and getattr(node.func, "attr", "") == "import_module":
@@ -117,7 +120,7 @@ def test_benchmarks_and_notebooks_use_only_public_names():
 
 
 ARCHITECTURE = PACKAGE.parent / "docs" / "architecture.md"
-MODULE_COLUMN = 16  # where a module's name starts on a line of the page's diagram
+MODULE_COLUMN = 24  # where a module's name starts on a line of the page's diagram
 
 
 def loaded_imports(path: Path) -> set[Path]:
@@ -166,12 +169,16 @@ def architecture_listing() -> list[Path]:
     text = ARCHITECTURE.read_text(encoding="utf-8")
     diagram = next(block for block in re.findall(r"^```text\n(.*?)^```", text, re.S | re.M)
                    if block.startswith("application layer"))
-    listed, folder = [], PACKAGE / "app"
+    listed, folder, core = [], PACKAGE / "app", False
     for line in diagram.splitlines():
         if line.startswith("core:"):
-            folder = PACKAGE
+            folder, core = PACKAGE, True
         elif len(line) > MODULE_COLUMN and line[MODULE_COLUMN - 1] == " " \
                 and line[MODULE_COLUMN] != " ":
+            label = line[:MODULE_COLUMN].strip()
+            if core and label:  # "_solver/spectral/": a subpackage; any other label: the root
+                folder = PACKAGE.joinpath(*label.strip("/").split("/")) if label.endswith("/") \
+                    else PACKAGE
             name = line[MODULE_COLUMN:].split()[0]
             listed.append(PACKAGE / "__main__.py" if name == "__main__" else folder / f"{name}.py")
     return listed

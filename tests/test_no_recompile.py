@@ -15,7 +15,7 @@ import jax
 import numpy as np
 
 import mikota_jax as mj
-from mikota_jax._pod import pod
+from mikota_jax._rom.pod import pod
 
 TRACE = "/jax/core/compile/jaxpr_trace_duration"
 BACKEND = "/jax/core/compile/backend_compile_duration"

@@ -9,7 +9,7 @@ import scipy.linalg as sl
 from _helpers import mp_eigen_energy
 
 import mikota_jax as mj
-from mikota_jax._objectives import smooth_peak
+from mikota_jax._objective.functions import smooth_peak
 
 N, T = 8, 5.0
 X0 = np.zeros(N)

@@ -14,16 +14,16 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
-from mikota_jax._design import DamperProblem
-from mikota_jax._placement_objective import placement_objective
-from mikota_jax._pod import pod
-from mikota_jax._search import (
+from mikota_jax._placement.objective import placement_objective
+from mikota_jax._placement.problem import DamperProblem
+from mikota_jax._placement.search import (
     _init,
     _step,
     from_unconstrained,
     to_unconstrained,
     value_and_gradient,
 )
+from mikota_jax._rom.pod import pod
 
 N = 12
 HORIZON = 8.0

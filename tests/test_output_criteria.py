@@ -8,7 +8,7 @@ import pytest
 import scipy.linalg as sl
 
 import mikota_jax as mj
-from mikota_jax._objectives import total_average_energy
+from mikota_jax._objective.functions import total_average_energy
 
 N = 12
 RNG = np.random.default_rng(3)

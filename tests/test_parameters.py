@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
-from mikota_jax._parameters import check_parameters, with_parameters
+from mikota_jax._model.parameters import check_parameters, with_parameters
 
 
 def leaves_equal(a, b):

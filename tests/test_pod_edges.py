@@ -13,7 +13,7 @@ import pytest
 from _helpers import orthonormal, sign_rule
 
 import mikota_jax as mj
-from mikota_jax._pod import pod, rank_for_energy
+from mikota_jax._rom.pod import pod, rank_for_energy
 
 # under a user's jax.jit, equinox's runtime error arrives wrapped in jax's (which some jax versions
 # raise as a ValueError); the message is what the tests check

@@ -9,7 +9,7 @@ import pytest
 from _helpers import orthonormal, sign_rule
 
 import mikota_jax as mj
-from mikota_jax._pod import _Decomposition, energy_fraction, pod, rank_for_energy
+from mikota_jax._rom.pod import _Decomposition, energy_fraction, pod, rank_for_energy
 
 # --- POD of matrices with a known SVD ---------------------------------------------------------
 

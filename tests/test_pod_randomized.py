@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from _helpers import orthonormal, sign_rule
 
-from mikota_jax._pod import pod
+from mikota_jax._rom.pod import pod
 
 
 def known(n, m, s, seed=0):

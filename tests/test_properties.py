@@ -19,7 +19,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 import mikota_jax as mj
-from mikota_jax._objectives import integrated_energy
+from mikota_jax._objective.functions import integrated_energy
 
 SIZES = (1, 2, 3, 5, 8)
 SOLVED_SIZES = (1, 2, 5)  # each size compiles every solve once more: ~3 s each on a laptop core

@@ -11,17 +11,17 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
-from mikota_jax._classic import (
+from mikota_jax._estimation.enrichment import enriched_reduce
+from mikota_jax._model.reduced import galerkin
+from mikota_jax._rom.classic import (
     craig_bampton_basis,
     extend_basis,
     krylov_basis,
     modal_basis,
     modal_static_basis,
 )
-from mikota_jax._enrichment import enriched_reduce
-from mikota_jax._galerkin import galerkin
-from mikota_jax._interpolatory import band_shifts, irka_basis, rational_krylov_basis
-from mikota_jax._pod import pod
+from mikota_jax._rom.interpolatory import band_shifts, irka_basis, rational_krylov_basis
+from mikota_jax._rom.pod import pod
 
 N = 30
 EXACT = 1e-14  # the same numbers: the strategy calls the builder, nothing in between
@@ -240,7 +240,7 @@ def test_a_users_strategy_subclasses_abstract_reduction():
 
 @pytest.mark.slow  # two greedy runs (~1 min each): a full solve and a compile per iteration
 def test_greedy_is_the_greedy_basis():
-    from mikota_jax._greedy import greedy_reduce
+    from mikota_jax._estimation.greedy import greedy_reduce
 
     s = scene(rank=3)
     training = mj.grid(positions=np.array([[2.0], [9.0]]), coefficients=np.array([[0.1], [5.0]]))

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
-from mikota_jax._pod import rank_for_energy
-from mikota_jax._scene import QUANTITIES
+from mikota_jax._rom.pod import rank_for_energy
+from mikota_jax._scenes.scene import QUANTITIES
 from mikota_jax.app import result_dict, write_json
 from mikota_jax.app.results import HISTORIES, OUTPUTS
 

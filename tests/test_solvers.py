@@ -16,7 +16,7 @@ import scipy.linalg as sl
 from scipy.integrate import solve_ivp
 
 import mikota_jax as mj
-from mikota_jax._integrate import simulate
+from mikota_jax._solver.ode import simulate
 
 N = 8
 M_, K_ = 1.3, 0.9  # m and k of the chain, not 1, so that Omega = sqrt(k/m) is not 1

@@ -10,10 +10,10 @@ import scipy.optimize as so
 from _helpers import lyapunov_trace
 
 import mikota_jax as mj
-from mikota_jax._objectives import total_average_energy
-from mikota_jax._spectral_clusters import NEAR_COINCIDENT
-from mikota_jax._spectral_objectives import spectral_energy_with_result
-from mikota_jax._spectral_system import damped_modes
+from mikota_jax._objective.functions import total_average_energy
+from mikota_jax._solver.spectral.clusters import NEAR_COINCIDENT
+from mikota_jax._solver.spectral.energy import spectral_energy_with_result
+from mikota_jax._solver.spectral.modes import damped_modes
 
 T = 20.0
 

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
-from mikota_jax._spectral_objectives import energy_from_modes
-from mikota_jax._spectral_rows import BLOCK_ABOVE, row_block
-from mikota_jax._spectral_system import live_modes, live_rows
+from mikota_jax._solver.spectral.energy import energy_from_modes
+from mikota_jax._solver.spectral.modes import live_modes, live_rows
+from mikota_jax._solver.spectral.rows import BLOCK_ABOVE, row_block
 
 N, T = 40, 20.0
 X0 = np.eye(N)[2]

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
-import mikota_jax._spectral_system as spectral_system
-from mikota_jax._chain_combine import chain_mode_combination
-from mikota_jax._chain_modes import chain_modes
-from mikota_jax._spectral_solve import rows_response, spectral_solve_with_result
+import mikota_jax._solver.spectral.modes as spectral_system
+from mikota_jax._model.chain_combine import chain_mode_combination
+from mikota_jax._model.chain_modes import chain_modes
+from mikota_jax._solver.spectral.response import rows_response, spectral_solve_with_result
 
 N = 40
 TS = jnp.linspace(0.0, 5.0, 51)

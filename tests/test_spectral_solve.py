@@ -15,9 +15,9 @@ import pytest
 import scipy.linalg as sl
 
 import mikota_jax as mj
-from mikota_jax._design import DamperProblem
-from mikota_jax._placement_objective import placement_objective
-from mikota_jax._spectral_solve import spectral_solve_with_result
+from mikota_jax._placement.objective import placement_objective
+from mikota_jax._placement.problem import DamperProblem
+from mikota_jax._solver.spectral.response import spectral_solve_with_result
 
 N = 20
 M_, K_ = 1.3, 0.9

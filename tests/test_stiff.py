@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
-from mikota_jax._solver_choice import STIFF_THRESHOLD, choose_solver, stiffness_rate
+from mikota_jax._solver.select import STIFF_THRESHOLD, choose_solver, stiffness_rate
 
 N = 12
 TS = np.linspace(0.0, 6.0, 61)

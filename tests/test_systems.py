@@ -15,11 +15,17 @@ import scipy.linalg
 import scipy.sparse as sp
 
 import mikota_jax as mj
-from mikota_jax._design import DamperProblem
-from mikota_jax._objectives import integrated_energy
-from mikota_jax._operators import Dense, Diagonal, Sparse, SymmetricBanded, SymmetricTridiagonal
-from mikota_jax._placement_objective import placement_objective
-from mikota_jax._pod import pod
+from mikota_jax._model.operators import (
+    Dense,
+    Diagonal,
+    Sparse,
+    SymmetricBanded,
+    SymmetricTridiagonal,
+)
+from mikota_jax._objective.functions import integrated_energy
+from mikota_jax._placement.objective import placement_objective
+from mikota_jax._placement.problem import DamperProblem
+from mikota_jax._rom.pod import pod
 
 N = 8
 TS = jnp.linspace(0.0, 6.0, 61)
@@ -241,7 +247,7 @@ def test_branched_chain_stiff_solver_keeps_the_structure_and_is_exact():
     dampers = [mj.GroundedDamper(2.0, 0.5), mj.RelativeDamper((4, 9), 0.3)]
     system = mj.branched_chain(masses, springs, 2.0, 1.0, dampers,
                                internal_damping=mj.Rayleigh(0.02, 0.01))
-    from mikota_jax._implicit import dense_shifted_solver, shifted_solver
+    from mikota_jax._solver.implicit import dense_shifted_solver, shifted_solver
 
     rhs = jnp.linspace(-1.0, 2.0, 9)
     np.testing.assert_allclose(shifted_solver(system, 0.3)(rhs),
@@ -434,7 +440,7 @@ def test_own_matrices_page_runs_and_its_gradient_is_right(capsys):
 
 
 def test_definiteness_of_a_tridiagonal_with_links_is_checked_in_o_n(monkeypatch):
-    import mikota_jax._user_matrices as matrices
+    import mikota_jax._model.user_matrices as matrices
 
     masses, springs = branched()
     m, k = assembled_branched(masses, springs, 2.0, 1.0)
@@ -476,8 +482,8 @@ def test_a_consistent_mass_is_solved_in_its_tridiagonal_structure():
                        internal_damping=mj.Rayleigh(0.1, 1e-3))
     assert isinstance(system.mass, SymmetricTridiagonal)
     np.testing.assert_allclose(mj.modal_decomposition(system)[0], omega, rtol=1e-12)
-    from mikota_jax._implicit import dense_shifted_solver, shifted_solver
-    from mikota_jax._integrate import unpack
+    from mikota_jax._solver.implicit import dense_shifted_solver, shifted_solver
+    from mikota_jax._solver.ode import unpack
 
     assert unpack(system, jnp.zeros(n), jnp.zeros(n), None)[1] is None  # no modal lift
     rhs = jnp.linspace(0.0, 1.0, n)

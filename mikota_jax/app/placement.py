@@ -91,8 +91,8 @@ def optimise_scene(source, out, *, objective: str = "energy", dof: int | None = 
     best DOFs refined) and draws it; otherwise the plot shows the reduced model's landscape on a
     ``landscape`` = (positions, coefficients) grid. ``certify``: "full" or "estimate".
     """
-    from .._certify import LBFGS
-    from .._search import OPTIMIZERS
+    from .._placement.certify import LBFGS
+    from .._placement.search import OPTIMIZERS
 
     if isinstance(optimizer, str):
         if optimizer not in OPTIMIZERS:

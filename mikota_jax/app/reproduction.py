@@ -23,8 +23,8 @@ import numpy as np
 from tqdm import tqdm
 
 from .. import DenseExponential, Spectral, mikota_chain, modal_decomposition, solve
-from .._galerkin import galerkin
-from .._pod import pod
+from .._model.reduced import galerkin
+from .._rom.pod import pod
 from ..analytic import mode_shape, paper_mode_shape
 from ..metrics import phase_error
 from . import figures

@@ -19,14 +19,14 @@ import numpy as np
 
 from .._errors import MARK
 from .._plain import to_plain
-from .._run import SceneResult
-from .._scene import Scene
+from .._scenes.run import SceneResult
+from .._scenes.scene import Scene
 
 # quantities reported as histories: {"DOF": values} under "full" and "reduced"
 HISTORIES = ("displacement", "velocity")
 
 # [output] quantity -> the JSON entries it adds (after "full"/"reduced", in this order). Adding an
-# output is one entry here (and its name in ``mikota_jax._scene.QUANTITIES``).
+# output is one entry here (and its name in ``mikota_jax._scenes.scene.QUANTITIES``).
 OUTPUTS: dict[str, Callable[[SceneResult], dict]] = {
     "singular_values": lambda r: {"singular_values": r.model.stats.singular_values},
     "rank": lambda r: {"rank": r.model.rank},

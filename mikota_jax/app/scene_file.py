@@ -17,12 +17,12 @@ import numpy as np
 
 from .._custom_types import Times, Vector
 from .._errors import MARK, available_bytes
-from .._excitation import Pulse, pulse
-from .._integrate import SOLVERS
 from .._metrics import AGGREGATES
-from .._pod import CRITERIA, METHODS
-from .._reduction import POD
-from .._scene import QUANTITIES, REDUCED_QUANTITIES, Output, Scene
+from .._model.loads import Pulse, pulse
+from .._rom.base import POD
+from .._rom.pod import CRITERIA, METHODS
+from .._scenes.scene import QUANTITIES, REDUCED_QUANTITIES, Output, Scene
+from .._solver.ode import SOLVERS
 from .scene_systems import system_from
 from .toml_checks import choice as _choice
 from .toml_checks import fail as _fail

@@ -1,0 +1,60 @@
+"""Scenes: a declarative description of one computation (chain, dampers, excitation, time grid,
+reduction, outputs), built in Python or read from TOML (``mikota_jax.app.scene_file``).
+
+A scene holds arrays as traced leaves (so ``jax.grad`` sees the physical values) and everything that
+changes a shape or the control flow (n, which outputs, the solver, the rank rule) as static data.
+DOFs are 1-based. This module is data only: reading and validating scene files is the application
+layer's job (``load_scene``), so the core library never parses TOML.
+"""
+
+import equinox as eqx
+
+from .._custom_types import Times, Vector
+from .._model.loads import Pulse
+from .._model.system import SecondOrderSystem
+from .._rom.base import POD
+
+# what [output] quantities may name: histories ("full"/"reduced" columns), POD outputs, metrics
+QUANTITIES = ("displacement", "velocity", "singular_values", "rank", "phase_error", "modes",
+              "relative_error")
+# the quantities that need a [reduction]
+REDUCED_QUANTITIES = ("singular_values", "rank", "phase_error", "modes", "relative_error")
+
+
+class Output(eqx.Module):
+    """What to compute and report: 1-based DOFs (None: all), quantities, figures."""
+
+    dofs: tuple[int, ...] | None
+    quantities: tuple[str, ...]
+    phase_error: str = "sum"
+    figures: bool = False
+
+
+class Scene(eqx.Module):
+    """One computation, declaratively: run it with ``run_scene``; read one with ``load_scene``.
+
+    ``system``: the chain or system (n DOFs); ``ts``: (N,) output times; ``x0``, ``v0``: (n,)
+    initial state or None (zero); ``load``: a ``Pulse`` (eq. 4.3) or None; ``reduction``: the
+    ``POD`` strategy (snapshot window, rank rule, method; eqs. 3.5-3.8), or None; ``output``:
+    1-based DOFs and quantities; ``solver``: "exact" (``solve``'s exact methods) or an ``ODE``
+    solver with ``rtol``, ``atol``, ``max_steps``. Consistent units, as in the paper's dimensionless
+    scenes.
+    """
+
+    system: SecondOrderSystem
+    ts: Times
+    x0: Vector | None
+    v0: Vector | None
+    load: Pulse | None
+    reduction: POD | None = eqx.field(static=True, default=None)
+    output: Output = eqx.field(static=True, default=Output(None, ("displacement",)))
+    solver: str = eqx.field(static=True, default="exact")
+    rtol: float = eqx.field(static=True, default=1e-10)
+    atol: float = eqx.field(static=True, default=1e-12)
+    max_steps: int = eqx.field(static=True, default=100_000)
+    name: str = eqx.field(static=True, default="scene")
+
+    @property
+    def size(self) -> int:
+        """n, the number of DOFs."""
+        return self.system.size

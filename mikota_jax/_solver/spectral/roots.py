@@ -1,0 +1,544 @@
+"""Damped modes of a chain with a few dampers, and energies from them in closed form, O(k n^2).
+
+Conventions: eta are the M-orthonormal modal coordinates (x = U eta, U^T M U = I, U^T K U =
+Omega^2, ``generalized_modes``); internal damping diagonal in them (Rayleigh, modal) is Gamma =
+diag(gamma); the dampers are D_m = F diag(d) F^T with F = U^T B the (n, k) modal damper factor
+(``Dampers.project``: a grounded damper is e_j, a split one (1 - w) e_j and w e_(j+1), a relative
+one e_i - e_j). Mode l alone has the poles p_l, p_(n+l), the roots of lambda^2 + gamma_l lambda +
+omega_l^2 (+-i omega_l undamped; two real ones when overdamped). Each of the 2n roots is stored
+in the pole-offset form lambda = p_A + delta (anchor A), so that lambda^2 + gamma_l lambda +
+omega_l^2 = (p_A - p_l + delta)(p_A - p_(n+l) + delta) never cancels near a pole; for an undamped
+chain root j < n lies near +i omega_j and root n + j near -i omega_j.
+
+Method (Veselic, Damped Oscillations of Linear Systems, Springer Lecture Notes in Mathematics
+vol. 2023, 2011; Jakovcevic Stor, Slapnicar, Tomljanovic, Mathematics 10(5):790, 2022,
+"FastOptimalDamping"): with R(lambda) = (lambda^2 + lambda Gamma + Omega^2)^-1 the eigenvalues
+of lambda^2 + lambda (Gamma + D_m) + Omega^2 are the zeros of the secular determinant
+det(I_k + lambda F^T R F diag(d)) times the poles' polynomial. Modes that no damper touches are
+deflated (their own poles); the others' 2 n_a roots are found together by the Aberth-Ehrlich
+iteration (Aberth, Math. Comp. 27:339, 1973) on the characteristic polynomial, whose logarithmic
+derivative is evaluated with each root's own pole removed analytically (H below), and polished by
+Newton on phi_J(lambda) = lambda^2 + gamma_J lambda + omega_J^2 + lambda f_J^T diag(d) H^-1 f_J,
+with H = I + lambda sum_(l != J) r_l f_l f_l^T diag(d). The eigenvector y = R F diag(d) c with c =
+H^-1 f_J has y_J = -1 / lambda: no huge entries. Gradients: one Newton step at the frozen roots
+(implicit differentiation of phi_J = 0), so ``jax.grad`` never enters the iteration.
+
+The undamped modes of a fixed-free chain come from ``chain_modes`` (O(n^2), relative accuracy);
+other systems use ``generalized_modes`` (dense, O(n^3)).
+Memory: every step is per root, and above n = 512 the rows are formed a block of roots at a
+time (``_spectral_rows``): O(n) memory (J + gradient at n = 30000 in 1.7 GiB).
+Two roots that nearly coincide (critical damping) are found like any others and then summed
+as a pair by a contour integral of the resolvent, never root by root (``_spectral_clusters``:
+``DampedModes.clusters``).
+"""
+
+import functools
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from ..._custom_types import Array, Float
+from .clusters import Clusters, cluster_roots, find_clusters, no_clusters
+from .rows import by_rows, repulsion, row_block, smallest_separation
+from .starts import arc_starts, far_starts
+
+
+def complex_arithmetic(fn):
+    """Run ``fn`` with JAX's standard dtype promotion: the roots are complex and mix freely with
+    the real frequencies (the tests' strict promotion guards the rest of the package)."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        with jax.numpy_dtype_promotion("standard"):
+            return fn(*args, **kwargs)
+
+    return wrapper
+
+
+_MAX_ITERATIONS = 400
+_ABERTH_TOL = 1e-13  # max |step| / |lambda| at which the simultaneous iteration stops
+_POLISH_STEPS = 3
+_RESIDUAL_TOL = 1e-8  # |phi| relative to its largest term, after the polish
+_SETTLED_STEP = 1e-13  # ... or a Newton step below this (relative to |lambda|)
+_SETTLED_RESIDUAL = 1e-5  # ... with |phi| relative to its terms below this
+_TRACE_TOL = 1e-9  # |sum lambda + tr D_m| relative to sum |lambda|: no root found twice
+_RESTART_STEPS = 12  # Newton steps for a missing root restarted from the trace
+
+
+class DampedModes(eqx.Module):
+    """The 2n eigenvalues of lambda^2 I + lambda (diag(gamma) + F diag(d) F^T) + Omega^2.
+
+    ``omega``: (n,) undamped frequencies; ``gamma``: (n,) internal damping rates in modal
+    coordinates (Rayleigh alpha + beta omega^2, modal 2 zeta omega; zero without); ``factor`` F:
+    (n, k) modal damper factor; ``weights`` d: (k,); ``active``: (n,) which modes a damper
+    touches (the others keep their own two roots, the poles); ``anchor`` A: (2n,) int, the pole
+    each root is written from, lambda = ``poles``[A] + ``offset``; ``null`` c: (2n, k), the
+    eigenvector's damper amplitudes (y = R F diag(d) c); ``converged``: whether every root passed
+    the residual and trace checks; ``separation``: the smallest |lambda_j - lambda_k| /
+    |lambda_j| between two roots that interact (a diagnostic); ``iterations``: Aberth sweeps
+    used; ``clusters``: the pairs of nearly coincident roots that every sum over the roots takes
+    by a contour integral instead (``_spectral_clusters``; their ``coefficients`` are zero
+    here). At an exceptional point (one DOF, d = 2 sqrt(k m): lambda = -sqrt(k/m) twice, one
+    eigenvector) the two roots come back within ~sqrt(eps) of the double root, as one cluster.
+    """
+
+    omega: Float[Array, " n"]
+    gamma: Float[Array, " n"]
+    factor: Float[Array, "n k"]
+    weights: Float[Array, " k"]
+    active: Array
+    anchor: Array
+    offset: Array
+    null: Array
+    converged: Array
+    separation: Float[Array, ""]
+    iterations: Array
+    clusters: Clusters
+    internal: bool = eqx.field(static=True, default=False)  # whether gamma may be nonzero
+
+    @property
+    def poles(self) -> Array:
+        """(2n,) complex: the roots of lambda^2 + gamma_l lambda + omega_l^2, the upper (or
+        larger real) one of mode l at l and the other at n + l."""
+        return _poles(self.omega, self.gamma)
+
+    @property
+    def modes(self) -> Array:
+        """(2n,) int: the undamped mode each root is anchored to."""
+        return self.anchor % self.omega.shape[0]
+
+    @property
+    @complex_arithmetic
+    def eigenvalues(self) -> Array:
+        """lambda: (2n,) complex; an undamped chain's root j < n near +i omega_j."""
+        return self.poles[self.anchor] + self.offset
+
+    @property
+    def root_active(self) -> Array:
+        """(2n,) bool: the roots of modes a damper touches."""
+        return jnp.concatenate([self.active, self.active])
+
+    @property
+    def undamped(self) -> Array:
+        """(n,) bool: the modes that nothing damps, decided from the structure up to rounding:
+        no internal damping and sum_i d_i F_li^2 at most (n eps)^2 sum_i d_i max_l F_li^2 (a
+        damper of coefficient 0, or one on a node of the mode, where the chain's mode shape
+        is zero to rounding). Their roots stay on the imaginary axis: the infinite-horizon
+        objectives (the trace) do not exist where one is seen."""
+        n = self.omega.shape[0]
+        eps = jnp.finfo(self.omega.dtype).eps
+        coupling = jnp.sum(self.weights[None, :] * self.factor**2, axis=1)
+        scale = jnp.sum(self.weights * jnp.max(self.factor**2, axis=0))
+        return (self.gamma == 0) & (coupling <= (n * eps) ** 2 * scale)
+
+    @property
+    def simple(self) -> Array:
+        """(2n,) bool: the damped roots summed one by one (not in a cluster)."""
+        return self.root_active & ~self.clusters.member
+
+    def safe_normalisers(self, roots, norm) -> Array:
+        """N_j with 1 for the roots in a cluster (theirs vanish at a double root; they are
+        summed by contour, and a 1 / 0 would poison the gradient through ``where``)."""
+        return jnp.where(self.clusters.member[roots], 1.0, norm)
+
+    @complex_arithmetic
+    def vector_rows(self, roots) -> Array:
+        """Modal eigenvectors of the roots ``roots`` (int indices), as rows: (roots, n) complex.
+        Damped roots are scaled so that y_J = -1 / lambda; the others are unit vectors."""
+        n = self.omega.shape[0]
+        anchor, offset = self.anchor[roots], self.offset[roots]
+        r, _ = _resolvent(self.poles, anchor, offset, self.active)
+        y = r * ((self.null[roots] * self.weights[None, :]) @ self.factor.T)
+        own = jnp.arange(n)[None, :] == (anchor % n)[:, None]
+        y = jnp.where(own, (-1 / (self.poles[anchor] + offset))[:, None], y)
+        return jnp.where(self.root_active[roots][:, None], y, own.astype(y.dtype))
+
+    @complex_arithmetic
+    def normaliser_rows(self, roots, y) -> Array:
+        """N_j of the roots ``roots`` from their ``vector_rows`` y: (roots,) complex."""
+        lam = self.poles[self.anchor[roots]] + self.offset[roots]
+        yfw = y @ self.factor
+        return (jnp.sum((2 * lam[:, None] + self.gamma[None, :]) * y * y, axis=1)
+                + jnp.sum(yfw * self.weights[None, :] * yfw, axis=1))
+
+    def vectors(self) -> Array:
+        """Modal eigenvectors y: (n, 2n) complex, (lambda^2 + lambda D_m + Omega^2) y = 0.
+
+        Damped roots are scaled so that y_J = -1 / lambda; the others are unit vectors.
+        """
+        return self.vector_rows(jnp.arange(self.anchor.shape[0])).T
+
+    def normalisers(self) -> Array:
+        """N_j = y_j^T (2 lambda_j I + D_m) y_j: (2n,) complex, the bi-orthogonality scale of
+        ``vectors`` (y_k^T ((lambda_j + lambda_k) I + D_m) y_j = 0 for j != k). Zero at a
+        defective pair (critical damping)."""
+        return self.normaliser_rows(jnp.arange(self.anchor.shape[0]), self.vectors().T)
+
+    @complex_arithmetic
+    def coefficients(self, q0: Float[Array, "n ..."], p0: Float[Array, "n ..."]) -> Array:
+        """a: (2n, *p) complex, the modal state (eta(0), eta'(0)) = (q0, p0) expanded as
+        eta(t) = sum_j a_j exp(lambda_j t) y_j (every root, deflated ones included); q0, p0 may
+        carry a trailing batch axis.
+
+        a_j = y_j^T ((lambda_j I + D_m) q0 + p0) / N_j, written as y_j^T (p0 - Omega^2 q0 /
+        lambda_j) / N_j by the eigen-equation: the two terms of the first form cancel for a root
+        running to -infinity (a strong damper), this form does not.
+        """
+        lam = self.eigenvalues
+        y = self.vectors().T
+        stiff = (self.omega**2).reshape((-1,) + (1,) * (q0.ndim - 1)) * q0
+        lam = lam.reshape((-1,) + (1,) * (q0.ndim - 1))
+        roots = jnp.arange(lam.shape[0])
+        norm = self.safe_normalisers(roots, self.normalisers()).reshape(lam.shape)
+        member = self.clusters.member.reshape(lam.shape)
+        return jnp.where(member, 0.0, (y @ p0 - (y @ stiff) / lam) / norm)
+
+    @complex_arithmetic
+    def load_coefficients(self, g: Float[Array, " n"]) -> Array:
+        """b: (2n,) complex, b_j = y_j^T g / N_j for a constant modal force g (= U^T f): the
+        response of eta'' + D_m eta' + Omega^2 eta = g from rest is eta(t) = sum_j b_j
+        (exp(lambda_j t) - 1) / lambda_j y_j (the static part Omega^-2 g = -sum_j b_j y_j /
+        lambda_j); zero for the roots in a cluster, as ``coefficients``."""
+        y = self.vectors().T
+        roots = jnp.arange(y.shape[0])
+        norm = self.safe_normalisers(roots, self.normalisers())
+        return jnp.where(self.clusters.member, 0.0, (y @ g) / norm)
+
+
+def _poles(omega, gamma):
+    """(2n,) roots of lambda^2 + gamma lambda + omega^2 without cancellation: -gamma/2 +-
+    i sqrt((omega - gamma/2)(omega + gamma/2)) below critical, -omega^2 / (gamma/2 + root) and
+    -(gamma/2 + root) above (overdamped mode: two real poles)."""
+    half = gamma / 2
+    under = (omega - half) * (omega + half)
+    root = jnp.sqrt(jnp.abs(under))
+    over = under < 0
+    big = -(half + root)
+    small = -(omega**2) / jnp.where(half + root > 0, half + root, 1.0)
+    upper = jnp.where(over, small + 0j, -half + 1j * root)
+    lower = jnp.where(over, big + 0j, -half - 1j * root)
+    return jnp.concatenate([upper, lower])
+
+
+def _gaps(poles, anchor, offset):
+    """lambda_j - p_l and lambda_j - p_(n+l) without cancellation: two (2n, n) arrays."""
+    n = poles.shape[0] // 2
+    base = poles[anchor]
+    return (base[:, None] - poles[None, :n]) + offset[:, None], (
+        (base[:, None] - poles[None, n:]) + offset[:, None])
+
+
+def _resolvent(poles, anchor, offset, active):
+    """r_jl = 1 / (lambda_j^2 + gamma_l lambda_j + omega_l^2) over damped l != J_j (0
+    elsewhere), and the mask."""
+    upper, lower = _gaps(poles, anchor, offset)
+    n = poles.shape[0] // 2
+    mask = active[None, :] & (jnp.arange(n)[None, :] != (anchor % n)[:, None])
+    product = upper * lower
+    return jnp.where(mask, 1 / jnp.where(mask, product, 1.0), 0.0), mask
+
+
+def _partner(anchor, n):
+    """The other pole of the same mode."""
+    return (anchor + n) % (2 * n)
+
+
+def small_solve(a, b):
+    """x with a x = b for a batch of small systems: a (..., k, k), b (..., k, m).
+
+    Gauss-Jordan elimination with partial pivoting, unrolled over the static k in elementwise
+    operations. Not ``jnp.linalg.solve``: jaxlib's batched LAPACK kernels (getrf/trsm) split
+    their batch over XLA's intra-op thread pool and wait for it, and two of them running at once
+    on a 2-core machine deadlocked with both pool threads waiting (seen at n = 801 and 10^4: the
+    process idle at 0 % CPU, gdb showing two ``lapack_ztrsm_ffi`` in ``ParallelBatchMap``).
+    For the k <= a few damper columns here, O(k^3) elementwise work per system is also cheaper.
+    """
+    k = a.shape[-1]
+    batch = (1,) * (a.ndim - 2)
+    rows = jnp.arange(k).reshape(batch + (k,))  # no implicit rank promotion
+    aug = jnp.concatenate([a, b], axis=-1)
+    for i in range(k):
+        below = jnp.where(rows >= i, jnp.abs(aug[..., :, i]), -1.0)
+        p = jnp.argmax(below, axis=-1)[..., None, None]  # (..., 1, 1)
+        row_p = jnp.take_along_axis(aug, p, axis=-2)  # (..., 1, k + m)
+        row_i = aug[..., i:i + 1, :]
+        here = rows[..., None] == i
+        aug = jnp.where(here, row_p, jnp.where(rows[..., None] == p, row_i, aug))
+        pivot_row = aug[..., i:i + 1, :] / aug[..., i:i + 1, i:i + 1]
+        aug = jnp.where(here, pivot_row, aug - aug[..., :, i:i + 1] * pivot_row)
+    return aug[..., :, k:]
+
+
+def _secular(poles, gamma, factor, weights, active, anchor, offset, block=None):
+    """Per root: (phi, phi', sum of the other poles' log-derivative + tr H^-1 H', c = H^-1 f_J,
+    the size of phi's terms); ``block`` roots at a time (``by_rows``)."""
+    return by_rows(lambda a, o: _secular_rows(poles, gamma, factor, weights, active, a, o),
+                   block, anchor, offset)
+
+
+def _secular_rows(poles, gamma, factor, weights, active, anchor, offset):
+    """``_secular`` for the roots ``anchor``, ``offset`` (any number of them)."""
+    k = factor.shape[1]
+    n = gamma.shape[0]
+    mode = anchor % n
+    lam = poles[anchor] + offset
+    r, mask = _resolvent(poles, anchor, offset, active)
+    rate = 2 * lam[:, None] + gamma[None, :]  # d/dlambda (lambda^2 + gamma_l lambda + omega_l^2)
+    r_prime = r - lam[:, None] * rate * r**2  # d/dlambda (lambda r)
+    ff = factor[:, :, None] * factor[:, None, :] * weights[None, None, :]  # (n, k, k)
+    h = jnp.eye(k)[None] + lam[:, None, None] * jnp.einsum("jl,lab->jab", r, ff)
+    h_prime = jnp.einsum("jl,lab->jab", r_prime, ff)
+    f = factor[mode]  # (2n, k)
+    solved = small_solve(h, jnp.stack([f.astype(h.dtype)] + [h_prime[:, :, i] for i in
+                                                             range(k)], axis=-1))
+    c = solved[..., 0]  # H^-1 f_J
+    h_inv_h_prime = solved[..., 1:]
+    trace = jnp.trace(h_inv_h_prime, axis1=-2, axis2=-1)
+    wf = f * weights[None, :]
+    quad = jnp.sum(wf * c, axis=-1)  # f^T W H^-1 f
+    quad_prime = -jnp.sum(wf * jnp.einsum("jab,jb->ja", h_inv_h_prime, c), axis=-1)
+    # lambda^2 + gamma_J lambda + omega_J^2 = delta (delta + p_A - p_partner)
+    pole = offset * (offset + poles[anchor] - poles[_partner(anchor, n)])
+    phi = pole + lam * quad
+    phi_prime = 2 * lam + gamma[mode] + quad + lam * quad_prime
+    scale = jnp.abs(pole) + jnp.abs(lam * quad)
+    others = jnp.sum(jnp.where(mask, rate * r, 0.0), axis=1) + trace
+    return phi, phi_prime, others, c, scale
+
+
+def _reanchor(poles, active, anchor, offset, block=None):
+    """Move each root's anchor to its nearest pole of a damped mode (same lambda)."""
+    candidates = jnp.concatenate([active, active])
+
+    def rows(anchor, offset):
+        lam = poles[anchor] + offset
+        distance = jnp.abs(lam[:, None] - poles[None, :])
+        new_anchor = jnp.argmin(jnp.where(candidates[None, :], distance, jnp.inf), axis=1)
+        return new_anchor, offset + (poles[anchor] - poles[new_anchor])
+
+    return by_rows(rows, block, anchor, offset)
+
+
+_ANCHOR_CANDIDATES = 4
+
+
+def _best_anchors(poles, gamma, factor, weights, active, anchor, offset, block=None):
+    """Re-anchor each root (same lambda) at the one of its nearest poles where phi_J vanishes.
+
+    phi_J is zero at a root only if H_J = H - lambda r_J f_J f_J^T W stays regular there. Where
+    modes lie closer together than the dampers' coupling (two nearly decoupled chains), a root's
+    nearest pole may belong to a weakly coupled mode whose removal leaves H_J as singular as H:
+    phi_J is then O(1) at the (correct) root and Newton on it jumps to another root. So the
+    ``_ANCHOR_CANDIDATES`` nearest poles of damped modes are tried, and each root keeps the one
+    with the smallest relative residual |phi_J| / (its terms).
+    """
+    n = gamma.shape[0]
+    candidates = jnp.concatenate([active, active])
+    columns = jnp.arange(2 * n)[None, :]
+
+    def rows(anchor, offset):
+        lam = poles[anchor] + offset
+        distance = jnp.where(candidates[None, :], jnp.abs(lam[:, None] - poles[None, :]),
+                             jnp.inf)
+        # successive argmins, not ``lax.top_k``: XLA's CPU top_k sorts each row (40 ms at
+        # n = 300, a third of one spectral value), a few masked argmins cost a pass each
+        nearest = []
+        for _ in range(min(_ANCHOR_CANDIDATES, 2 * n)):
+            pick = jnp.argmin(distance, axis=1)
+            nearest.append(pick)
+            distance = jnp.where(columns == pick[:, None], jnp.inf, distance)
+        return jnp.stack(nearest, axis=1)
+
+    nearest = by_rows(rows, block, anchor, offset).T  # (candidates, 2n)
+
+    def residual(trial):  # one candidate anchor per root; a ``lax.map``: one copy of _secular
+        trial_offset = offset + (poles[anchor] - poles[trial])  # in the compiled program
+        phi, _, _, _, scale = _secular(poles, gamma, factor, weights, active, trial,
+                                       trial_offset, block)
+        return jnp.where(scale > 0, jnp.abs(phi) / scale, jnp.inf), trial_offset
+
+    residuals, offsets = jax.lax.map(residual, nearest)
+    pick = jnp.argmin(residuals, axis=0)
+    rows = jnp.arange(2 * n)
+    root_active = jnp.concatenate([active, active])
+    new_anchor = jnp.where(root_active, nearest[pick, rows], anchor)
+    new_offset = jnp.where(root_active, offsets[pick, rows], offset)
+    return new_anchor, new_offset
+
+
+@eqx.filter_jit
+@complex_arithmetic
+def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
+                       weights: Float[Array, " k"],
+                       gamma: Float[Array, " n"] | None = None, *,
+                       block: int | None = None) -> DampedModes:
+    """All 2n eigenvalues of lambda^2 I + lambda (diag(gamma) + F diag(d) F^T) + Omega^2,
+    O(k^2 n^2) per sweep.
+
+    ``omega``: (n,) distinct positive frequencies; ``factor`` F: (n, k); ``weights`` d: (k,)
+    >= 0; ``gamma``: (n,) >= 0 modal internal damping rates (default zero); ``block``: roots
+    per block of the O(n^2) work (``row_block``: automatic, O(n) memory above n = 512). See
+    the module docstring for the method and the returned layout. Not differentiable through
+    the iteration: ``spectral_energy`` differentiates by one Newton step at the roots.
+    """
+    n = omega.shape[0]
+    block = row_block(n, block)
+    internal = gamma is not None
+    gamma = jnp.zeros_like(omega) if gamma is None else gamma
+    poles = _poles(omega, gamma)
+    coupling = jnp.sqrt(jnp.sum(weights[None, :] * factor**2, axis=1))  # |row l of D_m^(1/2)|
+    eps = jnp.finfo(omega.dtype).eps
+    # pitfall 1 of the notes: a mode no damper touches has its roots on its poles (0 / 0).
+    # Which modes are touched is decided at a damper's coefficient, or at omega_max / |f_i|^2 if
+    # that is larger (then: |f_li| > eps |f_i|): a weak (or zero) damper's first-order effect on
+    # a mode, and its derivative (d -> 0), are kept instead of being deflated away
+    columns = jnp.sum(factor**2, axis=0)
+    scale = jnp.max(omega) / jnp.where(columns > 0, columns, 1.0)
+    reach = jnp.sqrt(jnp.sum(jnp.maximum(weights, scale)[None, :] * factor**2, axis=1))
+    total = jnp.sqrt(jnp.sum(reach**2))
+    active = reach * total > eps * jnp.maximum(jnp.max(omega), total**2)
+    anchor = jnp.arange(2 * n)
+    sign = jnp.concatenate([jnp.ones(n), -jnp.ones(n)])
+    # start inside the left half plane, off the poles, asymmetric so pairs can split onto the
+    # real axis: on the arc each root follows as the dampers grow (``arc_starts``)
+    start = arc_starts(omega, coupling, active, sign)
+    root_active = jnp.concatenate([active, active])
+    offset = jnp.where(root_active, start, 0.0).astype(jnp.complex128)
+    offset = far_starts(poles, omega, factor, weights, active, offset)
+
+    def sweep(carry):
+        anchor, offset, it, _ = carry
+        phi, phi_prime, others, _, _ = _secular(poles, gamma, factor, weights, active, anchor,
+                                                offset, block)
+        repel = repulsion(poles, anchor, offset, root_active, block)
+        denominator = phi * (others - repel) + phi_prime
+        step = jnp.where(root_active & (denominator != 0),
+                         phi / jnp.where(denominator != 0, denominator, 1.0), 0.0)
+        # a root parked at its place but anchored to a mode the dampers barely reach (a node)
+        # leaves H_J singular there, its step 0 / 0: it stays, the others go on (a NaN would
+        # reach every root through the repulsion); ``_best_anchors`` re-anchors it afterwards
+        step = jnp.where(jnp.isfinite(step), step, 0.0)
+        offset = offset - step
+        lam = poles[anchor] + offset
+        size = jnp.max(jnp.where(root_active, jnp.abs(step) / jnp.abs(lam), 0.0))
+        anchor, offset = _reanchor(poles, active, anchor, offset, block)
+        offset = jnp.where(root_active, offset, 0.0)
+        return anchor, offset, it + 1, size
+
+    def not_done(carry):
+        *_, it, size = carry
+        return (it < _MAX_ITERATIONS) & ((size > _ABERTH_TOL) | ~jnp.isfinite(size))
+
+    init = (anchor, offset, jnp.array(0), jnp.array(jnp.inf))
+    anchor, offset, iterations, _ = jax.lax.while_loop(not_done, sweep, init)
+    anchor = jnp.where(root_active, anchor, jnp.arange(2 * n))
+    anchor, offset = _best_anchors(poles, gamma, factor, weights, active, anchor, offset, block)
+    def settle(anchor, offset, moving, steps):
+        """``steps`` Newton steps on the roots ``moving``, then the secular terms at the result:
+        (offset, (phi, phi', c, scale)). A loop, not unrolled, whose last pass only evaluates:
+        one copy of _secular to compile for the steps and the checks together."""
+        def body(i, carry):
+            offset, _ = carry
+            phi, phi_prime, _, c, scale = _secular(poles, gamma, factor, weights, active,
+                                                   anchor, offset, block)
+            step = jnp.where(moving & (phi_prime != 0) & (i < steps),
+                             phi / jnp.where(phi_prime != 0, phi_prime, 1.0), 0.0)
+            return offset - step, (phi, phi_prime, c, scale)
+
+        shapes = jax.eval_shape(lambda o: _secular(poles, gamma, factor, weights, active,
+                                                   anchor, o, block), offset)
+        empty = tuple(jnp.zeros(x.shape, x.dtype) for i, x in enumerate(shapes) if i != 2)
+        return jax.lax.fori_loop(0, steps + 1, body, (offset, empty))
+
+    trace = jnp.sum(jnp.where(active, coupling**2 + gamma, 0.0))
+
+    def assess(anchor, offset, secular):
+        """(anchor, offset, lambda, c, per-root residual ok, trace ok)."""
+        phi, phi_prime, c, scale = secular
+        lam = poles[anchor] + offset
+        # a root holds where phi_J is small against its terms, or where Newton cannot move it
+        # any more (a step at rounding level) with phi_J small against a looser bar: phi_J's
+        # terms do not show the cancellation inside H^-1 f_J, which on the triple chain of the
+        # multi-damper notebook (n = 151, d_1 ~ 10 at DOF 1) left a converged real root at
+        # |phi| / terms = 1e-7 while Newton's steps alternated in the last bit
+        newton_step = jnp.abs(phi) / jnp.where(phi_prime != 0, jnp.abs(phi_prime), jnp.inf)
+        settled = (newton_step <= _SETTLED_STEP * jnp.abs(lam)) & (
+            jnp.abs(phi) <= _SETTLED_RESIDUAL * scale)
+        root_ok = ~root_active | (jnp.abs(phi) <= _RESIDUAL_TOL * scale) | settled
+        trace_ok = (jnp.abs(jnp.sum(jnp.where(root_active, lam, 0.0)) + trace)
+                    <= _TRACE_TOL * jnp.sum(jnp.where(root_active, jnp.abs(lam), 0.0)))
+        return anchor, offset, lam, c, root_ok, trace_ok
+
+    def restart(state):
+        # the trace fixes the roots' sum: one missing root is minus the sum of the others
+        # (on the triple chain, d_3 = 229 at DOF 101, Aberth parked a second copy beside a real
+        # root, -27.9 + 7e-5 i, while a far real root went missing; 21 of the notebook's 441
+        # landscape points); Newton from there, then the usual checks
+        anchor, offset, lam, _, root_ok, _ = state
+        bad = ~root_ok
+        missing = -trace - jnp.sum(jnp.where(root_active & ~bad, lam, 0.0))
+        # its anchor: the mode with the largest eigenvector entry y_l = r_l f_l^T diag(d) c,
+        # c the null vector of det(I + lambda F^T R F diag(d)) there (the nearest poles can all
+        # be weakly coupled modes whose phi_J does not vanish at a far root)
+        r = 1 / ((missing - poles[:n]) * (missing - poles[n:]))
+        h = jnp.eye(factor.shape[1]) + missing * (factor.T @ (r[:, None] * factor)) * (
+            weights[None, :])
+        null = jnp.conj(jnp.linalg.svd(h)[2][-1])
+        y = jnp.where(active, jnp.abs(r * (factor @ (weights * null))), -1.0)
+        mode = jnp.argmax(y)
+        own = jnp.where(jnp.abs(missing - poles[mode]) <= jnp.abs(missing - poles[n + mode]),
+                        mode, n + mode)
+        anchor = jnp.where(bad, own, anchor)
+        offset = jnp.where(bad, missing - poles[own], offset)
+        return assess(anchor, *settle(anchor, offset, bad, _RESTART_STEPS))
+
+    state = assess(anchor, *settle(anchor, offset, root_active, _POLISH_STEPS))
+    state = jax.lax.cond((jnp.sum(~state[4]) == 1) & ~state[5], restart, lambda s: s, state)
+    anchor, offset, lam, c, root_ok, _ = state
+    separation = smallest_separation(poles, anchor, offset, root_active, n, block)
+    # a pair summed by contour: its two roots need not pass one by one (at a double root they
+    # are only sqrt(eps)-accurate and Newton's residual stays at rounding), but the circle must
+    # hold exactly two, and their sum (by contour) stands for them in the trace check
+    provisional = DampedModes(omega, gamma, factor, weights, active, anchor, offset, c,
+                              jnp.array(True), separation, iterations, no_clusters(2 * n),
+                              internal)
+
+    def conditioning(roots):  # 2 |lambda| |y|^2 / |N|: ~1 / separation near a double root
+        y = provisional.vector_rows(roots)
+        norm = jnp.abs(provisional.normaliser_rows(roots, y))
+        size = 2 * jnp.abs(lam[roots]) * jnp.sum(jnp.abs(y) ** 2, axis=1)
+        return jnp.where(norm > 0, size / jnp.where(norm > 0, norm, 1.0), jnp.inf)
+
+    condition = by_rows(conditioning, block, jnp.arange(2 * n))
+    clusters = find_clusters(poles, anchor, offset, active, condition, block)
+    count, inside = cluster_roots(poles, factor, weights, active, clusters)
+    paired = jnp.all(~clusters.valid | (jnp.abs(count - 2) < 1e-6))
+    residual_ok = jnp.all(root_ok | clusters.member)
+    simple = root_active & ~clusters.member
+    total = jnp.sum(jnp.where(simple, lam, 0.0)) + jnp.sum(jnp.where(clusters.valid, inside, 0.0))
+    trace_ok = (jnp.abs(total + trace)
+                <= _TRACE_TOL * jnp.sum(jnp.where(root_active, jnp.abs(lam), 0.0)))
+    converged = (residual_ok & trace_ok & paired & jnp.all(jnp.isfinite(lam))
+                 & jnp.all(jnp.isfinite(c)))
+    return DampedModes(omega, gamma, factor, weights, active, anchor, offset, c, converged,
+                       separation, iterations, clusters, internal)
+
+
+@complex_arithmetic
+def differentiable_roots(modes: DampedModes, block: int | None = None) -> DampedModes:
+    """The same roots with the derivative of one Newton step on phi_J at them (implicit
+    differentiation: dlambda = -dphi / phi'); the iteration itself carries no derivative.
+    ``block``: as ``modal_damped_modes``."""
+    block = row_block(modes.omega.shape[0], block)
+    frozen = jax.lax.stop_gradient(modes)
+    poles = _poles(modes.omega, modes.gamma)
+    phi, phi_prime, *_ = _secular(poles, modes.gamma, modes.factor, modes.weights,
+                                  frozen.active, frozen.anchor, frozen.offset, block)
+    active = frozen.simple  # a root in a cluster carries no derivative of its own (1 / 0 there)
+    step = jnp.where(active, phi / jnp.where(active, phi_prime, 1.0), 0.0)
+    offset = frozen.offset - (step - jax.lax.stop_gradient(step))
+    _, _, _, c, _ = _secular(poles, modes.gamma, modes.factor, modes.weights, frozen.active,
+                             frozen.anchor, offset, block)
+    return eqx.tree_at(lambda m: (m.omega, m.gamma, m.factor, m.weights, m.offset, m.null),
+                       frozen, (modes.omega, modes.gamma, modes.factor, modes.weights, offset, c))
