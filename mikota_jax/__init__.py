@@ -22,7 +22,7 @@ _os.environ["JAX_ENABLE_X64"] = "1"
 if "jax" in _sys.modules:
     _sys.modules["jax"].config.update("jax_enable_x64", True)
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 # Each core module and the public names it defines, loaded on first use.
 _MODULES = {
