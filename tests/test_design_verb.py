@@ -23,6 +23,7 @@ def chain(positions, relative=None):
     return mj.mikota_chain(N, dampers=dampers)
 
 
+@pytest.mark.slow  # ~50 s; the verb's default-run test is in test_viscosity (CI under 15 min)
 def test_coefficients_reproduce_optimise_viscosities(close):
     solution = mj.optimise(mj.DamperDesign(chain([2, 5], (4, 9)), mj.AverageEnergy(4)),
                            mj.Coefficients())
@@ -49,6 +50,7 @@ def test_coefficients_by_spg_reproduce_the_energy_optimum(close):
     assert (solution.stats["iterations"], solution.stats["evaluations"]) == (8, 9)
 
 
+@pytest.mark.slow  # ~70 s; the verb's default-run test is in test_damper_search (CI time)
 def test_coordinate_descent_reproduces_place_dampers(close):
     design = mj.DamperDesign(chain([2, 3]), mj.AverageEnergy(4), positions=[1, 2, 3, 4, 5, 6])
     solution = mj.optimise(design, mj.CoordinateDescent())

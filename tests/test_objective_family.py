@@ -121,6 +121,7 @@ def test_energy_by_ode_takes_its_tolerances():
     assert float(default) == pytest.approx(truth, rel=1e-6)
 
 
+@pytest.mark.slow  # ~50 s of compiles (default-run time: CI under 15 min)
 def test_energy_with_a_method_object_passes_through_jit_vmap_and_grad():
     # truths: the quadrature (~1e-25) and its central difference in c (h = 1e-5: ~1e-9 relative)
     for method in (mj.Spectral(), mj.DenseExponential(), mj.ODE(rtol=1e-9, atol=1e-11)):
