@@ -35,7 +35,9 @@ from .._model.reduced import ReducedModel
 from .._model.system import SecondOrderSystem
 from .._scenes.scene import Scene
 from .._scenes.sensitivity import SceneFunction
+from .._sweep import sweep
 from .estimator import HierarchicalEstimator, HierarchicalGradient, error_bound
+from .greedy import _training, relative_bounds
 
 
 class Estimate(eqx.Module):
@@ -231,13 +233,6 @@ class _EstimateFunction(eqx.Module):
         return jnp.stack([e.value, e.error])
 
 
-def relative_errors(values: np.ndarray) -> np.ndarray:
-    """error / (J_r - error) per row (J_r, error) of an estimate sweep; inf where not positive."""
-    value, error = values[:, 0], values[:, 1]
-    floor = value - error
-    return np.where(floor > 0, error / np.where(floor > 0, floor, 1.0), np.inf)
-
-
 @dataclass(frozen=True)
 class CertifiedSweep:
     """What ``certified_sweep`` returns, per design (S,): ``values`` J (the reduced model's
@@ -263,9 +258,6 @@ def certified_sweep(scene: Scene, points: dict, estimator: AbstractEstimator,
     ``Hierarchical`` the certificate rests on saturation (checked in the benchmarks), with
     ``ResidualBound`` it is rigorous.
     """
-    from .._sweep import sweep
-    from .greedy import _training
-
     _check_scene(scene)
     if not isinstance(estimator, AbstractEstimator):
         raise ValueError(MARK + "estimator must be ResidualBound(...), Hierarchical(...) or "
@@ -275,7 +267,7 @@ def certified_sweep(scene: Scene, points: dict, estimator: AbstractEstimator,
     points, _ = _training(scene, points)
     values = sweep(_EstimateFunction(SceneFunction(scene, "energy"), estimator), points,
                    batch=batch, progress=progress)
-    estimates = relative_errors(values)
+    estimates = relative_bounds(values)
     certified = estimates <= tolerance
     result = np.array(values[:, 0])
     missing = np.flatnonzero(~certified)

@@ -74,7 +74,8 @@ def _check_scene(scene) -> None:
 
 
 def relative_bounds(values: np.ndarray) -> np.ndarray:
-    """bound / (J_r - bound) per row of a ``BoundFunction`` sweep; inf where not positive."""
+    """bound / (J_r - bound) per row (J_r, bound, ...) of an estimate or bound sweep; inf where
+    not positive."""
     value, energy = values[:, 0], values[:, 1]
     floor = value - energy
     return np.where(floor > 0, energy / np.where(floor > 0, floor, 1.0), np.inf)
