@@ -118,7 +118,7 @@ def main(argv=None) -> dict:
     args = parse_args(__doc__, argv, replot=True)
     if args.replot:
         return print(plot(read_json(NAME, args.quick), args.quick))
-    scene = mj.load_scene(SCENE)
+    scene = mj.app.load_scene(SCENE)
     positions = np.linspace(1.0, 300.0, 4 if args.quick else 30)
     coefficients = np.geomspace(0.1, 1000.0, 3 if args.quick else 7)
     training = mj.grid(positions=positions[:, None], coefficients=coefficients[:, None])

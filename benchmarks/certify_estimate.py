@@ -38,11 +38,11 @@ DESIGN = (4.0, 70.0)
 
 
 def optimiser_runs(quick: bool) -> dict:
-    scene = mj.load_scene("section5_damped")
+    scene = mj.app.load_scene("section5_damped")
     runs = {}
     for label in ("cold", "warm"):
         for certify in ("full", "estimate"):
-            design, strategy = mj.problem_from_scene(scene, optimizer=LBFGS, certify=certify,
+            design, strategy = mj.app.problem_from_scene(scene, optimizer=LBFGS, certify=certify,
                                                      iterations=10 if quick else 80)
             start = time.perf_counter()
             result = mj.optimise(design, strategy)

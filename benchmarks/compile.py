@@ -216,7 +216,7 @@ JITTED = {"jit_simulate": jax.jit(jit_simulate), "jit_exact_solve": jax.jit(jit_
 
 ENTRIES = [
     Entry("mikota_chain", lambda c: damped(), quick=True),
-    Entry("load_scene", lambda c: mj.load_scene(SCENE)),
+    Entry("load_scene", lambda c: mj.app.load_scene(SCENE)),
     Entry("simulate dopri8", lambda c: mj.solve(c["mikota_chain"], TS, X0,
                                                 method=mj.ODE(rtol=1e-8, atol=1e-10)),
           "simulate_with_result", True),
@@ -266,8 +266,8 @@ def variations(ctx, quick: bool) -> list[tuple[str, str, list]]:
     cases = {
         "mikota_chain": {"m, k, damper": [lambda: damped(9.5, 0.3, m=2.0, k=0.5),
                                           lambda: damped(1.0, 4.0, m=0.7, k=1.9)]},
-        "load_scene": {"damper, x0": [lambda: mj.load_scene(scene_dict(9, 0.5, 2.0)),
-                                      lambda: mj.load_scene(scene_dict(4.5, 3.0, -1.0))]},
+        "load_scene": {"damper, x0": [lambda: mj.app.load_scene(scene_dict(9, 0.5, 2.0)),
+                                      lambda: mj.app.load_scene(scene_dict(4.5, 3.0, -1.0))]},
         "pod svd": {"snapshots": [lambda: pod(snaps * 2.0), lambda: pod(snaps[:, ::-1])]},
         "pod snapshots": {"snapshots": [lambda: pod(snaps * 2.0, method="snapshots"),
                                         lambda: pod(snaps[:, ::-1], method="snapshots")]},
@@ -467,11 +467,11 @@ def run_scene_entry(cache_dir, repeats: int) -> dict:
     mj.enable_compilation_cache(cache_dir)
     recorder = Recorder()
     ctx: dict = {}
-    entry = Entry("run_scene(load_scene)", lambda c: mj.run_scene(mj.load_scene(SCENE)))
+    entry = Entry("run_scene(load_scene)", lambda c: mj.run_scene(mj.app.load_scene(SCENE)))
     rows = time_entries([entry], ctx, recorder, repeats)
     mark = recorder.mark()
     for x3 in (2.0, -0.5):
-        mj.run_scene(mj.load_scene(scene_dict(9.5, 0.5 + x3**2, x3, rank=RANK)))
+        mj.run_scene(mj.app.load_scene(scene_dict(9.5, 0.5 + x3**2, x3, rank=RANK)))
     events = recorder.summary(mark)
     retraced = [dict(entry=entry.name, parameter="damper, x0 (rank fixed)", calls=2,
                      traces_after=events["traces"], compiles_after=events["compiles"],

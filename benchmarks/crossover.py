@@ -168,7 +168,7 @@ def designs_for(n: int, quick: bool, large: bool) -> int:
 
 
 def scene_for(n: int, end: float = HORIZON):
-    return mj.load_scene({
+    return mj.app.load_scene({
         "name": f"crossover_{n}", "chain": {"type": "mikota", "n": n, "m": 1.0, "k": 1.0},
         "damper": [{"type": "grounded", "position": POSITION, "coefficient": COEFFICIENT}],
         "initial": {"displacement": {str(INITIAL_DOF): 1.0}},

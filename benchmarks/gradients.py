@@ -235,7 +235,7 @@ def main(argv=None) -> dict:
     repeats_forward, repeats_gradient = (3, 1) if quick else (5, 3)
     wall_start = time.perf_counter()
 
-    scene = mj.load_scene(SCENE)
+    scene = mj.app.load_scene(SCENE)
     system, ts, x0 = scene.system, scene.ts, scene.x0
     if scene.v0 is not None or scene.load is not None:
         raise ValueError("this benchmark expects the Section 5 scene: x(0), v(0) = 0, no load.")

@@ -46,7 +46,7 @@ def main(argv=None) -> dict:
     if args.replot:
         return print(plot(read_json(name, args.quick), args.quick, name))
     start = time.perf_counter()
-    scene = mj.load_scene(SCENE)
+    scene = mj.app.load_scene(SCENE)
     n = scene.size
     step = 30 if args.quick else TRAIN_STEP
     positions = np.unique(np.concatenate([np.arange(1.0, n + 1, step), [float(n)]]))

@@ -60,7 +60,7 @@ def main(argv=None) -> dict:
     if args.replot:
         return print(plot(read_json(NAME, args.quick), args.quick))
     start = time.perf_counter()
-    scene = mj.load_scene(SCENE)
+    scene = mj.app.load_scene(SCENE)
     n = scene.size
     function = mj.SceneFunction(scene, "energy")
     x0 = scene.x0

@@ -76,8 +76,8 @@ def main(argv=None) -> None:
     args = parse_args(__doc__, argv, replot=True, coefficients=dict(type=int, default=17))
     if args.replot:
         return plot(read_json("placement", args.quick))
-    scene = mj.load_scene("section5_damped")
-    design, strategy = mj.problem_from_scene(scene)
+    scene = mj.app.load_scene("section5_damped")
+    design, strategy = mj.app.problem_from_scene(scene)
     # the problem the strategy builds, for the reduced objective's timings
     problem = DamperProblem(design.system, strategy.ts, scene.x0, scene.v0, scene.load,
                             snapshots=strategy.snapshots, energy=strategy.energy,

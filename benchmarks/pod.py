@@ -61,7 +61,7 @@ def snapshots(n: int) -> tuple[np.ndarray, dict]:
     """(Q as float64 numpy (n, m), how it was built)."""
     start = time.perf_counter()
     if n == 300:
-        scene = mj.load_scene(SCENE)
+        scene = mj.app.load_scene(SCENE)
         ts = np.asarray(scene.ts)
         window = scene.reduction.window
         ts = ts[(ts >= window[0] - 1e-9) & (ts <= window[1] + 1e-9)]

@@ -88,7 +88,7 @@ def main(argv=None) -> dict:
     if args.replot:
         return print(plot(read_json(NAME, args.quick), args.quick))
     sizes = (40, 98) if args.quick else SIZES
-    scene = mj.load_scene(SCENE)
+    scene = mj.app.load_scene(SCENE)
     start = time.perf_counter()
     full = mj.sensitivities(scene, "energy", wrt=WRT)
     reference = np.asarray(mj.solve(scene.system, scene.ts, scene.x0,

@@ -138,7 +138,7 @@ def main(argv=None) -> dict:
         return print(plot(read_json(NAME, args.quick), args.quick))
     positions = (7.0, 290.0) if args.quick else POSITIONS
     coefficients = (1.0, 100.0) if args.quick else COEFFICIENTS
-    scene = mj.load_scene(SCENE)
+    scene = mj.app.load_scene(SCENE)
     start = time.perf_counter()
     rows = []
     for c in coefficients:

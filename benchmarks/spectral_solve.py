@@ -41,7 +41,7 @@ TARGETS = {"error": 1e-12, "vs_scipy_expm": 3.0, "vs_dop853": 20.0}
 
 
 def scene(quick: bool):
-    base = mj.load_scene("section5_damped")
+    base = mj.app.load_scene("section5_damped")
     n = 60 if quick else base.system.size
     system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(7.0, 1.0)]) if quick else base.system
     x0 = np.zeros(n)

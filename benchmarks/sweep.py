@@ -53,7 +53,7 @@ snapshots = [0.0, 10.0]
 energy = 0.9999
 criterion = "paper"
 """
-    return mj.load_scene(text)
+    return mj.app.load_scene(text)
 
 
 def unbatched(function, points, index):

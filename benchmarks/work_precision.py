@@ -1,7 +1,7 @@
 """Work-precision on the paper's Section 5 scene: every solver against the exact solution.
 
-``mj.load_scene("section5_damped")``: Mikota's chain with n = 300, a grounded damper d = 1 at DOF 7,
-x_3(0) = 1, v(0) = 0, outputs at the 2001 times 0, 0.01, ..., 20. One reference, the exact
+``mj.app.load_scene("section5_damped")``: Mikota's chain with n = 300, a grounded damper d = 1 at
+DOF 7, x_3(0) = 1, v(0) = 0, outputs at the 2001 times 0, 0.01, ..., 20. One reference, the exact
 (matrix-exponential) solution of the full model; error = max |x_i(t_k) - x_i^exact(t_k)| over all
 300 DOFs and all 2001 times. Full-model rows return what the error needs, the displacement at all
 DOFs and outputs (solve_ivp returns the whole state regardless); the reference and the reduced rows
@@ -149,7 +149,7 @@ def main(argv=None) -> dict:
     jax_repeats, scipy_repeats = (2, 1) if quick else (5, 3)
     wall_start = time.perf_counter()
 
-    scene = mj.load_scene(SCENE)
+    scene = mj.app.load_scene(SCENE)
     system, ts, x0 = scene.system, scene.ts, scene.x0
     if scene.v0 is not None or scene.load is not None:
         raise SystemExit("this benchmark expects the Section 5 scene: v(0) = 0, no load.")

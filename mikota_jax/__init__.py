@@ -55,13 +55,9 @@ _MODULES = {
 }
 _CORE_NAMES = {name: module for module, names in _MODULES.items() for name in names.split()}
 
-# Names of the application layer (``mikota_jax.app``: scene files, the paper's reproduction,
-# damper placement for a scene): the core never imports the app layer.
-_APP_NAMES = {"load_scene": "scene_file", "reproduce": "reproduction",
-              "optimise_scene": "placement", "problem_from_scene": "placement"}
-
-
-# Public submodules: Mikota's closed forms, error measures, matrix files, the application layer.
+# Public submodules: Mikota's closed forms, error measures, matrix files, and the application layer
+# (``mj.app``: scene files, the paper's reproduction, damper placement for a scene), which the core
+# never imports.
 _SUBMODULES = ("analytic", "metrics", "io", "app")
 
 
@@ -72,8 +68,6 @@ def __getattr__(name: str):
         return importlib.import_module(f"mikota_jax.{name}")  # sets the attribute itself
     if name in _CORE_NAMES:
         module = importlib.import_module(f"mikota_jax.{_CORE_NAMES[name]}")
-    elif name in _APP_NAMES:
-        module = importlib.import_module(f"mikota_jax.app.{_APP_NAMES[name]}")
     else:
         raise AttributeError(f"module 'mikota_jax' has no attribute {name!r}")
     import jax
@@ -85,7 +79,7 @@ def __getattr__(name: str):
 
 
 def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_CORE_NAMES) | set(_APP_NAMES) | set(_SUBMODULES))
+    return sorted(set(globals()) | set(_CORE_NAMES) | set(_SUBMODULES))
 
 
 if _TYPE_CHECKING:  # the same names for static tools (type checkers, the API reference)

@@ -24,7 +24,7 @@ dofs = [6]
 
 
 def function(output: str = "energy"):
-    return mj.SceneFunction(mj.load_scene(TOML), output)
+    return mj.SceneFunction(mj.app.load_scene(TOML), output)
 
 
 def points():

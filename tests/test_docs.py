@@ -43,7 +43,7 @@ EQUATIONS = {
     "LoadFunction": "3.1", "reduce": "3.4", "ReducedModel": "3.3", "POD": "3.6",
     "metrics.pseudo_energy": "3.7",
     "metrics.phase_error": "5.4", "Energy": "3.1", "AverageEnergy": "3.1",
-    "Scene": "4.3", "run_scene": "5.4", "reproduce": "5.4",
+    "Scene": "4.3", "run_scene": "5.4", "app.reproduce": "5.4",
     "ScreenAndCertify": "3.7", "Grid": "3.4",
 }
 # names (and methods) that take or return arrays: their docstrings state a shape like (n,) or

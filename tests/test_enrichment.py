@@ -19,7 +19,7 @@ def scene_for(n=40, position=37.0, coefficient=100.0, reduction=True):
             "output": {"dofs": [n // 2], "quantities": ["displacement"]}}
     if reduction:
         data["reduction"] = {"snapshots": [0.0, 10.0], "energy": 0.9999, "criterion": "paper"}
-    return mj.load_scene(data)
+    return mj.app.load_scene(data)
 
 
 def relative_errors(scene, basis, full):

@@ -131,7 +131,7 @@ def test_the_estimators_are_one_family_behind_estimate(case):
 
 
 def small_scene(position=7.0, coefficient=1.0):
-    return mj.load_scene({
+    return mj.app.load_scene({
         "name": "small", "chain": {"type": "mikota", "n": N, "m": 1.0, "k": 1.0},
         "damper": [{"type": "grounded", "position": position, "coefficient": coefficient}],
         "initial": {"displacement": {"3": 1.0}}, "time": {"end": T, "step": 0.05},

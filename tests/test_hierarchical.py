@@ -223,7 +223,7 @@ def test_bad_input_fails_in_one_line(case):
 
 
 def small_scene(x0, position=7.0, coefficient=1.0):
-    return mj.load_scene({
+    return mj.app.load_scene({
         "name": "small", "chain": {"type": "mikota", "n": N, "m": 1.0, "k": 1.0},
         "damper": [{"type": "grounded", "position": position, "coefficient": coefficient}],
         "initial": {"displacement": {str(i + 1): float(v) for i, v in enumerate(x0)}},

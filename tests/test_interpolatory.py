@@ -80,7 +80,7 @@ def test_rational_krylov_interpolates_at_its_shifts_with_the_derivative():
 
 @pytest.fixture(scope="module")
 def section5():
-    scene = mj.load_scene("section5_damped")
+    scene = mj.app.load_scene("section5_damped")
     system = scene.system
     force = np.asarray(system.mass.mv(scene.x0))
     return scene, system, force, irka_basis(system, 98, force, 20.0)

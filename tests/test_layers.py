@@ -80,14 +80,15 @@ def test_importing_the_package_turns_on_float64_before_or_after_jax(code):
     assert done.stdout.strip() == "float64"
 
 
-def test_the_app_layers_names_are_listed_and_resolve_to_the_app():
+def test_the_app_layers_names_live_in_mj_app_only():
     listed = dir(mj)
+    assert "app" in listed and "Scene" in listed and "run_scene" in listed
     for name in APP_NAMES:
-        assert name in listed
-        assert getattr(mj, name) is getattr(app, name)
-    assert "Scene" in listed and "run_scene" in listed and "SceneResult" in listed
-    assert not isinstance(mj.load_scene, types.ModuleType)
-    from mikota_jax import load_scene
+        assert name not in listed
+        with pytest.raises(AttributeError, match=name):
+            getattr(mj, name)
+        assert not isinstance(getattr(mj.app, name), types.ModuleType)
+    from mikota_jax.app import load_scene
 
     assert load_scene is app.load_scene
     with pytest.raises(AttributeError, match="no_such_name"):

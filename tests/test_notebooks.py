@@ -44,7 +44,7 @@ def test_notebook_cells_have_ids(path):
     assert all("id" in cell for cell in notebook["cells"])
 
 
-# paper_reproduction has one size (the paper's): its one computation, ``mj.reproduce``, is what
+# paper_reproduction has one size (the paper's): its one computation, ``mj.app.reproduce``, is what
 # tests/test_paper.py runs in the default run, so the notebook runs once, under -m slow (43 s).
 # Two small runs go under -m slow beside their full ones, for the 15-minute budget (the default
 # run was 919-931 s with them; 885 s without damper_placement's, ~4 % slower on CI), each where

@@ -34,7 +34,7 @@ def damped(position=7.0, coefficient=2.0, n=N):
 def scene(n=12, rank=None, energy=None):
     reduction = {"snapshots": [0.0, 5.0]}
     reduction.update({"rank": rank} if rank is not None else {"energy": energy})
-    return mj.load_scene({
+    return mj.app.load_scene({
         "name": "small", "chain": {"type": "mikota", "n": n, "m": 1.0, "k": 1.0},
         "damper": [{"type": "grounded", "position": 4.0, "coefficient": 0.5}],
         "initial": {"displacement": {"3": 1.0}}, "time": {"end": 10.0, "step": 0.05},

@@ -36,22 +36,22 @@ def scene_text(**tables: str) -> str:
 
 
 def test_paper_scenes_load_with_the_papers_parameters():
-    s5 = mj.load_scene("section5_damped")
+    s5 = mj.app.load_scene("section5_damped")
     assert s5.size == 300 and s5.ts.shape == (2001,) and float(s5.ts[-1]) == pytest.approx(20.0)
     np.testing.assert_allclose(np.asarray(s5.system.mass.diagonal)[[0, 6, 299]],
                                [1.0, 1 / 7, 1 / 300])
     assert float(s5.system.damping.positions[0]) == 7.0
     assert float(s5.x0[2]) == 1.0 and float(np.abs(s5.x0).sum()) == 1.0
     assert s5.reduction.window == (0.0, 10.0) and s5.reduction.criterion == "paper"
-    impulse = mj.load_scene("section4_impulse")
+    impulse = mj.app.load_scene("section4_impulse")
     assert float(impulse.load.duration) == 0.05 and impulse.system.damping is None
-    first = mj.load_scene("section4_first_mode")
+    first = mj.app.load_scene("section4_first_mode")
     np.testing.assert_allclose(np.asarray(first.x0), np.arange(1, 11) / 10, rtol=1e-15)
 
 
 def test_a_fractional_damper_and_a_relative_damper_are_parsed(tmp_path):
     text = SMALL + '\n[[damper]]\ntype = "relative"\ndofs = [2, 9]\ncoefficient = 0.25\n'
-    scene = mj.load_scene(text)
+    scene = mj.app.load_scene(text)
     d = np.asarray(scene.system.damping.as_matrix())
     assert d[3, 3] == pytest.approx(0.25) and d[4, 4] == pytest.approx(0.25)
     assert d[1, 8] == pytest.approx(-0.25) and d[8, 8] == pytest.approx(0.25)
@@ -59,7 +59,7 @@ def test_a_fractional_damper_and_a_relative_damper_are_parsed(tmp_path):
 
 def test_an_undamped_scene_builds_no_damping_matrix():
     text = SMALL.replace('[[damper]]\ntype = "grounded"\nposition = 4.5\ncoefficient = 0.5\n', "")
-    assert mj.load_scene(text).system.damping is None
+    assert mj.app.load_scene(text).system.damping is None
 
 
 @pytest.mark.parametrize("text, match", [
@@ -93,45 +93,45 @@ def test_an_undamped_scene_builds_no_damping_matrix():
 ])
 def test_bad_scene_input_names_the_key(text, match):
     with pytest.raises(ValueError, match=match):
-        mj.load_scene(text)
+        mj.app.load_scene(text)
 
 
 def test_a_missing_scene_file_is_a_clear_error(tmp_path):
     with pytest.raises(ValueError, match="does not exist"):
-        mj.load_scene(tmp_path / "nope.toml")
+        mj.app.load_scene(tmp_path / "nope.toml")
     with pytest.raises(ValueError, match="is a directory, not a TOML file"):
-        mj.load_scene(tmp_path)
+        mj.app.load_scene(tmp_path)
     (tmp_path / "latin1.toml").write_bytes(b"name = \"caf\xe9\"\n")
     with pytest.raises(ValueError, match="latin1.toml.*is not UTF-8 text"):
-        mj.load_scene(tmp_path / "latin1.toml")
+        mj.app.load_scene(tmp_path / "latin1.toml")
 
 
 def test_a_scene_file_with_a_byte_order_mark_loads_and_a_broken_one_names_the_file(tmp_path):
     bom = "\ufeff".encode()  # UTF-8's byte-order mark, which Windows editors write
     (tmp_path / "marked.toml").write_bytes(bom + SMALL.encode())
-    plain = mj.load_scene(SMALL)
-    marked = mj.load_scene(tmp_path / "marked.toml")
+    plain = mj.app.load_scene(SMALL)
+    marked = mj.app.load_scene(tmp_path / "marked.toml")
     assert marked.name == "marked" and marked.system.size == plain.system.size == 12
-    assert mj.load_scene("\ufeff" + SMALL).system.size == 12  # text that kept the mark
+    assert mj.app.load_scene("\ufeff" + SMALL).system.size == 12  # text that kept the mark
     (tmp_path / "broken.toml").write_bytes(bom + b"[chain\n")
     path = str(tmp_path / "broken.toml")
     with pytest.raises(ValueError, match=rf"^mikota_jax: scene file {re.escape(repr(path))} is "
                        r"not valid TOML: .*\(at line 1, column 7\)$"):
-        mj.load_scene(path)
+        mj.app.load_scene(path)
     with pytest.raises(ValueError, match=r"^mikota_jax: scene text is not valid TOML"):
-        mj.load_scene("this is = not toml [")
+        mj.app.load_scene("this is = not toml [")
 
 
 def test_a_scene_path_with_an_equals_sign_is_a_path(tmp_path):
     folder = tmp_path / "a=b"
     folder.mkdir()
     (folder / "scene.toml").write_text(scene_text(output="dofs = [2]"))
-    scene = mj.load_scene(str(folder / "scene.toml"))
+    scene = mj.app.load_scene(str(folder / "scene.toml"))
     assert scene.output.dofs == (2,) and scene.name == "scene"
 
 
 def test_a_scene_without_reduction_or_velocity_computes_neither():
-    scene = mj.load_scene(scene_text(output="dofs = [2, 5]"))
+    scene = mj.app.load_scene(scene_text(output="dofs = [2, 5]"))
     result = mj.run_scene(scene)
     assert isinstance(result, mj.SceneResult)
     full = result.full
@@ -148,7 +148,7 @@ def test_a_scene_without_reduction_or_velocity_computes_neither():
 
 
 def test_a_reduced_scene_reports_rank_singular_values_and_phase_error():
-    scene = mj.load_scene(scene_text(
+    scene = mj.app.load_scene(scene_text(
         reduction="snapshots = [0.0, 2.0]\nenergy = 0.999",
         output='dofs = [12]\nquantities = ["displacement", "velocity", "rank", '
                '"singular_values", "phase_error", "relative_error"]\nphase_error = "sum"'))
@@ -173,8 +173,8 @@ def test_a_reduced_scene_reports_rank_singular_values_and_phase_error():
 
 @pytest.mark.slow  # default-run time (issue: CI under 15 min)
 def test_a_diffrax_scene_matches_the_exact_scene():
-    exact = mj.run_scene(mj.load_scene(scene_text(output="dofs = [1, 12]")))
-    dopri = mj.run_scene(mj.load_scene(scene_text(
+    exact = mj.run_scene(mj.app.load_scene(scene_text(output="dofs = [1, 12]")))
+    dopri = mj.run_scene(mj.app.load_scene(scene_text(
         output="dofs = [1, 12]", solver='method = "dopri8"\nrtol = 1e-11\natol = 1e-13')))
     assert exact.full.dofs == dopri.full.dofs == (1, 12)
     np.testing.assert_allclose(np.asarray(dopri.full.displacement),
@@ -191,7 +191,7 @@ def test_a_rank_above_the_numerical_rank_of_the_snapshots_is_refused():
     damper = '[[damper]]\ntype = "grounded"\nposition = 4.5\ncoefficient = 0.5\n'
     undamped = SMALL.replace(damper, "")
     text = undamped.replace("displacement = { 3 = 1.0 }", 'displacement = "mode 2"')
-    scene = mj.load_scene(text + "\n[reduction]\nrank = 3\n")
+    scene = mj.app.load_scene(text + "\n[reduction]\nrank = 3\n")
     with pytest.raises(ValueError, match=r"rank = 3 exceeds the numerical rank 1"):
         mj.run_scene(scene)
 

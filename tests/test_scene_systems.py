@@ -53,7 +53,7 @@ def assemble(springs, n):
 
 @pytest.fixture(scope="module")
 def mikota_result():
-    return displacement(mj.run_scene(mj.load_scene(MIKOTA + DAMPER + REST)))
+    return displacement(mj.run_scene(mj.app.load_scene(MIKOTA + DAMPER + REST)))
 
 
 @pytest.fixture
@@ -78,7 +78,7 @@ CUSTOM = {
 def test_custom_matrices_from_files_reproduce_mikotas_scene(files, mikota_result, variant):
     path = files / "scene.toml"
     path.write_text('[chain]\ntype = "custom"\n' + CUSTOM[variant] + REST)
-    scene = mj.load_scene(path)  # relative file names: next to the scene file
+    scene = mj.app.load_scene(path)  # relative file names: next to the scene file
     mass, damping, stiffness = (np.asarray(a) for a in scene.system.dense())
     np.testing.assert_allclose(mass, M, rtol=0, atol=1e-15)
     np.testing.assert_allclose(stiffness, K, rtol=0, atol=1e-14)
@@ -93,23 +93,23 @@ def test_relative_matrix_files_of_toml_text_are_read_from_the_current_directory(
         files, monkeypatch):
     monkeypatch.chdir(files)
     text = '[chain]\ntype = "custom"\n' + CUSTOM["npz_and_mtx"] + REST
-    mass, damping, stiffness = (np.asarray(a) for a in mj.load_scene(text).system.dense())
+    mass, damping, stiffness = (np.asarray(a) for a in mj.app.load_scene(text).system.dense())
     np.testing.assert_array_equal(stiffness, K)
     other = files / "sub"
     other.mkdir()
     (other / "scene.toml").write_text(text)
     with pytest.raises(ValueError, match=r"\[chain\] mass: matrix file .*sub.*m\.mtx.*not exist"):
-        mj.load_scene(other / "scene.toml")  # a scene file's names are relative to its folder
+        mj.app.load_scene(other / "scene.toml")  # a scene file's names are relative to its folder
 
 
 def test_inline_dense_rows_and_a_custom_chains_modes_follow_eigh():
     rows = "[" + ", ".join(toml_list(row) for row in K) + "]"
-    scene = mj.load_scene(f'[chain]\ntype = "custom"\nmass = {toml_list(1.0 / DOFS)}\n'
+    scene = mj.app.load_scene(f'[chain]\ntype = "custom"\nmass = {toml_list(1.0 / DOFS)}\n'
                           f"stiffness = {rows}\n" + REST.replace("mode 2", "mode 5"))
     np.testing.assert_array_equal(np.asarray(scene.system.dense()[2]), K)
     np.testing.assert_allclose(np.asarray(scene.x0), np.asarray(mj.analytic.mode_shape(N, 5)),
                                rtol=0, atol=1e-12)
-    chain = mj.load_scene('[chain]\ntype = "custom"\n'
+    chain = mj.app.load_scene('[chain]\ntype = "custom"\n'
                           f"masses = {toml_list(1.0 / DOFS)}\nsprings = {toml_list(SPRINGS)}\n"
                           + REST.replace("mode 2", "mode 7"))
     np.testing.assert_allclose(np.asarray(chain.x0), np.asarray(mj.analytic.mode_shape(N, 7)),
@@ -141,7 +141,7 @@ step = 0.25
 
 
 def test_a_branched_scene_is_the_hand_assembled_system_and_mj_branched_chain():
-    scene = mj.load_scene(BRANCHED)
+    scene = mj.app.load_scene(BRANCHED)
     mass = np.diag([1.0, 2.0, 0.5, 3.0])  # DOFs: branch 1 (1, 2), branch 2 (3), the hub (4)
     stiffness = assemble([(0, None, 3.0), (0, 1, 4.0), (1, 3, 5.0), (2, None, 2.0),
                           (2, 3, 1.5), (3, None, 0.7)], 4)
@@ -167,7 +167,7 @@ def test_a_branched_scene_is_the_hand_assembled_system_and_mj_branched_chain():
 
 
 def test_the_uniform_branched_shorthand_assembles_equal_branches():
-    scene = mj.load_scene('[chain]\ntype = "branched"\nlengths = [2, 1]\nmass = 2.0\n'
+    scene = mj.app.load_scene('[chain]\ntype = "branched"\nlengths = [2, 1]\nmass = 2.0\n'
                           "spring = 3.0\nhub_spring = 0.5\n[time]\nend = 1.0\nstep = 0.5\n")
     stiffness = assemble([(0, None, 3.0), (0, 1, 3.0), (1, 3, 3.0), (2, None, 3.0), (2, 3, 3.0),
                           (3, None, 0.5)], 4)
@@ -186,7 +186,7 @@ def modal_truth():
 
 
 def test_rayleigh_damping_is_alpha_m_plus_beta_k():
-    scene = mj.load_scene(internal("rayleigh = [0.1, 0.02]"))
+    scene = mj.app.load_scene(internal("rayleigh = [0.1, 0.02]"))
     rayleigh = scene.system.internal.rayleigh
     assert float(rayleigh.alpha) == 0.1 and float(rayleigh.beta) == 0.02
     np.testing.assert_allclose(np.asarray(scene.system.dense()[1]), 0.1 * M + 0.02 * K,
@@ -196,7 +196,7 @@ def test_rayleigh_damping_is_alpha_m_plus_beta_k():
 @pytest.mark.parametrize("ratios", [0.05, np.linspace(0.01, 0.08, N)])
 def test_modal_damping_gives_each_mode_its_ratio(ratios):
     modal = repr(ratios) if np.ndim(ratios) == 0 else toml_list(ratios)
-    scene = mj.load_scene(internal(f"modal = {modal}\nrayleigh = [0.0, 0.01]"))
+    scene = mj.app.load_scene(internal(f"modal = {modal}\nrayleigh = [0.0, 0.01]"))
     zeta = np.broadcast_to(ratios, (N,))
     np.testing.assert_array_equal(np.broadcast_to(scene.system.internal.modal.zeta, (N,)), zeta)
     omega, modes = modal_truth()
@@ -208,11 +208,11 @@ def test_modal_damping_gives_each_mode_its_ratio(ratios):
 def test_internal_damping_reaches_custom_and_branched_systems():
     chain = (f'[chain]\ntype = "custom"\nmass = {toml_list(1.0 / DOFS)}\n'
              f"stiffness = [{toml_list(np.diag(K))}, {toml_list(np.diag(K, 1))}]\n")
-    custom = mj.load_scene(internal("modal = 0.1", chain))
+    custom = mj.app.load_scene(internal("modal = 0.1", chain))
     omega, modes = modal_truth()
     np.testing.assert_allclose(modes.T @ np.asarray(custom.system.dense()[1]) @ modes,
                                np.diag(0.2 * omega), rtol=0, atol=1e-11)
-    branched = mj.load_scene(internal("rayleigh = [0.3, 0.0]", '[chain]\ntype = "branched"\n'
+    branched = mj.app.load_scene(internal("rayleigh = [0.3, 0.0]", '[chain]\ntype = "branched"\n'
                                       "lengths = [1, 1]\n"))
     np.testing.assert_allclose(np.asarray(branched.system.dense()[1]), 0.3 * np.eye(3),
                                rtol=0, atol=1e-15)
@@ -221,7 +221,7 @@ def test_internal_damping_reaches_custom_and_branched_systems():
 def test_a_rayleigh_damped_first_mode_decays_as_one_damped_oscillator():
     alpha, beta = 0.2, 0.05
     text = internal(f"rayleigh = [{alpha}, {beta}]") + '[initial]\ndisplacement = "mode 1"\n'
-    result = mj.run_scene(mj.load_scene(text))
+    result = mj.run_scene(mj.app.load_scene(text))
     w = 1.0  # omega_1 = sqrt(k/m) (eq. 2.4)
     zeta = alpha / (2 * w) + beta * w / 2
     wd = w * np.sqrt(1 - zeta**2)
@@ -293,4 +293,4 @@ def test_bad_system_tables_name_the_key(files, monkeypatch, text, match):
     if "[time]" not in text:
         text += "\n[time]\nend = 1.0\nstep = 0.5\n"
     with pytest.raises(ValueError, match=r"^mikota_jax: " + match):
-        mj.load_scene(text)
+        mj.app.load_scene(text)

@@ -31,7 +31,7 @@ dofs = [10, 15]
 
 @pytest.fixture(scope="module")
 def scene():
-    return mj.load_scene(SMALL.format(solver=""))
+    return mj.app.load_scene(SMALL.format(solver=""))
 
 
 def central_differences(function, parameters, name, entry=None, step=1e-4):
@@ -109,7 +109,7 @@ def test_forward_and_reverse_mode_agree(scene, close):
 @pytest.mark.slow  # 27 s; the ODE paths' gradients are also tested in test_gradients_adjoints
 def test_integrated_ode_scene_gradients_match_central_differences(close):
     """Dopri8 scenes: the energy by forward mode (diffrax.ForwardMode), a history by reverse."""
-    scene = mj.load_scene(SMALL.format(solver='[solver]\nmethod = "dopri8"\nrtol = 1e-10\n'
+    scene = mj.app.load_scene(SMALL.format(solver='[solver]\nmethod = "dopri8"\nrtol = 1e-10\n'
                                               'atol = 1e-12'))
     for output, mode, name in (("energy", "forward", "k"),
                                ("displacement", "reverse", "coefficients")):
@@ -123,7 +123,7 @@ def test_integrated_ode_scene_gradients_match_central_differences(close):
 def test_undamped_energy_sensitivities_are_analytic(close):
     """Undamped free vibration keeps E0 = x0^T K x0 / 2, so J = T E0 grows like k, not with m;
     the displacement depends on k/m only (Omega = sqrt(k/m), eq. 2.4): d/d ln k = -d/d ln m."""
-    scene = mj.load_scene(SMALL.replace('[[damper]]\nposition = 7.3\ncoefficient = 0.8\n', '')
+    scene = mj.app.load_scene(SMALL.replace('[[damper]]\nposition = 7.3\ncoefficient = 0.8\n', '')
                           .format(solver=""))
     energy = mj.sensitivities(scene, "energy", wrt=["m", "k"])
     close(energy.normalised["k"], 1.0, rtol=1e-9)
@@ -154,7 +154,7 @@ def test_mikota_scalars_are_the_sum_of_the_vector_sensitivities(scene, close):
 
 
 def test_a_general_chain_offers_masses_and_springs_not_m_and_k():
-    scene = mj.load_scene({
+    scene = mj.app.load_scene({
         "chain": {"type": "custom", "masses": [1.0, 2.0, 1.5], "springs": [3.0, 1.0, 2.0]},
         "initial": {"displacement": {"3": 1.0}}, "time": {"end": 2.0, "step": 0.1}})
     assert set(mj.scene_parameters(scene)) == {"masses", "springs", "amplitude"}
@@ -192,7 +192,7 @@ def test_bad_requests_are_refused_by_name(scene, kwargs, match):
 
 def test_repeated_singular_values_have_no_derivative():
     """First-mode excitation: the snapshot matrix has rank 1 (Section 4), sigma_2 vanishes."""
-    scene = mj.load_scene({"chain": {"n": 10}, "initial": {"displacement": "mode 1"},
+    scene = mj.app.load_scene({"chain": {"n": 10}, "initial": {"displacement": "mode 1"},
                            "time": {"end": 2.0, "step": 0.1}})
     assert float(mj.sensitivities(scene, "singular_values", count=1).value[0]) > 0
     with pytest.raises(ValueError, match="repeated or vanishing"):
@@ -200,7 +200,7 @@ def test_repeated_singular_values_have_no_derivative():
 
 
 def test_phase_error_and_reduced_model_need_a_reduction():
-    scene = mj.load_scene({"chain": {"n": 10}, "initial": {"displacement": {"3": 1.0}},
+    scene = mj.app.load_scene({"chain": {"n": 10}, "initial": {"displacement": {"3": 1.0}},
                            "time": {"end": 2.0, "step": 0.1}})
     for kwargs in (dict(output="phase_error"), dict(model="reduced")):
         with pytest.raises(ValueError, match=r"\[reduction\]"):

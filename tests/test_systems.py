@@ -374,7 +374,7 @@ def test_gradients_in_alpha_beta_zeta_and_the_damper_match_central_differences()
 
 
 def test_sensitivities_of_a_custom_scene_name_the_internal_damping_parameters():
-    scene = mj.load_scene("""
+    scene = mj.app.load_scene("""
         [chain]
         type = "custom"
         mass = [1.0, 1.0, 1.0]

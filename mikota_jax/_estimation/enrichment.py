@@ -64,7 +64,7 @@ def sensitivity_snapshots(scene: Scene, wrt: Sequence[str] = DESIGN, *,
     of it with respect to each parameter in ``wrt`` (names as in ``sensitivities``), by forward
     mode through the full solve."""
     if not isinstance(scene, Scene):
-        raise ValueError(MARK + f"scene must be a Scene (see load_scene), got "
+        raise ValueError(MARK + f"scene must be a Scene (see mj.app.load_scene), got "
                          f"{type(scene).__name__}.")
     if scene.reduction is None:
         raise ValueError(MARK + "scene: sensitivity snapshots need a [reduction] table (the "

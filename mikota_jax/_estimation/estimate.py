@@ -208,7 +208,7 @@ def estimate(system: SecondOrderSystem, estimator: AbstractEstimator, horizon, x
 
 def _check_scene(scene) -> None:
     if not isinstance(scene, Scene):
-        raise ValueError(MARK + f"scene must be a Scene (see load_scene), got "
+        raise ValueError(MARK + f"scene must be a Scene (see mj.app.load_scene), got "
                          f"{type(scene).__name__}.")
     if scene.load is not None:
         raise ValueError(MARK + "scene: the error estimates cover free vibration only (no "

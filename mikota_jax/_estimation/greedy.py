@@ -65,7 +65,7 @@ def _free_vibration(function: SceneFunction, parameters: dict):
 
 def _check_scene(scene) -> None:
     if not isinstance(scene, Scene):
-        raise ValueError(MARK + f"scene must be a Scene (see load_scene), got "
+        raise ValueError(MARK + f"scene must be a Scene (see mj.app.load_scene), got "
                          f"{type(scene).__name__}.")
     if scene.load is not None:
         raise ValueError(MARK + "scene: the error bound covers free vibration only (no [load]).")

@@ -91,7 +91,7 @@ def run_scene(scene: Scene) -> SceneResult:
     ``mikota_jax.app.result_dict`` turns the result into the layout of ``results.json``.
     """
     if not isinstance(scene, Scene):
-        raise ValueError(MARK + f"scene must be a Scene (see load_scene), got "
+        raise ValueError(MARK + f"scene must be a Scene (see mj.app.load_scene), got "
                          f"{type(scene).__name__}.")
     out = scene.output
     quantities = set(out.quantities)

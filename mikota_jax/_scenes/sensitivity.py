@@ -81,7 +81,7 @@ def scene_parameters(scene: Scene, wrt=None) -> dict[str, jax.Array]:
     coefficients present, the internal damping's alpha, beta or zeta, and the amplitude.
     """
     if not isinstance(scene, Scene):
-        raise ValueError(MARK + f"scene must be a Scene (see load_scene), got "
+        raise ValueError(MARK + f"scene must be a Scene (see mj.app.load_scene), got "
                          f"{type(scene).__name__}.")
     system = scene.system
     mk = mikota_parameters(system)
@@ -174,7 +174,7 @@ class SceneFunction(eqx.Module):
     def __init__(self, scene: Scene, output: str = "energy", *, model: str = "full",
                  basis=None, count: int | None = None, forward: bool = False):
         if not isinstance(scene, Scene):
-            raise ValueError(MARK + f"scene must be a Scene (see load_scene), got "
+            raise ValueError(MARK + f"scene must be a Scene (see mj.app.load_scene), got "
                              f"{type(scene).__name__}.")
         if output not in OUTPUTS:
             raise ValueError(MARK + f"output must be one of {list(OUTPUTS)}, got {output!r}.")
