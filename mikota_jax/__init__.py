@@ -29,7 +29,8 @@ _MODULES = {
     "_cache": "enable_compilation_cache",
     "_estimation.estimate": ("AbstractEstimator Estimate Hierarchical ResidualBound "
                              "certified_sweep estimate"),
-    "_estimation.greedy": "rank_for_bound",
+    "_estimation.enrichment": "EnrichedPOD",
+    "_estimation.greedy": "Greedy rank_for_bound",
     "_model.chain": "branched_chain chain mikota_chain",
     "_model.dampers": "GroundedDamper RelativeDamper",
     "_model.internal_damping": "ModalDamping Rayleigh",
@@ -42,8 +43,8 @@ _MODULES = {
     "_placement.optimise": ("AbstractDesignStrategy Coefficients CoordinateDescent DamperDesign "
                             "DesignResult Grid ScreenAndCertify Solution optimise"),
     "_rom.base": "POD AbstractReduction",
-    "_rom.reduce": ("CraigBampton EnrichedPOD Greedy IRKA Krylov Modal ModalStatic Projection "
-                    "RationalKrylov Union reduce"),
+    "_rom.reduce": ("CraigBampton IRKA Krylov Modal ModalStatic Projection RationalKrylov Union "
+                    "reduce"),
     "_scenes.run": "SceneResult run_scene",
     "_scenes.scene": "Scene",
     "_scenes.sensitivity": "SceneFunction Sensitivities scene_parameters sensitivities",
@@ -87,12 +88,14 @@ if _TYPE_CHECKING:  # the same names for static tools (type checkers, the API re
     from . import io as io
     from . import metrics as metrics
     from ._cache import enable_compilation_cache as enable_compilation_cache
+    from ._estimation.enrichment import EnrichedPOD as EnrichedPOD
     from ._estimation.estimate import AbstractEstimator as AbstractEstimator
     from ._estimation.estimate import Estimate as Estimate
     from ._estimation.estimate import Hierarchical as Hierarchical
     from ._estimation.estimate import ResidualBound as ResidualBound
     from ._estimation.estimate import certified_sweep as certified_sweep
     from ._estimation.estimate import estimate as estimate
+    from ._estimation.greedy import Greedy as Greedy
     from ._estimation.greedy import rank_for_bound as rank_for_bound
     from ._model.chain import branched_chain as branched_chain
     from ._model.chain import chain as chain
@@ -129,8 +132,6 @@ if _TYPE_CHECKING:  # the same names for static tools (type checkers, the API re
     from ._rom.base import AbstractReduction as AbstractReduction
     from ._rom.reduce import IRKA as IRKA
     from ._rom.reduce import CraigBampton as CraigBampton
-    from ._rom.reduce import EnrichedPOD as EnrichedPOD
-    from ._rom.reduce import Greedy as Greedy
     from ._rom.reduce import Krylov as Krylov
     from ._rom.reduce import Modal as Modal
     from ._rom.reduce import ModalStatic as ModalStatic

@@ -27,10 +27,9 @@ import numpy as np
 
 from .._errors import MARK
 from .._model.reduced import ReductionStats
-from .._rom.base import snapshot_window
+from .._rom.base import AbstractReduction, problem_scene, snapshot_window
 from .._rom.pod import pod
-from .._scenes.run import solve_scene
-from .._scenes.scene import Scene
+from .._scenes.scene import Scene, solve_scene
 from .._scenes.sensitivity import SceneFunction, parameters_at
 
 DESIGN = ("positions", "coefficients")
@@ -118,3 +117,22 @@ def enriched_reduce(scene: Scene, wrt: Sequence[str] = DESIGN, *,
         rank = reduction.rank
     return decomposition.basis(rank), ReductionStats(
         "EnrichedPOD", int(rank), decomposition, snapshots=int(sum(b.shape[1] for b in blocks)))
+
+
+class EnrichedPOD(AbstractReduction):
+    """Sensitivity-enriched POD of a ``Scene`` with a ``[reduction]``: the POD of Q = [X, w_1 S_1,
+    ...], the states and their forward-mode derivatives with respect to ``wrt`` (default the
+    dampers' positions and coefficients) at ``parameters`` (default the scene's), each block
+    weighted to ||X||_F; the rank is ``rank``, else the smallest reaching ``energy`` (default
+    the scene's rule). Stats: ``decomposition``, ``snapshots`` (Q's columns)."""
+
+    wrt: tuple[str, ...] = eqx.field(static=True, default=DESIGN, converter=tuple)
+    parameters: dict | None = None
+    rank: int | None = eqx.field(static=True, default=None)
+    energy: float | None = eqx.field(static=True, default=None)
+
+    def basis(self, problem):
+        """(n, r) the enriched POD basis of the scene and the stats (``decomposition``)."""
+        scene = problem_scene(problem, "EnrichedPOD")
+        return enriched_reduce(scene, tuple(self.wrt), parameters=self.parameters,
+                               rank=self.rank, energy=self.energy)

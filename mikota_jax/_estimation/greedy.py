@@ -23,8 +23,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import MARK
-from .._model.reduced import check_basis
-from .._rom.base import snapshot_window
+from .._model.reduced import ReductionStats, check_basis
+from .._rom.base import AbstractReduction, problem_scene, snapshot_window
 from .._rom.pod import _Decomposition
 from .._scenes.scene import Scene
 from .._scenes.sensitivity import SceneFunction, _scene_basis, parameters_at
@@ -258,3 +258,30 @@ class EstimateFunction(eqx.Module):
         e = self.estimator(*_free_vibration(self.function, parameters))
         return jnp.stack([e.value, e.energy, e.fine])
 
+
+class Greedy(AbstractReduction):
+    """POD-greedy over the designs ``training`` (``mj.grid``), driven by the a posteriori bound
+    (or the hierarchical estimate, ``hierarchical``): from ``basis`` (default the scene's own
+    POD) append ``step`` POD modes of the full solve at the worst-certified design until every
+    design's relative bound on |J - J_r| / J is <= ``tolerance`` or the rank reaches
+    ``max_rank``. Needs a free-vibration ``Scene`` with a ``[reduction]``. Stats:
+    ``certified``, ``bounds``, ``history``, ``full_solves``."""
+
+    training: dict
+    tolerance: float = eqx.field(static=True, default=1e-4)
+    start: jax.Array | None = None
+    step: int = eqx.field(static=True, default=10)
+    max_rank: int | None = eqx.field(static=True, default=None)
+    hierarchical: dict | None = None
+    progress: bool = eqx.field(static=True, default=False)
+
+    def basis(self, problem):
+        """(n, r) the greedy basis of the scene and the stats (the certificate)."""
+        scene = problem_scene(problem, "Greedy")
+        found = greedy_reduce(scene, self.training, self.tolerance, basis=self.start,
+                              step=self.step, max_rank=self.max_rank,
+                              hierarchical=self.hierarchical, progress=self.progress)
+        return found.basis, ReductionStats(
+            "Greedy", found.rank, certified=found.certified,
+            bounds=tuple(float(b) for b in found.bounds), history=found.history,
+            full_solves=found.full_solves)

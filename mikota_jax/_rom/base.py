@@ -21,6 +21,7 @@ import numpy as np
 from .._custom_types import Array, Basis, Float, Times
 from .._errors import MARK, array_module
 from .._model.reduced import ReductionStats
+from .._model.system import SecondOrderSystem
 from .pod import ALL_METHODS, CRITERIA, _check_energy, pod
 
 
@@ -38,12 +39,22 @@ class AbstractReduction(eqx.Module):
         the class name and r)."""
 
 
-def problem_system(problem, strategy: str):
-    """The ``SecondOrderSystem`` of ``problem`` (a system, or a scene's system)."""
-    from .._model.system import SecondOrderSystem
-    from .._scenes.scene import Scene
+class AbstractSnapshotProblem(eqx.Module):
+    """A problem that can give snapshots: a system with an excitation and a time grid. ``Scene``
+    is the one the package defines (it lives above the reductions, so the reductions know it by
+    this base only); ``snapshot_states`` is its full solve at every DOF."""
 
-    if isinstance(problem, Scene):
+    system: eqx.AbstractVar[SecondOrderSystem]
+    ts: eqx.AbstractVar[Times]
+
+    @abc.abstractmethod
+    def snapshot_states(self, velocity: bool) -> Float[Array, "N n"]:
+        """(N, n) the full model's displacements (or velocities) at ``ts``, every DOF."""
+
+
+def problem_system(problem, strategy: str) -> SecondOrderSystem:
+    """The ``SecondOrderSystem`` of ``problem`` (a system, or a scene's system)."""
+    if isinstance(problem, AbstractSnapshotProblem):
         return problem.system
     if isinstance(problem, SecondOrderSystem):
         return problem
@@ -51,11 +62,9 @@ def problem_system(problem, strategy: str):
                      f"got {type(problem).__name__}.")
 
 
-def problem_scene(problem, strategy: str):
+def problem_scene(problem, strategy: str) -> AbstractSnapshotProblem:
     """``problem`` as a ``Scene`` (snapshot strategies need its excitation and time grid)."""
-    from .._scenes.scene import Scene
-
-    if not isinstance(problem, Scene):
+    if not isinstance(problem, AbstractSnapshotProblem):
         raise ValueError(MARK + f"problem must be a Scene for {strategy} (its snapshots need an "
                          f"excitation and a time grid), got {type(problem).__name__}.")
     return problem
@@ -109,12 +118,8 @@ class POD(AbstractReduction):
     def basis(self, problem):
         """(n, r) the first r POMs of the scene's (n, m) snapshot matrix (eq. 3.8), and the
         stats (``decomposition``, ``snapshots``)."""
-        from .._scenes.run import solve_scene
-
         scene = problem_scene(problem, "POD")
-        velocity = self.quantity == "velocity"
-        full = solve_scene(scene.system, scene, None, not velocity, velocity)
-        return pod_basis(full.velocity if velocity else full.displacement, scene.ts, self)
+        return pod_basis(scene.snapshot_states(self.quantity == "velocity"), scene.ts, self)
 
 
 def snapshot_window(ts: Times, window: tuple[float, float] | None) -> np.ndarray:

@@ -5,7 +5,8 @@ snapshot settings); ``strategy`` an ``AbstractReduction``. ``reduce`` asks the s
 (n, r) orthonormal basis Phi, checks it, and returns the Galerkin ``ReducedModel`` (eq. 3.4) with
 its ``ReductionStats``. Structural strategies (``Modal``, ``ModalStatic``, ``CraigBampton``,
 ``Krylov``, ``RationalKrylov``, ``IRKA``, ``Projection``) take either kind of problem (a scene
-gives its system); snapshot strategies (``POD``, ``EnrichedPOD``, ``Greedy``) need a ``Scene``.
+gives its system); snapshot strategies (``POD``, and ``EnrichedPOD`` and ``Greedy``, which
+live with the estimates that drive them in ``_estimation``) need a ``Scene``.
 
 ``rank`` is the final column count everywhere. A strategy that cannot reach the rank asked for
 (the snapshots' numerical rank, dependent Krylov columns, rank > n) raises a ``ValueError``
@@ -19,7 +20,7 @@ import numpy as np
 
 from .._errors import MARK
 from .._model.reduced import ReducedModel, ReductionStats, _project, check_basis
-from .base import AbstractReduction, problem_scene, problem_system
+from .base import AbstractReduction, problem_system
 from .classic import (
     _KRYLOV_DEPENDENT,
     _check,
@@ -31,8 +32,6 @@ from .classic import (
     modal_basis,
     modal_static_basis,
 )
-
-DESIGN = ("positions", "coefficients")
 
 
 def reduce(problem, strategy: AbstractReduction) -> ReducedModel:
@@ -296,54 +295,3 @@ class Union(AbstractReduction):
         for extra in bases[1:]:
             basis = extend_basis(basis, extra, _KRYLOV_DEPENDENT)[:, : system.size]
         return basis, ReductionStats("Union", basis.shape[1], parts=tuple(parts))
-
-
-class EnrichedPOD(AbstractReduction):
-    """Sensitivity-enriched POD of a ``Scene`` with a ``[reduction]``: the POD of Q = [X, w_1 S_1,
-    ...], the states and their forward-mode derivatives with respect to ``wrt`` (default the
-    dampers' positions and coefficients) at ``parameters`` (default the scene's), each block
-    weighted to ||X||_F; the rank is ``rank``, else the smallest reaching ``energy`` (default
-    the scene's rule). Stats: ``decomposition``, ``snapshots`` (Q's columns)."""
-
-    wrt: tuple[str, ...] = eqx.field(static=True, default=DESIGN, converter=tuple)
-    parameters: dict | None = None
-    rank: int | None = eqx.field(static=True, default=None)
-    energy: float | None = eqx.field(static=True, default=None)
-
-    def basis(self, problem):
-        """(n, r) the enriched POD basis of the scene and the stats (``decomposition``)."""
-        from .._estimation.enrichment import enriched_reduce
-
-        scene = problem_scene(problem, "EnrichedPOD")
-        return enriched_reduce(scene, tuple(self.wrt), parameters=self.parameters,
-                               rank=self.rank, energy=self.energy)
-
-
-class Greedy(AbstractReduction):
-    """POD-greedy over the designs ``training`` (``mj.grid``), driven by the a posteriori bound
-    (or the hierarchical estimate, ``hierarchical``): from ``basis`` (default the scene's own
-    POD) append ``step`` POD modes of the full solve at the worst-certified design until every
-    design's relative bound on |J - J_r| / J is <= ``tolerance`` or the rank reaches
-    ``max_rank``. Needs a free-vibration ``Scene`` with a ``[reduction]``. Stats:
-    ``certified``, ``bounds``, ``history``, ``full_solves``."""
-
-    training: dict
-    tolerance: float = eqx.field(static=True, default=1e-4)
-    start: jax.Array | None = None
-    step: int = eqx.field(static=True, default=10)
-    max_rank: int | None = eqx.field(static=True, default=None)
-    hierarchical: dict | None = None
-    progress: bool = eqx.field(static=True, default=False)
-
-    def basis(self, problem):
-        """(n, r) the greedy basis of the scene and the stats (the certificate)."""
-        from .._estimation.greedy import greedy_reduce
-
-        scene = problem_scene(problem, "Greedy")
-        found = greedy_reduce(scene, self.training, self.tolerance, basis=self.start,
-                              step=self.step, max_rank=self.max_rank,
-                              hierarchical=self.hierarchical, progress=self.progress)
-        return found.basis, ReductionStats(
-            "Greedy", found.rank, certified=found.certified,
-            bounds=tuple(float(b) for b in found.bounds), history=found.history,
-            full_solves=found.full_solves)

@@ -20,21 +20,8 @@ from .._errors import MARK
 from .._metrics import phase_error, relative_error
 from .._model.reduced import ReducedModel, galerkin
 from .._rom.base import pod_basis
-from .._solver.exact import exact_solve
-from .._solver.ode import simulate
 from .._solver.trajectory import Trajectory
-from .scene import Output, Scene
-
-
-def solve_scene(model, scene: Scene, dofs, displacement: bool, velocity: bool, adjoint=None):
-    """``model`` solved as ``scene`` says (exactly, or by ``simulate`` with its tolerances)."""
-    kwargs = dict(dofs=dofs, displacement=displacement, velocity=velocity)
-    if scene.solver == "exact":
-        return exact_solve(model, scene.ts, scene.x0, scene.v0, scene.load, **kwargs)
-    return simulate(model, scene.ts, scene.x0, scene.v0, scene.load, solver=scene.solver,
-                    rtol=scene.rtol, atol=scene.atol, max_steps=scene.max_steps,
-                    adjoint=adjoint, **kwargs)
-
+from .scene import Output, Scene, solve_scene
 
 # Scene metrics: [output] quantity -> function of (full, reduced, output) -> a scalar. Computed
 # only when requested, on every DOF (the full and the reduced solve then save all of them).

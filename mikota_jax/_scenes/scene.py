@@ -12,7 +12,10 @@ import equinox as eqx
 from .._custom_types import Times, Vector
 from .._model.loads import Pulse
 from .._model.system import SecondOrderSystem
-from .._rom.base import POD
+from .._rom.base import POD, AbstractSnapshotProblem
+from .._solver.exact import exact_solve
+from .._solver.ode import simulate
+from .._solver.select import choose_solver
 
 # what [output] quantities may name: histories ("full"/"reduced" columns), POD outputs, metrics
 QUANTITIES = ("displacement", "velocity", "singular_values", "rank", "phase_error", "modes",
@@ -30,7 +33,7 @@ class Output(eqx.Module):
     figures: bool = False
 
 
-class Scene(eqx.Module):
+class Scene(AbstractSnapshotProblem):
     """One computation, declaratively: run it with ``run_scene``; read one with ``load_scene``.
 
     ``system``: the chain or system (n DOFs); ``ts``: (N,) output times; ``x0``, ``v0``: (n,)
@@ -58,3 +61,22 @@ class Scene(eqx.Module):
     def size(self) -> int:
         """n, the number of DOFs."""
         return self.system.size
+
+    def snapshot_states(self, velocity: bool):
+        """(N, n) the full model's displacements (or velocities) at ``ts``, every DOF: the
+        snapshots of a ``POD`` (eq. 3.5)."""
+        full = solve_scene(self.system, self, None, not velocity, velocity)
+        return full.velocity if velocity else full.displacement
+
+
+def solve_scene(model, scene: Scene, dofs, displacement: bool, velocity: bool, adjoint=None):
+    """``model`` solved as ``scene`` says: exactly, by ``simulate`` with the scene's tolerances,
+    or ("auto") by what ``Auto().select`` names, integrated at the scene's tolerances."""
+    kwargs = dict(dofs=dofs, displacement=displacement, velocity=velocity)
+    solver = choose_solver(model, scene.ts, scene.load) if scene.solver == "auto" else scene.solver
+    if solver == "exact":
+        return exact_solve(model, scene.ts, scene.x0, scene.v0, scene.load, **kwargs,
+                           **({"method": "spectral"} if scene.solver == "auto" else {}))
+    return simulate(model, scene.ts, scene.x0, scene.v0, scene.load, solver=solver,
+                    rtol=scene.rtol, atol=scene.atol, max_steps=scene.max_steps,
+                    adjoint=adjoint, **kwargs)

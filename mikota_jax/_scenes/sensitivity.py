@@ -51,8 +51,8 @@ from .._model.reduced import galerkin
 from .._model.system import SecondOrderSystem
 from .._objective.functions import integrated_energy
 from .._rom.base import pod_basis, snapshot_window
-from .run import solve_scene as _solve
 from .scene import Scene
+from .scene import solve_scene as _solve
 
 OUTPUTS = ("displacement", "velocity", "energy", "phase_error", "singular_values")
 PARAMETERS = ("m", "k", "masses", "springs", "positions", "coefficients", "relative_coefficients",

@@ -39,7 +39,6 @@ from .._model.operators import Diagonal, diagonal_of
 from .._model.reduced import ReducedModel
 from .._model.system import SecondOrderSystem
 from .implicit import StructuredKvaerno5, physical_mass, symmetric_tridiagonal_solve
-from .select import choose_solver
 from .trajectory import Trajectory
 
 SOLVERS = {
@@ -285,13 +284,9 @@ def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | No
 
     ``solver``: "dopri8" (default; explicit, the most accurate per step), "tsit5", "dopri5",
     "kvaerno5" (L-stable implicit ESDIRK whose stage equations are solved exactly in the chain's
-    O(n) structure: for stiff cases, large n or a strong damper), "auto", or a diffrax solver
-    instance (diffrax's own implicit solvers factor a dense 2n x 2n Jacobian). "auto" runs what
-    ``Auto().select(model, ts, load)`` returns, from the structure: the exact spectral solution
-    (``exact_solve(method="spectral")``: no integration error, ``num_steps`` None) for a full
-    system with discrete dampers and no load or a ``Pulse`` (an error where its modes fail, a
-    refusal where its memory does not fit: never another path); otherwise "kvaerno5" when the
-    highest eigenfrequency or damper rate times the span exceeds 1e5, else "dopri8".
+    O(n) structure: for stiff cases, large n or a strong damper), or a diffrax solver instance
+    (diffrax's own implicit solvers factor a dense 2n x 2n Jacobian). ``Auto().select`` chooses
+    between the exact solution and these; this function only integrates.
 
     ``adjoint`` is how derivatives pass through the solve (diffrax's; default
     ``RecursiveCheckpointAdjoint``, for reverse mode); use ``diffrax.ForwardMode()`` under
@@ -301,8 +296,8 @@ def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | No
     """
     check_x64()
     if isinstance(solver, str):
-        if solver not in (*SOLVERS, "auto"):
-            raise ValueError(MARK + f"solver must be 'auto', one of {sorted(SOLVERS)} or a "
+        if solver not in SOLVERS:
+            raise ValueError(MARK + f"solver must be one of {sorted(SOLVERS)} or a "
                              f"diffrax solver, got {solver!r}.")
     if not (displacement or velocity):
         raise ValueError(MARK + "ask for displacement and/or velocity; nothing would be saved.")
@@ -314,13 +309,6 @@ def simulate(model: SecondOrderSystem | ReducedModel, ts: Times, x0: Vector | No
     checked_dofs = check_dofs(dofs, model.size)
     check_output_memory(ts.shape[0], len(checked_dofs) * (displacement + velocity)
                         + 2 * model.size, "ODE()")
-    if solver == "auto":
-        solver = choose_solver(model, ts, load)
-        if solver == "exact":
-            from .exact import exact_solve  # (_exact imports this module)
-
-            return exact_solve(model, ts, x0, v0, load, dofs=dofs, displacement=displacement,
-                               velocity=velocity, method="spectral")
     if isinstance(solver, str):
         solver = SOLVERS[solver]()
     trajectory, result = simulate_with_result(

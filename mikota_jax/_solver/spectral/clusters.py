@@ -41,7 +41,7 @@ import jax
 import jax.numpy as jnp
 
 from ..._custom_types import Array
-from .rows import by_rows, roots_difference
+from .rows import by_rows, roots_difference, small_solve
 
 NODES = 40  # trapezoidal points on each circle (error 3^-NODES)
 MAX_CLUSTERS = 2  # pairs summed by contour at once (a conjugate pair of pairs takes two)
@@ -167,8 +167,6 @@ def cluster_roots(poles, factor, weights, active, clusters: Clusters):
     same roots inside): (1 / 2 pi i) contour_integral s^p tr(H^-1 H') ds, p = 0, 1. A cluster
     is a pair only where the count is 2; the sum stands for the pair in the trace check (its
     two roots are only sqrt(eps)-accurate one by one at a double root, their sum is not)."""
-    from .roots import small_solve
-
     s, w = clusters.nodes()
     _, _, h, h_prime = _secular_matrix(poles, factor, weights, active, s)
     log_derivative = jnp.trace(small_solve(h, h_prime), axis1=-2, axis2=-1)
@@ -178,8 +176,6 @@ def cluster_roots(poles, factor, weights, active, clusters: Clusters):
 
 def solve_at(modes, s, rhs):
     """u = Q(s_p)^-1 rhs_p: (P, n, m) from rhs (P, n, m), O(P n k m) by Woodbury."""
-    from .roots import small_solve
-
     r, f, h = resolvent_at(modes, s)
     g = jnp.einsum("la,pl,plm->pam", f, r, rhs)  # F^T R b
     z = small_solve(h, g)  # H^-1 F^T R b = F^T u

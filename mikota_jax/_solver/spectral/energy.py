@@ -30,8 +30,8 @@ from ..._custom_types import Array
 from ..._model.modal import modal_projection
 from .clusters import initial_rhs, resolvent_at, solve_at
 from .modes import live_modes, live_rows, uses_rows
-from .roots import DampedModes, complex_arithmetic, small_solve
-from .rows import by_rows, row_block, sum_by_rows
+from .roots import DampedModes, complex_arithmetic
+from .rows import by_rows, row_block, small_solve, sum_by_rows
 
 # --- the energy kernels: Gram matrix of the damped modes, pair sums, time integrals ----------
 

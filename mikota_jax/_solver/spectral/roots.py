@@ -26,9 +26,9 @@ H^-1 f_J has y_J = -1 / lambda: no huge entries. Gradients: one Newton step at t
 The undamped modes of a fixed-free chain come from ``chain_modes`` (O(n^2), relative accuracy);
 other systems use ``generalized_modes`` (dense, O(n^3)).
 Memory: every step is per root, and above n = 512 the rows are formed a block of roots at a
-time (``_spectral_rows``): O(n) memory (J + gradient at n = 30000 in 1.7 GiB).
+time (``rows``): O(n) memory (J + gradient at n = 30000 in 1.7 GiB).
 Two roots that nearly coincide (critical damping) are found like any others and then summed
-as a pair by a contour integral of the resolvent, never root by root (``_spectral_clusters``:
+as a pair by a contour integral of the resolvent, never root by root (``clusters``:
 ``DampedModes.clusters``).
 """
 
@@ -40,7 +40,7 @@ import jax.numpy as jnp
 
 from ..._custom_types import Array, Float
 from .clusters import Clusters, cluster_roots, find_clusters, no_clusters
-from .rows import by_rows, repulsion, row_block, smallest_separation
+from .rows import by_rows, repulsion, row_block, small_solve, smallest_separation
 from .starts import arc_starts, far_starts
 
 
@@ -242,32 +242,6 @@ def _resolvent(poles, anchor, offset, active):
 def _partner(anchor, n):
     """The other pole of the same mode."""
     return (anchor + n) % (2 * n)
-
-
-def small_solve(a, b):
-    """x with a x = b for a batch of small systems: a (..., k, k), b (..., k, m).
-
-    Gauss-Jordan elimination with partial pivoting, unrolled over the static k in elementwise
-    operations. Not ``jnp.linalg.solve``: jaxlib's batched LAPACK kernels (getrf/trsm) split
-    their batch over XLA's intra-op thread pool and wait for it, and two of them running at once
-    on a 2-core machine deadlocked with both pool threads waiting (seen at n = 801 and 10^4: the
-    process idle at 0 % CPU, gdb showing two ``lapack_ztrsm_ffi`` in ``ParallelBatchMap``).
-    For the k <= a few damper columns here, O(k^3) elementwise work per system is also cheaper.
-    """
-    k = a.shape[-1]
-    batch = (1,) * (a.ndim - 2)
-    rows = jnp.arange(k).reshape(batch + (k,))  # no implicit rank promotion
-    aug = jnp.concatenate([a, b], axis=-1)
-    for i in range(k):
-        below = jnp.where(rows >= i, jnp.abs(aug[..., :, i]), -1.0)
-        p = jnp.argmax(below, axis=-1)[..., None, None]  # (..., 1, 1)
-        row_p = jnp.take_along_axis(aug, p, axis=-2)  # (..., 1, k + m)
-        row_i = aug[..., i:i + 1, :]
-        here = rows[..., None] == i
-        aug = jnp.where(here, row_p, jnp.where(rows[..., None] == p, row_i, aug))
-        pivot_row = aug[..., i:i + 1, :] / aug[..., i:i + 1, i:i + 1]
-        aug = jnp.where(here, pivot_row, aug - aug[..., :, i:i + 1] * pivot_row)
-    return aug[..., :, k:]
 
 
 def _secular(poles, gamma, factor, weights, active, anchor, offset, block=None):

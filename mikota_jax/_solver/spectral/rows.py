@@ -104,3 +104,29 @@ def smallest_separation(poles, anchor, offset, root_active, n, block):
         return jnp.min(jnp.where(interacting, diff, jnp.inf), axis=1)
 
     return jnp.min(by_rows(rows, block, anchor, offset, root_active, index))
+
+
+def small_solve(a, b):
+    """x with a x = b for a batch of small systems: a (..., k, k), b (..., k, m).
+
+    Gauss-Jordan elimination with partial pivoting, unrolled over the static k in elementwise
+    operations. Not ``jnp.linalg.solve``: jaxlib's batched LAPACK kernels (getrf/trsm) split
+    their batch over XLA's intra-op thread pool and wait for it, and two of them running at once
+    on a 2-core machine deadlocked with both pool threads waiting (seen at n = 801 and 10^4: the
+    process idle at 0 % CPU, gdb showing two ``lapack_ztrsm_ffi`` in ``ParallelBatchMap``).
+    For the k <= a few damper columns here, O(k^3) elementwise work per system is also cheaper.
+    """
+    k = a.shape[-1]
+    batch = (1,) * (a.ndim - 2)
+    rows = jnp.arange(k).reshape(batch + (k,))  # no implicit rank promotion
+    aug = jnp.concatenate([a, b], axis=-1)
+    for i in range(k):
+        below = jnp.where(rows >= i, jnp.abs(aug[..., :, i]), -1.0)
+        p = jnp.argmax(below, axis=-1)[..., None, None]  # (..., 1, 1)
+        row_p = jnp.take_along_axis(aug, p, axis=-2)  # (..., 1, k + m)
+        row_i = aug[..., i:i + 1, :]
+        here = rows[..., None] == i
+        aug = jnp.where(here, row_p, jnp.where(rows[..., None] == p, row_i, aug))
+        pivot_row = aug[..., i:i + 1, :] / aug[..., i:i + 1, i:i + 1]
+        aug = jnp.where(here, pivot_row, aug - aug[..., :, i:i + 1] * pivot_row)
+    return aug[..., :, k:]
