@@ -34,7 +34,7 @@ _MODULES = {
     "_model.chain": "branched_chain chain mikota_chain",
     "_model.dampers": "GroundedDamper RelativeDamper",
     "_model.internal_damping": "ModalDamping Rayleigh",
-    "_model.loads": "LoadFunction Pulse pulse unit_vector",
+    "_model.loads": "Pulse pulse unit_vector",
     "_model.modal": "modal_decomposition",
     "_model.reduced": "ReducedModel ReductionStats",
     "_model.system": "SecondOrderSystem",
@@ -47,7 +47,7 @@ _MODULES = {
                     "reduce"),
     "_scenes.run": "SceneResult run_scene",
     "_scenes.scene": "Scene",
-    "_scenes.sensitivity": "SceneFunction Sensitivities scene_parameters sensitivities",
+    "_scenes.sensitivity": "SceneFunction Sensitivities sensitivities",
     "_solver.frequency": "frequency_response",
     "_solver.implicit": "StructuredKvaerno5",
     "_solver.trajectory": "Trajectory",
@@ -104,7 +104,6 @@ if _TYPE_CHECKING:  # the same names for static tools (type checkers, the API re
     from ._model.dampers import RelativeDamper as RelativeDamper
     from ._model.internal_damping import ModalDamping as ModalDamping
     from ._model.internal_damping import Rayleigh as Rayleigh
-    from ._model.loads import LoadFunction as LoadFunction
     from ._model.loads import Pulse as Pulse
     from ._model.loads import pulse as pulse
     from ._model.loads import unit_vector as unit_vector
@@ -144,7 +143,6 @@ if _TYPE_CHECKING:  # the same names for static tools (type checkers, the API re
     from ._scenes.scene import Scene as Scene
     from ._scenes.sensitivity import SceneFunction as SceneFunction
     from ._scenes.sensitivity import Sensitivities as Sensitivities
-    from ._scenes.sensitivity import scene_parameters as scene_parameters
     from ._scenes.sensitivity import sensitivities as sensitivities
     from ._solver.frequency import frequency_response as frequency_response
     from ._solver.implicit import StructuredKvaerno5 as StructuredKvaerno5

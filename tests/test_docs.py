@@ -40,7 +40,7 @@ EQUATIONS = {
     "mikota_chain": "2.3", "SecondOrderSystem": "3.1",
     "modal_decomposition": "2.4", "GroundedDamper": "5.1", "RelativeDamper": "3.1",
     "solve": "3.1", "Trajectory": "3.2", "Pulse": "4.3", "pulse": "4.3",
-    "LoadFunction": "3.1", "reduce": "3.4", "ReducedModel": "3.3", "POD": "3.6",
+    "reduce": "3.4", "ReducedModel": "3.3", "POD": "3.6",
     "metrics.pseudo_energy": "3.7",
     "metrics.phase_error": "5.4", "Energy": "3.1", "AverageEnergy": "3.1",
     "Scene": "4.3", "run_scene": "5.4", "app.reproduce": "5.4",
@@ -51,7 +51,7 @@ EQUATIONS = {
 SHAPED = [
     "analytic.eigenfrequencies", "analytic.mode_shape", "analytic.paper_mode_shape", "chain",
     "modal_decomposition",
-    "unit_vector", "Pulse", "pulse", "LoadFunction", "solve", "Trajectory",
+    "unit_vector", "Pulse", "pulse", "solve", "Trajectory",
     "ReducedModel", "reduce", "POD", "Projection", "ReductionStats",
     "metrics.pseudo_energy", "metrics.phase_error", "metrics.relative_error", "Energy", "Peak",
     "Scene", "DamperDesign", "Solution", "Grid", "ScreenAndCertify",

@@ -157,9 +157,9 @@ def test_a_general_chain_offers_masses_and_springs_not_m_and_k():
     scene = mj.app.load_scene({
         "chain": {"type": "custom", "masses": [1.0, 2.0, 1.5], "springs": [3.0, 1.0, 2.0]},
         "initial": {"displacement": {"3": 1.0}}, "time": {"end": 2.0, "step": 0.1}})
-    assert set(mj.scene_parameters(scene)) == {"masses", "springs", "amplitude"}
+    assert set(scene.parameters()) == {"masses", "springs", "amplitude"}
     with pytest.raises(ValueError, match="not Mikota"):
-        mj.scene_parameters(scene, wrt=["m"])
+        scene.parameters(wrt=["m"])
 
 
 @pytest.mark.slow  # default-run time (issue: CI under 15 min)

@@ -135,7 +135,7 @@ def test_exact_solve_with_a_pulse_matches_solve_ivp(damped, start, duration, clo
 
 def test_exact_solve_rejects_a_general_load_and_a_non_uniform_damped_grid(damped, undamped):
     with pytest.raises(ValueError, match="take load=None or a Pulse"):
-        mj.solve(undamped, TS, load=mj.LoadFunction(lambda t: jnp.zeros(N)),
+        mj.solve(undamped, TS, load=lambda t: jnp.zeros(N),
                  method=mj.DenseExponential())
     with pytest.raises(ValueError, match="ts must be a uniform grid"):  # the spectral path
         mj.solve(damped, np.array([0.0, 0.1, 0.3, 0.4]), np.ones(N), method=mj.DenseExponential())
@@ -198,7 +198,7 @@ def test_simulate_with_a_user_load_function_matches_solve_ivp(damped, close):
     load = lambda t: jnp.sin(2.0 * t) * jnp.asarray(direction)
     force = lambda t: np.sin(2.0 * t) * direction
     x_ref, v_ref = ivp_reference(damped, TS, force)
-    out = mj.solve(damped, TS, load=mj.LoadFunction(load), velocity=True,
+    out = mj.solve(damped, TS, load=load, velocity=True,
                    method=mj.ODE(rtol=1e-11, atol=1e-13))
     close(out.displacement, x_ref, atol=1e-8 * np.max(np.abs(x_ref)))
     close(out.velocity, v_ref, atol=1e-8 * np.max(np.abs(v_ref)))
@@ -312,7 +312,7 @@ def test_wrong_initial_state_shape_or_precision_is_rejected(solve, undamped):
 
 
 def test_unknown_solver_and_non_positive_tolerances_are_rejected(undamped):
-    with pytest.raises(ValueError, match="solver must be .auto., one of"):
+    with pytest.raises(ValueError, match="solver must be one of"):
         simulate(undamped, TS, np.ones(N), solver="rk4")  # the strings of the private verb
     for rtol in (0.0, -1e-8, np.nan, 1.0, 10.0, 1e300, np.inf):
         with pytest.raises(ValueError, match="rtol must be > 0 and < 1"):

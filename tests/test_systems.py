@@ -388,10 +388,10 @@ def test_sensitivities_of_a_custom_scene_name_the_internal_damping_parameters():
         end = 5.0
         step = 0.5
         """)
-    parameters = mj.scene_parameters(scene)
+    parameters = scene.parameters()
     assert set(parameters) == {"alpha", "beta", "zeta", "amplitude"}
     with pytest.raises(ValueError, match="'masses' does not apply: the system is not a fixed"):
-        mj.scene_parameters(scene, ["masses"])
+        scene.parameters(["masses"])
     function = mj.SceneFunction(scene, "energy")
     result = mj.sensitivities(scene, "energy")
     for name in ("alpha", "beta", "zeta"):

@@ -8,14 +8,23 @@ layer's job (``load_scene``), so the core library never parses TOML.
 """
 
 import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
 
 from .._custom_types import Times, Vector
+from .._errors import MARK
+from .._model.dampers import Dampers
 from .._model.loads import Pulse
+from .._model.parameters import is_chain
 from .._model.system import SecondOrderSystem
 from .._rom.base import POD, AbstractSnapshotProblem
 from .._solver.exact import exact_solve
 from .._solver.ode import simulate
 from .._solver.select import choose_solver
+
+PARAMETERS = ("m", "k", "masses", "springs", "positions", "coefficients", "relative_coefficients",
+              "alpha", "beta", "zeta", "amplitude")
+_MIKOTA_TOL = 1e-13  # relative: masses * i and springs / (n - i + 1) constant to rounding
 
 # what [output] quantities may name: histories ("full"/"reduced" columns), POD outputs, metrics
 QUANTITIES = ("displacement", "velocity", "singular_values", "rank", "phase_error", "modes",
@@ -62,6 +71,16 @@ class Scene(AbstractSnapshotProblem):
         """n, the number of DOFs."""
         return self.system.size
 
+    def parameters(self, wrt=None) -> dict:
+        """The nominal values of the parameters ``wrt`` (default: all that apply), by name: the
+        points of ``sensitivities``, ``SceneFunction`` and ``mj.grid`` use these names.
+
+        Default for Mikota's chain: m, k; for another fixed-free chain: masses, springs (a system
+        of a user's matrices or a branched chain has neither); then the dampers' positions and
+        coefficients present, the internal damping's alpha, beta or zeta, and the amplitude.
+        """
+        return scene_parameters(self, wrt)
+
     def snapshot_states(self, velocity: bool):
         """(N, n) the full model's displacements (or velocities) at ``ts``, every DOF: the
         snapshots of a ``POD`` (eq. 3.5)."""
@@ -80,3 +99,59 @@ def solve_scene(model, scene: Scene, dofs, displacement: bool, velocity: bool, a
     return simulate(model, scene.ts, scene.x0, scene.v0, scene.load, solver=solver,
                     rtol=scene.rtol, atol=scene.atol, max_steps=scene.max_steps,
                     adjoint=adjoint, **kwargs)
+
+
+def mikota_parameters(system: SecondOrderSystem) -> tuple[float, float] | None:
+    """(m, k) if ``system`` is Mikota's chain (m_i = m / i, k_i = (n - i + 1) k), else None."""
+    if not is_chain(system):
+        return None
+    masses, springs = np.asarray(system.mass.diagonal), np.asarray(system.stiffness.springs)
+    i = np.arange(1, masses.size + 1)
+    m, k = masses * i, springs / (masses.size - i + 1)
+    if np.ptp(m) > _MIKOTA_TOL * m[0] or np.ptp(k) > _MIKOTA_TOL * k[0]:
+        return None
+    return float(m[0]), float(k[0])
+
+
+def scene_parameters(scene, wrt=None) -> dict:
+    """``Scene.parameters``, checked (the allowed names: ``PARAMETERS``)."""
+    system = scene.system
+    mk = mikota_parameters(system)
+    damping = system.damping
+    available = {"amplitude": jnp.asarray(1.0)}
+    if is_chain(system):
+        available.update(masses=system.mass.diagonal, springs=system.stiffness.springs)
+    if mk is not None:
+        available.update(m=jnp.asarray(mk[0]), k=jnp.asarray(mk[1]))
+    internal = system.internal
+    if internal is not None and internal.rayleigh is not None:
+        available.update(alpha=internal.rayleigh.alpha, beta=internal.rayleigh.beta)
+    if internal is not None and internal.modal is not None:
+        available["zeta"] = internal.modal.zeta
+    if isinstance(damping, Dampers):
+        if damping.positions.shape[0]:
+            available.update(positions=damping.positions, coefficients=damping.coefficients)
+        if damping.pair_count:
+            available["relative_coefficients"] = damping.pair_coefficients
+    if wrt is None:
+        wrt = [name for name in PARAMETERS if name in available
+               and not (mk is not None and name in ("masses", "springs"))]
+    wrt = tuple(wrt)
+    for name in wrt:
+        if name not in PARAMETERS:
+            raise ValueError(MARK + f"wrt: unknown parameter {name!r}; allowed: "
+                             f"{list(PARAMETERS)}.")
+        if name not in available:
+            why = {"m": "the chain is not Mikota's (use 'masses', 'springs')",
+                   "masses": "the system is not a fixed-free chain (masses and springs)",
+                   "alpha": "the system has no Rayleigh damping",
+                   "zeta": "the system has no modal damping"}
+            why = why.get({"k": "m", "springs": "masses", "beta": "alpha"}.get(name, name),
+                          "the scene has no such damper")
+            raise ValueError(MARK + f"wrt: {name!r} does not apply: {why}.")
+    if {"m", "masses"} <= set(wrt) or {"k", "springs"} <= set(wrt):
+        raise ValueError(MARK + "wrt: give 'm'/'k' (Mikota's scalars) or 'masses'/'springs' "
+                         "(vectors), not both for the same quantity.")
+    if len(set(wrt)) != len(wrt) or not wrt:
+        raise ValueError(MARK + f"wrt must name distinct parameters, got {list(wrt)}.")
+    return {name: jnp.asarray(available[name], dtype=jnp.float64) for name in wrt}

@@ -44,87 +44,17 @@ import numpy as np
 from .._errors import MARK, as_float
 from .._limits import FEW_PARAMETERS
 from .._metrics import phase_error
-from .._model.dampers import Dampers
 from .._model.loads import Pulse
-from .._model.parameters import check_parameters, is_chain, with_parameters
+from .._model.parameters import check_parameters, with_parameters
 from .._model.reduced import galerkin
 from .._model.system import SecondOrderSystem
 from .._objective.functions import integrated_energy
 from .._rom.base import pod_basis, snapshot_window
-from .scene import Scene
+from .scene import Scene, scene_parameters
 from .scene import solve_scene as _solve
 
 OUTPUTS = ("displacement", "velocity", "energy", "phase_error", "singular_values")
-PARAMETERS = ("m", "k", "masses", "springs", "positions", "coefficients", "relative_coefficients",
-              "alpha", "beta", "zeta", "amplitude")
 MODES = ("auto", "forward", "reverse")
-_MIKOTA_TOL = 1e-13  # relative: masses * i and springs / (n - i + 1) constant to rounding
-
-
-def mikota_parameters(system: SecondOrderSystem) -> tuple[float, float] | None:
-    """(m, k) if ``system`` is Mikota's chain (m_i = m / i, k_i = (n - i + 1) k), else None."""
-    if not is_chain(system):
-        return None
-    masses, springs = np.asarray(system.mass.diagonal), np.asarray(system.stiffness.springs)
-    i = np.arange(1, masses.size + 1)
-    m, k = masses * i, springs / (masses.size - i + 1)
-    if np.ptp(m) > _MIKOTA_TOL * m[0] or np.ptp(k) > _MIKOTA_TOL * k[0]:
-        return None
-    return float(m[0]), float(k[0])
-
-
-def scene_parameters(scene: Scene, wrt=None) -> dict[str, jax.Array]:
-    """The nominal values of the parameters ``wrt`` of ``scene`` (default: all that apply).
-
-    Default for Mikota's chain: m, k; for another fixed-free chain: masses, springs (a system of
-    a user's matrices or a branched chain has neither); then the dampers' positions and
-    coefficients present, the internal damping's alpha, beta or zeta, and the amplitude.
-    """
-    if not isinstance(scene, Scene):
-        raise ValueError(MARK + f"scene must be a Scene (see mj.app.load_scene), got "
-                         f"{type(scene).__name__}.")
-    system = scene.system
-    mk = mikota_parameters(system)
-    damping = system.damping
-    available = {"amplitude": jnp.asarray(1.0)}
-    if is_chain(system):
-        available.update(masses=system.mass.diagonal, springs=system.stiffness.springs)
-    if mk is not None:
-        available.update(m=jnp.asarray(mk[0]), k=jnp.asarray(mk[1]))
-    internal = system.internal
-    if internal is not None and internal.rayleigh is not None:
-        available.update(alpha=internal.rayleigh.alpha, beta=internal.rayleigh.beta)
-    if internal is not None and internal.modal is not None:
-        available["zeta"] = internal.modal.zeta
-    if isinstance(damping, Dampers):
-        if damping.positions.shape[0]:
-            available.update(positions=damping.positions, coefficients=damping.coefficients)
-        if damping.pair_count:
-            available["relative_coefficients"] = damping.pair_coefficients
-    if wrt is None:
-        wrt = [name for name in PARAMETERS if name in available
-               and not (mk is not None and name in ("masses", "springs"))]
-    wrt = tuple(wrt)
-    for name in wrt:
-        if name not in PARAMETERS:
-            raise ValueError(MARK + f"wrt: unknown parameter {name!r}; allowed: "
-                             f"{list(PARAMETERS)}.")
-        if name not in available:
-            why = {"m": "the chain is not Mikota's (use 'masses', 'springs')",
-                   "masses": "the system is not a fixed-free chain (masses and springs)",
-                   "alpha": "the system has no Rayleigh damping",
-                   "zeta": "the system has no modal damping"}
-            why = why.get({"k": "m", "springs": "masses", "beta": "alpha"}.get(name, name),
-                          "the scene has no such damper")
-            raise ValueError(MARK + f"wrt: {name!r} does not apply: {why}.")
-    if {"m", "masses"} <= set(wrt) or {"k", "springs"} <= set(wrt):
-        raise ValueError(MARK + "wrt: give 'm'/'k' (Mikota's scalars) or 'masses'/'springs' "
-                         "(vectors), not both for the same quantity.")
-    if len(set(wrt)) != len(wrt) or not wrt:
-        raise ValueError(MARK + f"wrt must name distinct parameters, got {list(wrt)}.")
-    return {name: jnp.asarray(available[name], dtype=jnp.float64) for name in wrt}
-
-
 def parameters_at(scene: Scene, wrt=None, parameters: dict | None = None) -> dict:
     """``scene_parameters(scene, wrt)`` with the entries of ``parameters`` (checked: names among
     ``wrt``, float64 of the nominal shapes) in place of the scene's values."""

@@ -69,8 +69,8 @@ class DenseExponential(AbstractMethod):
 
 
 class ODE(AbstractMethod):
-    """A diffrax integration of the first-order form: any load (a ``Pulse``, a
-    ``LoadFunction`` or a callable t -> (n,)), any model, any grid.
+    """A diffrax integration of the first-order form: any load (a ``Pulse`` or any
+    callable t -> (n,)), any model, any grid.
 
     ``solver``: a diffrax solver (default ``diffrax.Dopri8()``, explicit, the most accurate per
     step), or ``StructuredKvaerno5()`` (L-stable, its stage equations solved in the chain's O(n)
@@ -133,8 +133,8 @@ def solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = None, 
 
     ``model``: a ``SecondOrderSystem`` or a ``ReducedModel`` (initial state and load in full
     coordinates, outputs lifted back, eqs. 3.2-3.4); ``ts``: the (N,) increasing output times;
-    ``x0``, ``v0``: (n,) (default zero); ``load``: None, a ``Pulse`` (eq. 4.3), a
-    ``LoadFunction`` or a callable t -> (n,); ``dofs``: 1-based (default all, d = len(dofs)).
+    ``x0``, ``v0``: (n,) (default zero); ``load``: None, a ``Pulse`` (eq. 4.3) or any
+    callable t -> (n,); ``dofs``: 1-based (default all, d = len(dofs)).
     Returns a ``Trajectory`` of (N, d) arrays (``displacement``, ``velocity``; ``num_steps`` of an
     integration, None for an exact method). ``method``: ``Auto()`` (default), ``Spectral()``,
     ``DenseExponential()`` or ``ODE(...)``; ``Auto().select(model, ts, load)`` says which one
