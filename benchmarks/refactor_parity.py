@@ -145,13 +145,14 @@ def plot(data: dict, name: str = "refactor_parity") -> None:
     bars = ax.barh(y, [r["ratio"] for r in rows], color="tab:blue", height=0.6)
     ax.bar_label(bars, [f"{r['ratio']:.2f}x (current {r['current_s']:.3g} s, reference "
                         f"{r['reference_s']:.3g} s)"
-                        for r in rows], label_type="center", color="white")
+                        for r in rows], label_type="edge", padding=3, fontsize=8)
     ax.axvline(1.0, color="k", lw=0.8)
     ax.axvline(1.1, color="tab:red", ls="--", lw=0.8, label="10 % budget")
     ax.set_yticks(y, [r["case"] for r in rows])
-    ax.set_xlim(0.0, 1.25)
+    ax.set_xlim(0.0, 2.2)
     ax.set_xlabel("run time, current / reference (dimensionless)")
-    ax.set_title(f"restructuring parity vs {data['reference']}\n{subtitle(data['metadata'])}")
+    where = data.get("machine", subtitle(data["metadata"]))
+    ax.set_title(f"restructuring parity vs {data['reference']}\n{where}", fontsize=9)
     legend(ax, "below", frameon=False)
     save_figure(fig, name, data["quick"])
 
