@@ -245,7 +245,7 @@ def main(argv=None):
         dict(method="scipy L-BFGS-B, same function (compiled already)", seconds=scipy_s,
              iterations=reference.nit, evaluations=counts["evaluations"], trace=reference.fun,
              d1=reference.x[0], d2=reference.x[1], d3=reference.x[2]),
-        *[dict(method=f"{name} in log d (compiled already)", seconds=run["seconds"],
+        *[dict(method=f"{name} in log d (its step compiled)", seconds=run["seconds"],
                iterations=run["iterations"], evaluations=run["evaluations"], trace=run["value"],
                d1=run["coefficients"][0], d2=run["coefficients"][1],
                d3=run["coefficients"][2]) for name, run in library.items()],
