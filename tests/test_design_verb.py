@@ -44,7 +44,7 @@ def test_coefficients_reproduce_optimise_viscosities(close):
 
 def test_coefficients_by_spg_reproduce_the_energy_optimum(close):
     design = mj.DamperDesign(chain([2, 5]), mj.Energy(20.0, np.eye(N)[2]))
-    solution = mj.optimise(design, mj.Coefficients(method="spg"))
+    solution = mj.optimise(design, mj.Coefficients(mj.SpectralProjectedGradient()))
     close(solution.value, 26.993813951456765, rtol=1e-12)
     close(solution.coefficients, [4.328139201129726, 5.5293265060916905], rtol=1e-9)
     assert (solution.stats["iterations"], solution.stats["evaluations"]) == (8, 9)
@@ -107,8 +107,11 @@ def test_wrong_objectives_strategies_and_bounds_are_one_line_errors():
         mj.optimise(mj.DamperDesign(system, mj.AverageEnergy()), "bfgs")
     with pytest.raises(ValueError, match=r"^mikota_jax: problem must be a DamperDesign"):
         mj.optimise(system, mj.Coefficients())
-    with pytest.raises(ValueError, match=r"^mikota_jax: method must be one of"):
-        mj.Coefficients(method="newton")
+    for strategy in (mj.Coefficients, mj.CoordinateDescent):
+        with pytest.raises(ValueError, match=r"^mikota_jax: minimiser must be ProjectedBFGS"):
+            strategy(minimiser="bfgs")
+    with pytest.raises(ValueError, match=r"^mikota_jax: method must be Auto\(\), Spectral"):
+        mj.Grid([1.0], method="exact")
     with pytest.raises(ValueError, match=r"^mikota_jax: optimizer must be an optax "):
         mj.ScreenAndCertify(optimizer="adam")
     # an objective the full-order path does not evaluate, and one the ROM strategies do not

@@ -8,6 +8,7 @@ import os
 import subprocess
 import sys
 
+import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -186,12 +187,14 @@ def test_sweep_refinement_and_its_two_evaluators(small_sweep):
     assert coarse.value == pytest.approx(sweep.value, rel=1e-3)
     assert coarse.value == pytest.approx(
         full_energy(10, float(coarse.positions[0]), float(coarse.coefficients[0])), rel=1e-6)
-    # the ODE and the exact evaluator agree; "auto" sends the stiff points (c / m_j large) to
-    # the exact one
+    # Dopri8 and the matrix exponentials agree; Auto() sends the stiff points (c / m_j large) to
+    # the exact evaluator
     last = mj.DamperDesign(design(n=10).system, design(n=10).objective, positions=[10])
-    ode = mj.optimise(last, mj.Grid([20.0, 50.0], method="ode"))
-    exact = mj.optimise(last, mj.Grid([20.0, 50.0], method="exact"))
+    ode = mj.optimise(last, mj.Grid([20.0, 50.0], method=mj.ODE(rtol=1e-10)))
+    exact = mj.optimise(last, mj.Grid([20.0, 50.0], method=mj.DenseExponential()))
+    spectral = mj.optimise(last, mj.Grid([20.0, 50.0], method=mj.Spectral()))
     np.testing.assert_allclose(ode.stats["grid"], exact.stats["grid"], rtol=1e-6)
+    np.testing.assert_allclose(spectral.stats["grid"], exact.stats["grid"], rtol=1e-9)
     assert (ode.stats["exact"], exact.stats["exact"]) == (0, 2)
     assert 0 < sweep.stats["exact"] < sweep.stats["grid"].size
 
@@ -313,7 +316,9 @@ def test_bad_optimiser_settings_are_refused(kwargs, match):
 
 
 @pytest.mark.parametrize("kwargs, match", [
-    (dict(method="euler"), "method must be 'auto', 'exact' or 'ode'"),
+    (dict(method="ode"), r"^mikota_jax: method must be Auto\(\), Spectral\(\), "
+     r"DenseExponential\(\) or ODE\(...\), got 'ode'\.$"),
+    (dict(method=mj.ODE(diffrax.Kvaerno5())), "integrates with Dopri8"),
     (dict(refine=-1), "refine must be an integer >= 0"),
     (dict(coefficients=[-1.0]), "coefficients must be a non-empty"),
 ])
@@ -322,8 +327,9 @@ def test_bad_sweep_settings_are_refused(kwargs, match):
     with pytest.raises(ValueError, match=match):
         mj.optimise(design(), mj.Grid(**kwargs))
     peak = design(objective=mj.Peak(3, jnp.linspace(0.0, 1.0, 11), jnp.ones(N)))
-    with pytest.raises(ValueError, match="free-vibration energy only"):
-        mj.optimise(peak, mj.Grid([1.0], method="exact"))
+    for method in (mj.Spectral(), mj.DenseExponential(), mj.ODE()):
+        with pytest.raises(ValueError, match=r"computes the Energy .*use method=Auto\(\)"):
+            mj.optimise(peak, mj.Grid([1.0], method=method))
     with pytest.raises(ValueError, match="positions must be distinct integer DOFs"):
         mj.DamperDesign(peak.system, peak.objective, positions=[0])
 

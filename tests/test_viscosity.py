@@ -87,8 +87,10 @@ def dof_2_and_5(c2=1.0, c5=1.0):
     return mj.mikota_chain(6, dampers=[mj.GroundedDamper(2.0, c2), mj.GroundedDamper(5.0, c5)])
 
 
-@pytest.mark.parametrize("method", ["bfgs", "spg"])
-def test_a_damper_pinned_at_zero_is_fixed_and_the_other_reaches_its_lone_optimum(method, close):
+@pytest.mark.parametrize("minimiser", [mj.ProjectedBFGS(), mj.SpectralProjectedGradient()],
+                         ids=["bfgs", "spg"])
+def test_a_damper_pinned_at_zero_is_fixed_and_the_other_reaches_its_lone_optimum(minimiser,
+                                                                                 close):
     # the truth: the DOF-5 damper alone, its trace by scipy's dense Bartels-Stewart (refined;
     # ~1e-14 relative) minimised in log c by Brent's method (c to ~1e-7)
     lone = lambda logc: lyapunov_trace(mj.mikota_chain(  # noqa: E731
@@ -97,17 +99,17 @@ def test_a_damper_pinned_at_zero_is_fixed_and_the_other_reaches_its_lone_optimum
     assert round(float(np.exp(truth.x)), 3) == 0.826 and round(truth.fun, 3) == 59.647
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no log(0) of the pinned coefficient
-        pinned = coefficients(dof_2_and_5(), upper=[0.0, 10.0], method=method)
+        pinned = coefficients(dof_2_and_5(), upper=[0.0, 10.0], minimiser=minimiser)
     assert pinned.result == "converged", pinned.stats["status"]
     assert pinned.coefficients[0] == 0.0 and pinned.stats["iterations"] > 0
     close(pinned.coefficients[1], np.exp(truth.x), rtol=1e-5)
     close(pinned.value, truth.fun, rtol=1e-11)
     # lower = upper > 0 pins too; pinning every free one leaves nothing to move
     held = coefficients(dof_2_and_5(c5=3.0), lower=[0.5, 0.0], upper=[0.5, 10.0],
-                                   method=method)
+                                   minimiser=minimiser)
     assert held.result == "converged" and held.coefficients[0] == 0.5
     nothing = coefficients(dof_2_and_5(), free=[1], upper=[np.inf, 2.0],
-                                      lower=[0.0, 2.0], method=method)
+                                      lower=[0.0, 2.0], minimiser=minimiser)
     assert nothing.result == "converged" and nothing.stats["iterations"] == 0
     assert "pinned" in nothing.stats["status"]
     assert nothing.coefficients.tolist() == [1.0, 2.0]
@@ -126,14 +128,15 @@ def test_a_damper_pinned_at_zero_that_leaves_a_mode_undamped_is_one_line_not_an_
 
 def test_the_spectral_projected_gradient_reaches_the_same_optimum_and_bound(optimum):
     # Li & Tisseur's method (SPG): the optimum of the projected BFGS, and the KKT point at a cap
-    spg = coefficients(two_dampers(), mj.AverageEnergy(LOWEST), method="spg")
+    spg_ = mj.SpectralProjectedGradient()
+    spg = coefficients(two_dampers(), mj.AverageEnergy(LOWEST), minimiser=spg_)
     assert spg.result == "converged", spg.stats["status"]
     assert spg.stats["relative_gradient"] < 1e-6
     assert spg.value == pytest.approx(optimum.value, rel=1e-10)
     np.testing.assert_allclose(spg.coefficients, optimum.coefficients, rtol=1e-4)
     cap = 0.5 * optimum.coefficients[0]
     bounded = coefficients(two_dampers(), mj.AverageEnergy(LOWEST),
-                                      upper=[cap, np.inf], method="spg")
+                                      upper=[cap, np.inf], minimiser=spg_)
     assert bounded.result == "converged" and bounded.coefficients[0] == cap
     assert bounded.stats["gradient"][0] < 0
 
@@ -175,7 +178,8 @@ def test_the_energy_of_a_free_vibration_is_optimised_in_one_coefficient(close):
     (dict(upper=[1.0]), r"upper must be a number or 2 numbers .*, got \[1.0\]\.$"),
     (dict(upper="big"), r"upper must be a number or 2 numbers"),
     (dict(tolerance=0.0), "tolerance must lie in"),
-    (dict(method="newton"), "method must be one of"),
+    (dict(minimiser="spg"), r"^mikota_jax: minimiser must be ProjectedBFGS\(\) or "
+     r"SpectralProjectedGradient\(\), got 'spg'\.$"),
     (dict(objective=mj.Energy(None)), "horizon must be a finite time > 0"),
     (dict(objective=mj.Energy(1.0)), "needs an excitation"),
     (dict(objective=mj.Energy(1.0, np.ones(N), load=mj.pulse(N, 1, 1.0, 0.1))),

@@ -65,10 +65,10 @@ class Energy(AbstractObjective):
         from .functions import integrated_energy
 
         return integrated_energy(model, self.horizon, self.x0, self.v0, self.load,
-                                 **_energy_options(self.method))
+                                 **energy_options(self.method))
 
 
-def _energy_options(method) -> dict:
+def energy_options(method) -> dict:
     """``integrated_energy``'s method and options for a method object of ``Energy``."""
     if isinstance(method, ODE):
         if not isinstance(method.solver, diffrax.Dopri8):

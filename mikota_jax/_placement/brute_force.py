@@ -8,12 +8,14 @@ golden-section search in log c; ``reduced_grid`` does the same on the reduced mo
 plots. The grid goes through ``mikota_jax.sweep`` (chunked, sharded over the devices, one compile
 per chunk shape); a failed point is reported by its flag and becomes NaN here.
 
-Evaluators: the objective's own (``Energy``: the closed form from the damped modes where the
-spectral path applies, else Dopri8 with the energy as one more state) or the exact
-free-vibration energy (the damped modes where the spectral path applies, else matrix
-exponentials, O(n^3), any stiffness). Where Dopri8 would run, a damper whose own rate c / M_jj
-exceeds 10x the highest eigenfrequency makes it stiff (slow, and past ``max_steps`` failing);
-"auto" sends those points to the exact evaluator.
+Evaluators, chosen by ``solve``'s method objects: ``Auto()``, the objective's own (``Energy``:
+the closed form from the damped modes where the spectral path applies, else Dopri8 with the
+energy as one more state), except that a damper whose own rate c / M_jj exceeds 10x the highest
+eigenfrequency, which makes Dopri8 stiff (slow, and past ``max_steps`` failing), sends its
+points to the exact free-vibration energy (the damped modes where the spectral path applies,
+else matrix exponentials, O(n^3), any stiffness); ``Spectral()``, ``DenseExponential()`` or
+``ODE(...)``: that evaluator of the ``Energy`` at every point, as ``Energy(method=...)``
+computes it.
 
 Shapes: positions (P,), 1-based in [1, n]; coefficients (C,), >= 0; results (P, C).
 """
@@ -30,9 +32,16 @@ from .._errors import MARK, RESULTS, check_x64
 from .._limits import STIFF_RATIO
 from .._model.operators import diagonal_of
 from .._model.reduced import check_basis
-from .._objective.functions import integrated_energy_exact_with_result
+from .._objective.family import energy_options
+from .._objective.functions import (
+    integrated_energy_exact_with_result,
+    integrated_energy_ode_with_result,
+    takes_spectral,
+)
 from .._plain import to_plain
+from .._solver.ode import check_solve_options
 from .._solver.select import gershgorin_omega
+from .._solver.solve import ODE, AbstractMethod, Auto, Spectral
 from .._sweep import sweep
 from .objective import objective_function, reduced_form
 from .problem import DamperProblem, Energy
@@ -41,22 +50,31 @@ from .problem import DamperProblem, Energy
 class _PointObjective(eqx.Module):
     """One design point {"positions": (), "coefficients": ()} -> its value, finiteness and failure.
 
-    Reduced (``basis``) or full (None); ``exact``: the full model's free-vibration energy by
-    matrix exponentials. ``sweep`` refuses non-finite results, so a failed or non-finite value is
-    returned as 0 with its flags and turned into NaN on the host.
+    Reduced (``basis``) or full (None); ``method``: None, the problem's own evaluator, or a
+    method object of ``solve``: the full model's ``Energy`` as ``Energy(method=...)`` computes it.
+    ``sweep`` refuses non-finite results, so a failed or non-finite value is returned as 0 with
+    its flags and turned into NaN on the host.
     """
 
     problem: DamperProblem
     basis: jax.Array | None
-    exact: bool = eqx.field(static=True)
+    method: AbstractMethod | None
 
     def __call__(self, point):
         problem = self.problem
         positions, coefficients = point["positions"][None], point["coefficients"][None]
-        if self.exact:
+        if self.method is not None:
             horizon = problem.ts[-1] - problem.ts[0]
-            value, result = integrated_energy_exact_with_result(
-                problem.system(positions, coefficients), horizon, problem.x0, problem.v0)
+            model = problem.system(positions, coefficients)
+            options = energy_options(self.method)
+            if options["method"] == "ode":
+                value, result = integrated_energy_ode_with_result(
+                    model, horizon, problem.x0, problem.v0, problem.load, options["rtol"],
+                    options["atol"], max_steps=options["max_steps"],
+                    adjoint=options["adjoint"])
+            else:
+                value, result = integrated_energy_exact_with_result(
+                    model, horizon, problem.x0, problem.v0, options["method"])
             failed = result != RESULTS.successful
         else:
             value, failed = objective_function(problem, reduced_form(problem, self.basis))(
@@ -71,9 +89,10 @@ def _point(function: _PointObjective, point):
 
 
 def _evaluate_points(problem, basis, points_p, points_c, batch_size: int, progress: bool = False,
-                     exact=None):
+                     exact=None, method=None):
     """Objective at the points (p_k, c_k) through ``sweep``, ``batch_size`` per compiled chunk;
-    ``exact``: a mask of points for the exact evaluator. (values with NaN where failed, failed)."""
+    ``exact``: a mask of points for ``method``'s evaluator (``_PointObjective``), the others
+    the problem's own. (values with NaN where failed, failed)."""
     points_p, points_c = np.asarray(points_p, float), np.asarray(points_c, float)
     exact = np.zeros(points_p.size, bool) if exact is None else np.asarray(exact, bool)
     values, failed = np.full(points_p.size, np.nan), np.zeros(points_p.size, bool)
@@ -83,9 +102,10 @@ def _evaluate_points(problem, basis, points_p, points_c, batch_size: int, progre
         index = np.flatnonzero(exact == flag)
         if index.size == 0:
             continue
-        function = _PointObjective(problem, basis, flag)
+        function = _PointObjective(problem, basis, method if flag else None)
         # matrix exponentials: under vmap every Pade branch of expm is computed, so in turn
-        batch = "map" if flag or basis is not None else "vmap"
+        closed_form = flag and not isinstance(method, ODE)
+        batch = "map" if closed_form or basis is not None else "vmap"
         out = sweep(function, dict(positions=points_p[index], coefficients=points_c[index]),
                     chunk_size=chunk, batch=batch, progress=progress)
         values[index] = np.where(out["finite"], out["value"], np.nan)
@@ -93,50 +113,59 @@ def _evaluate_points(problem, basis, points_p, points_c, batch_size: int, progre
     return np.where(failed, np.nan, values), failed
 
 
-def _evaluate_one(problem, position: float, coefficient: float, exact: bool) -> float:
+def _evaluate_one(problem, position: float, coefficient: float, method) -> float:
     """One design's full-model objective (inf where it fails): a golden-section step.
 
     A sequential search evaluates one point at a time, so it calls the compiled point function
     directly: ``sweep`` would re-trace its function (``eval_shape``) on every call."""
-    out = _point(_PointObjective(problem, None, exact),
+    out = _point(_PointObjective(problem, None, method),
                  dict(positions=jnp.asarray(position), coefficients=jnp.asarray(coefficient)))
     value = float(out["value"]) if bool(out["finite"]) and not bool(out["failed"]) else np.inf
     return value
 
 
 def _evaluate_grid(problem, basis, positions, coefficients, batch_size: int, progress: bool,
-                   exact=None):
+                   exact=None, method=None):
     """``_evaluate_points`` on the grid positions x coefficients, as (P, C) arrays."""
     grid_p, grid_c = (a.ravel() for a in np.meshgrid(positions, coefficients, indexing="ij"))
     values, failed = _evaluate_points(problem, basis, grid_p, grid_c, batch_size, progress,
-                                      None if exact is None else exact(grid_p, grid_c))
+                                      None if exact is None else exact(grid_p, grid_c), method)
     shape = (len(positions), len(coefficients))
     return values.reshape(shape), failed.reshape(shape)
 
 
 
 
-def _stiff_rule(problem: DamperProblem, method: str):
-    """For ``grid_sweep``: which (positions, coefficients) the exact evaluator takes.
+def _stiff_rule(problem: DamperProblem, method: AbstractMethod):
+    """For ``grid_sweep``: which (positions, coefficients) ``method``'s evaluator takes (a mask
+    function), None where the problem's own evaluator takes every point.
 
-    "auto": the free-vibration energy of a damper whose own rate c / M_jj exceeds 10x the
-    Gershgorin bound of the highest eigenfrequency (there the explicit Dopri8 is stiff and slow,
-    and past ``max_steps`` fails); "exact": every point; "ode": none.
+    ``Auto()``: the points of a damper whose own rate c / M_jj exceeds 10x the Gershgorin bound
+    of the highest eigenfrequency (there the explicit Dopri8 is stiff and slow, and past
+    ``max_steps`` fails), for the free-vibration ``Energy``; ``Spectral()``,
+    ``DenseExponential()``, ``ODE(...)``: every point.
     """
-    if method not in ("auto", "exact", "ode"):
-        raise ValueError(MARK + f"method must be 'auto', 'exact' or 'ode', got {method!r}.")
-    exact_possible = isinstance(problem.objective, Energy) and problem.load is None
-    if method == "exact" and not exact_possible:
-        raise ValueError(MARK + "method='exact' computes the free-vibration energy only "
-                         "(objective 'energy', no load).")
-    if method == "ode" or not exact_possible:
+    if not isinstance(method, AbstractMethod):
+        raise ValueError(MARK + "method must be Auto(), Spectral(), DenseExponential() or "
+                         f"ODE(...), got {method!r}.")
+    energy_options(method)  # refuses another method, or an ODE whose solver is not Dopri8
+    energy = isinstance(problem.objective, Energy)
+    free_vibration = energy and problem.load is None
+    if not isinstance(method, Auto) and not (free_vibration or energy and isinstance(method, ODE)):
+        raise ValueError(MARK + f"method={method!r} computes the Energy (free vibration only "
+                         "unless ODE(...)); use method=Auto() for another objective or a load.")
+    if isinstance(method, Spectral) and not takes_spectral(
+            problem.system(problem.positions, problem.coefficients)):
+        raise ValueError(MARK + "method=Spectral() does not apply to this system (the damped "
+                         "modes need a full system with discrete dampers); use Auto().")
+    if not isinstance(method, Auto):
+        return lambda positions, coefficients: np.ones(np.size(positions), bool)
+    if not free_vibration:
         return None
     mass = np.asarray(diagonal_of(problem.base.mass))
     omega_max = gershgorin_omega(mass, problem.base.stiffness)
 
     def exact(positions, coefficients):
-        if method == "exact":
-            return np.ones(np.size(positions), bool)
         dof = np.clip(np.floor(np.asarray(positions)).astype(int), 1, problem.size)
         return np.asarray(coefficients) / mass[dof - 1] > STIFF_RATIO * omega_max
 
@@ -213,17 +242,19 @@ class GridRun:
     failed: int
     seconds: float
     batch_size: int
-    method: str
+    method: AbstractMethod
     exact: int
     refined: list
     seconds_refine: float
 
     def to_json(self) -> dict:
-        """A JSON-ready dict (arrays as lists, NaN as None)."""
-        return {f.name: to_plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
+        """A JSON-ready dict (arrays as lists, NaN as None, the method as its repr)."""
+        return {f.name: to_plain(repr(self.method) if f.name == "method" else getattr(self, f.name))
+                for f in dataclasses.fields(self)}
 
 
-def grid_sweep(problem: DamperProblem, coefficients, positions=None, *, method: str = "auto",
+def grid_sweep(problem: DamperProblem, coefficients, positions=None, *,
+               method: AbstractMethod | None = None,
                refine: int = 0, refine_tol: float = 1e-3, batch_size: int = 1,
                progress: bool = False) -> GridRun:
     """The full model's objective for one damper at every position x coefficient of a grid.
@@ -234,14 +265,15 @@ def grid_sweep(problem: DamperProblem, coefficients, positions=None, *, method: 
     progress bar. On a CPU, ``batch_size=1`` is fastest (a vmapped adaptive solve steps every
     member with the batch's largest step count); on a GPU, use hundreds.
 
-    ``method``: "ode" (the objective's own evaluator, what the optimiser certifies with: for a
-    system with discrete dampers and no load, the closed form from the damped modes; else
-    Dopri8 with the energy as one more state), "exact" (the free-vibration energy: the damped
-    modes where the spectral path applies, else matrix exponentials, O(n^3) per point, any
-    stiffness) or "auto": exact where the damper's rate c / M_jj exceeds 10x the highest
-    eigenfrequency (where Dopri8 would be slower than expm and, past ``max_steps``, fail), the
-    objective's own evaluator elsewhere. For a chain with discrete dampers and no load all three
-    compute the same closed form. ``refine`` > 0: the coefficient of the ``refine`` best DOFs
+    ``method``: ``Auto()`` (the objective's own evaluator, what the optimiser certifies with: for
+    a system with discrete dampers and no load, the closed form from the damped modes; else
+    Dopri8 with the energy as one more state, except where the damper's rate c / M_jj exceeds
+    10x the highest eigenfrequency, where Dopri8 would be slower than expm and, past
+    ``max_steps``, fail: there the exact free-vibration energy, the damped modes where the
+    spectral path applies, else matrix exponentials, O(n^3) per point, any stiffness), or
+    ``Spectral()``, ``DenseExponential()``, ``ODE(...)``: the ``Energy`` by that method at every
+    point (``Energy(method=...)``'s evaluators; free vibration only, except ``ODE``); None is
+    ``Auto()``. ``refine`` > 0: the coefficient of the ``refine`` best DOFs
     is then refined by golden-section search in log c (to ``refine_tol``), so that the sweep's
     best does not carry the grid's spacing.
     """
@@ -260,15 +292,21 @@ def grid_sweep(problem: DamperProblem, coefficients, positions=None, *, method: 
         raise ValueError(MARK + f"refine must be an integer >= 0, got {refine!r}.")
     if not (np.isfinite(refine_tol) and refine_tol > 0):
         raise ValueError(MARK + f"refine_tol must be > 0, got {refine_tol!r}.")
+    method = Auto() if method is None else method
     exact = _stiff_rule(problem, method)
+    if isinstance(method, ODE):  # its options checked once, eagerly (the points map unchecked)
+        options = energy_options(method)
+        rtol, atol, adjoint = check_solve_options(options["rtol"], options["atol"],
+                                                  options["max_steps"], options["adjoint"])
+        method = ODE(rtol=rtol, atol=atol, max_steps=method.max_steps, adjoint=adjoint)
     clock = time.perf_counter()
     values, failed = _evaluate_grid(problem, None, positions, coefficients, batch_size, progress,
-                                    exact)
+                                    exact, method)
     seconds = time.perf_counter() - clock
     if not np.isfinite(values).any():
         raise ValueError(MARK + "grid_sweep: every full solve failed; increase max_steps.")
-    exact_points = 0 if exact is None else int(exact(*(a.ravel() for a in np.meshgrid(
-        positions, coefficients, indexing="ij"))).sum())
+    exact_points = 0 if exact is None or isinstance(method, ODE) else int(exact(*(
+        a.ravel() for a in np.meshgrid(positions, coefficients, indexing="ij"))).sum())
     i, j = np.unravel_index(np.nanargmin(values), values.shape)
     best = (float(positions[i]), float(coefficients[j]), float(values[i, j]))
     refined, clock = [], time.perf_counter()
@@ -282,7 +320,7 @@ def grid_sweep(problem: DamperProblem, coefficients, positions=None, *, method: 
             def f(log_c, p=p):
                 c = float(np.exp(log_c))
                 stiff = exact is not None and bool(exact([p], [c])[0])
-                return _evaluate_one(problem, p, c, stiff)
+                return _evaluate_one(problem, p, c, method if stiff else None)
 
             k = int(np.nanargmin(np.where(np.isfinite(values[row, positive]),
                                           values[row, positive], np.inf)))

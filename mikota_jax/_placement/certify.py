@@ -258,12 +258,8 @@ def screen_and_certify(problem: DamperProblem, *, starts: int | np.ndarray = 8,
                 messages.append(f"round {round_ + 1}: {dead} of {len(search.alive)} starts "
                                 "stopped (objective not finite or solve failed); the rest went "
                                 "on.")
-            last = last_finite(search)
-            if last is None:
-                raise ValueError(MARK + "ScreenAndCertify stopped: the objective was not finite "
-                                 "at any start (a solve failed); try other starts or a larger "
-                                 "max_steps.")
-            best = best_index(last[2])
+            last, best = _best_finite(search, "at any start (a solve failed); try other "
+                                      "starts or a larger max_steps")
             relaxed = tuple(a[best] for a in last)
             params = search.params
         if split:
@@ -281,12 +277,8 @@ def screen_and_certify(problem: DamperProblem, *, starts: int | np.ndarray = 8,
                              positions_fixed=True, tol=1e-9, progress=progress,
                              label=f"round {round_ + 1}: polish")
             history.append(phase_record("polish", round_, polish))
-            polished = last_finite(polish)
-            if polished is None:
-                raise ValueError(MARK + "ScreenAndCertify stopped: the objective was not finite "
-                                 "at any screened DOF (every solve failed); try a larger "
-                                 "max_steps.")
-            k = best_index(polished[2])
+            polished, k = _best_finite(polish, "at any screened DOF (every solve failed); "
+                                       "try a larger max_steps")
             positions, coefficients = polished[0][k], polished[1][k]
         positions, coefficients = jnp.asarray(positions), jnp.asarray(coefficients)
         if certify == "estimate":
@@ -357,6 +349,15 @@ def screen_and_certify(problem: DamperProblem, *, starts: int | np.ndarray = 8,
         history=history, seconds=time.perf_counter() - clock, seconds_full=full_seconds,
         messages=messages, certified_by="estimate" if certify == "estimate" else "full model",
         ranking=ranking, basis=np.asarray(basis))
+
+
+def _best_finite(search, why: str):
+    """``last_finite(search)`` and the index of its best start; one line naming ``why`` where
+    no start stayed finite."""
+    last = last_finite(search)
+    if last is None:
+        raise ValueError(MARK + f"ScreenAndCertify stopped: the objective was not finite {why}.")
+    return last, best_index(last[2])
 
 
 def _estimate(problem, basis, positions, coefficients, polished, split):

@@ -146,7 +146,7 @@ def _onto(kind: str, design: np.ndarray, candidates: np.ndarray) -> np.ndarray:
 def search_places(system, objective, *, candidates=None, pair_candidates=None,
                   keep: int = 2, max_sweeps: int = 10, starts: int = 1, seed: int = 0,
                   free=None, lower=0.0, upper=None, tolerance: float = 1e-6,
-                  method: str = "bfgs", progress: bool = False) -> PlacementRun:
+                  minimiser=None, progress: bool = False) -> PlacementRun:
     """Place the dampers of ``system`` on candidate DOFs and optimise every damper's
     coefficient, at full order (see the module docstring).
 
@@ -156,7 +156,7 @@ def search_places(system, objective, *, candidates=None, pair_candidates=None,
     ``pair_candidates`` ((c, 2) 0-based pairs, checked) likewise; their coefficients are
     optimised either way. A damper that does not start on a candidate starts on the nearest
     free one, so every place returned is a candidate. ``objective``: a ``checked_objective``;
-    ``free``, ``lower``, ``upper``, ``tolerance``, ``method``: as in ``search_coefficients``.
+    ``free``, ``lower``, ``upper``, ``tolerance``, ``minimiser``: as in ``search_coefficients``.
     ``keep``: places polished per damper and sweep (>= 1); ``max_sweeps`` (>= 1). ``starts``
     (>= 1): the system's own placement, then ``starts - 1`` random placements on the candidates
     (``seed``), each descended to a coordinate-wise minimum; the best is returned.
@@ -185,7 +185,8 @@ def search_places(system, objective, *, candidates=None, pair_candidates=None,
         if places["relative"].shape[0] < p:
             raise ValueError(MARK + f"pairs must hold at least one pair per relative "
                              f"damper ({p}), got {places['relative'].shape[0]}.")
-    options = dict(free=free, lower=lower, upper=upper, tolerance=tolerance, method=method)
+    options = dict(free=free, lower=lower, upper=upper, tolerance=tolerance,
+                   minimiser=minimiser)
 
     def at(design, coefficients):  # the system at a design: positions (g,), pairs (p, 2)
         moved = with_parameters(system, dict(positions=jnp.asarray(design["grounded"],

@@ -7,7 +7,7 @@ move: the coefficients within bounds, the grounded dampers among candidate DOFs
 (``AbstractDesignStrategy``, each a final ``eqx.Module`` holding its settings):
 
 * ``Coefficients``: the coefficients at fixed places, full order, a projected quasi-Newton
-  search (or the spectral projected gradient) in log c (``_viscosity``);
+  search (``ProjectedBFGS``, or ``SpectralProjectedGradient``) in log c (``_viscosity``);
 * ``CoordinateDescent``: places among the candidates, one damper at a time, every coefficient
   re-optimised at each accepted move, full order (``_damper_search``);
 * ``ScreenAndCertify``: grounded dampers anywhere on the chain, a relaxed search and a screen of
@@ -36,8 +36,16 @@ from .._model.parameters import with_parameters
 from .._model.system import SecondOrderSystem
 from .._objective.family import AbstractObjective, AverageEnergy, Energy, Peak
 from .._plain import to_plain
+from .._solver.solve import AbstractMethod, Auto
 from .damper_search import checked_pairs, checked_positions
-from .viscosity import METHODS, _free_mask, checked_bounds, checked_objective
+from .viscosity import (
+    AbstractBoxMinimiser,
+    ProjectedBFGS,
+    _free_mask,
+    check_search,
+    checked_bounds,
+    checked_objective,
+)
 
 
 class DesignResult(enum.StrEnum):
@@ -184,14 +192,6 @@ def _check_count(name: str, value, low: int = 1) -> None:
         raise ValueError(MARK + f"{name} must be an integer >= {low}, got {value!r}.")
 
 
-def _check_search(method, tolerance) -> None:
-    if method not in METHODS:
-        raise ValueError(MARK + f"method must be one of {METHODS}, got {method!r}.")
-    if (isinstance(tolerance, bool) or not isinstance(tolerance, float | int)
-            or not 0 < tolerance < 1):
-        raise ValueError(MARK + f"tolerance must lie in (0, 1), got {tolerance!r}.")
-
-
 def _code(status: str, budget: str) -> DesignResult:
     if status.startswith("converged") or status.startswith("nothing to move"):
         return DesignResult.converged
@@ -201,22 +201,23 @@ def _code(status: str, budget: str) -> DesignResult:
 class Coefficients(AbstractDesignStrategy):
     """The coefficients at fixed places, at full order (exact, the spectral path).
 
-    A projected quasi-Newton search (``method="bfgs"``, Bertsekas 1982) or the spectral projected
-    gradient (``"spg"``, Li & Tisseur's method) in u = log c, stopped when every free coefficient
-    not held at a bound has |c_i dJ/dc_i| / |J| < ``tolerance``, or after ``max_iterations``.
+    ``minimiser``: ``ProjectedBFGS()`` (default, Bertsekas 1982) or
+    ``SpectralProjectedGradient()`` (Li & Tisseur's method), in u = log c, stopped when every
+    free coefficient not held at a bound has |c_i dJ/dc_i| / |J| < ``tolerance``, or after
+    ``max_iterations``.
     ``stats``: ``iterations``, ``evaluations`` (value-and-gradient pairs), ``seconds``,
     ``gradient`` ((g + p,) dJ/dc at the optimum), ``relative_gradient``, ``status``; ``history``:
     (value, relative gradient) per iteration. The design's ``positions`` and ``pairs`` must be
     None (``CoordinateDescent`` moves dampers).
     """
 
-    method: str = eqx.field(static=True, default="bfgs")
+    minimiser: AbstractBoxMinimiser = ProjectedBFGS()
     tolerance: float = eqx.field(static=True, default=1e-6)
     max_iterations: int = eqx.field(static=True, default=200)
     progress: bool = eqx.field(static=True, default=False)
 
     def __check_init__(self):
-        _check_search(self.method, self.tolerance)
+        check_search(self.minimiser, self.tolerance)
         _check_count("max_iterations", self.max_iterations, 0)
 
     def run(self, design: DamperDesign) -> Solution:
@@ -230,7 +231,7 @@ class Coefficients(AbstractDesignStrategy):
         run = search_coefficients(design.system, objective, free=design.free,
                                   lower=design.lower, upper=design.upper,
                                   tolerance=self.tolerance, max_iterations=self.max_iterations,
-                                  method=self.method, progress=self.progress)
+                                  minimiser=self.minimiser, progress=self.progress)
         stats = dict(iterations=run.iterations, evaluations=run.evaluations, full_solves=0,
                      seconds=run.seconds, gradient=run.gradient,
                      relative_gradient=run.relative_gradient, status=run.status)
@@ -249,7 +250,7 @@ class CoordinateDescent(AbstractDesignStrategy):
     1 and 10 times its current value, the others held) and polishes the ``keep`` best; sweeps
     repeat until none moves a damper (a coordinate-wise minimum) or ``max_sweeps``. ``starts``:
     the system's own placement, then ``starts - 1`` random placements (``seed``); the best wins.
-    ``method``, ``tolerance``: the polish's, as in ``Coefficients``. ``stats``: ``sweeps``,
+    ``minimiser``, ``tolerance``: the polish's, as in ``Coefficients``. ``stats``: ``sweeps``,
     ``evaluations`` (screening values), ``polishes``, ``seconds``, ``start_values``,
     ``status``; ``history``: (sweep, index in the coefficient vector, place, value) per
     accepted move of the best start.
@@ -259,7 +260,7 @@ class CoordinateDescent(AbstractDesignStrategy):
     max_sweeps: int = eqx.field(static=True, default=10)
     starts: int = eqx.field(static=True, default=1)
     seed: int = eqx.field(static=True, default=0)
-    method: str = eqx.field(static=True, default="bfgs")
+    minimiser: AbstractBoxMinimiser = ProjectedBFGS()
     tolerance: float = eqx.field(static=True, default=1e-6)
     progress: bool = eqx.field(static=True, default=False)
 
@@ -267,7 +268,7 @@ class CoordinateDescent(AbstractDesignStrategy):
         for name in ("keep", "max_sweeps", "starts"):
             _check_count(name, getattr(self, name))
         _check_count("seed", self.seed, 0)
-        _check_search(self.method, self.tolerance)
+        check_search(self.minimiser, self.tolerance)
 
     def run(self, design: DamperDesign) -> Solution:
         """The best placement of ``design`` found."""
@@ -278,7 +279,8 @@ class CoordinateDescent(AbstractDesignStrategy):
                             pair_candidates=None if design.pairs is None else design.pairs - 1,
                             keep=self.keep, max_sweeps=self.max_sweeps, starts=self.starts,
                             seed=self.seed, free=design.free, lower=design.lower,
-                            upper=design.upper, tolerance=self.tolerance, method=self.method,
+                            upper=design.upper, tolerance=self.tolerance,
+                            minimiser=self.minimiser,
                             progress=self.progress)
         system = design.system
         g = int(system.damping.positions.shape[0])
@@ -446,19 +448,23 @@ class Grid(AbstractDesignStrategy):
     for plots).
 
     ``refine`` > 0: the coefficient of the ``refine`` best DOFs then refined by golden-section
-    search in log c (to ``refine_tol``; full order only). ``method``: "ode" (the objective's own
-    evaluator), "exact" (the free-vibration energy by the damped modes or matrix exponentials)
-    or "auto" (exact where the damper's rate c / M_jj makes Dopri8 stiff). ``batch_size`` points
-    per compiled chunk (``jax.vmap``). ``ts``, ``x0``, ``v0``, ``load``, ``rtol``, ``max_steps``:
-    as in ``ScreenAndCertify``. ``stats``: ``grid`` ((P, C) objective, NaN where a solve failed),
-    ``positions``, ``coefficients``, ``failed``, ``exact``, ``refined``, ``evaluations``,
-    ``seconds``, ``seconds_refine``; the result is ``converged`` (the grid is complete).
+    search in log c (to ``refine_tol``; full order only). ``method``, ``solve``'s method objects
+    as ``Energy(method=...)`` takes them: ``Auto()`` (default: the objective's own evaluator,
+    the exact free-vibration energy where the damper's rate c / M_jj makes Dopri8 stiff),
+    ``Spectral()`` (the damped modes), ``DenseExponential()`` (matrix exponentials) or
+    ``ODE(rtol=..., ...)`` (Dopri8), each the ``Energy`` at every point (free vibration only,
+    except ``ODE``). ``batch_size`` points per compiled chunk (``jax.vmap``). ``ts``, ``x0``,
+    ``v0``, ``load``, ``rtol``, ``max_steps``: as in ``ScreenAndCertify`` (``Auto()``'s
+    Dopri8). ``stats``: ``grid`` ((P, C) objective, NaN where a solve failed), ``positions``,
+    ``coefficients``, ``failed``, ``exact`` (points by the closed forms of ``method``),
+    ``refined``, ``evaluations``, ``seconds``, ``seconds_refine``, ``method``; the result is
+    ``converged`` (the grid is complete).
     """
 
     coefficients: object
     refine: int = eqx.field(static=True, default=0)
     refine_tol: float = eqx.field(static=True, default=1e-3)
-    method: str = eqx.field(static=True, default="auto")
+    method: AbstractMethod = Auto()
     batch_size: int = eqx.field(static=True, default=1)
     basis: object = None
     ts: object = None
@@ -474,9 +480,9 @@ class Grid(AbstractDesignStrategy):
         _check_count("batch_size", self.batch_size)
         if not (np.isfinite(self.refine_tol) and self.refine_tol > 0):
             raise ValueError(MARK + f"refine_tol must be > 0, got {self.refine_tol!r}.")
-        if self.method not in ("auto", "exact", "ode"):
-            raise ValueError(MARK + f"method must be 'auto', 'exact' or 'ode', got "
-                             f"{self.method!r}.")
+        if not isinstance(self.method, AbstractMethod):
+            raise ValueError(MARK + "method must be Auto(), Spectral(), DenseExponential() or "
+                             f"ODE(...), got {self.method!r}.")
         if self.basis is not None and self.refine:
             raise ValueError(MARK + "refine must be 0 on a reduced model (basis given).")
 
@@ -519,7 +525,7 @@ class Grid(AbstractDesignStrategy):
                          coefficients=run.coefficients, failed=run.failed, exact=run.exact,
                          refined=run.refined, evaluations=evaluations, full_solves=evaluations,
                          seconds=run.seconds, seconds_refine=run.seconds_refine,
-                         batch_size=run.batch_size, method=run.method, reduced=False,
+                         batch_size=run.batch_size, method=repr(run.method), reduced=False,
                          status="complete")
         system = problem.system(jnp.asarray([best[0]]), jnp.asarray([best[1]]))
         return _solution(system, best[2], DesignResult.converged, stats, [])

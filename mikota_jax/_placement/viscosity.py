@@ -35,15 +35,19 @@ Search: a projected quasi-Newton method on the box log lower <= u <= log upper (
 Control Optim. 20:221, 1982: the variables at a bound whose gradient pushes outwards are held, a
 BFGS step is taken in the others, then an Armijo backtracking search along the projected arc),
 with the inverse-Hessian approximation started at Barzilai-Borwein's scale and updated only on
-curvature s^T y > 0. Stops when every free, non-held variable has a relative gradient
-|d_i df/dd_i| / |f| below ``tolerance`` (scale-free: the change of log f per change of log d_i),
-or when a step no longer changes f in its 14th digit. ``method="spg"`` is the spectral projected
-gradient method that Li & Tisseur (arXiv 2601.05404, 2026) propose for the trace criterion
-(``_spg``); ``Solution.stats`` keeps the iteration and evaluation counts to compare (on
-FastOptimalDamping.jl's small example, n = 801, iterations / values: BFGS 8 / 10, SPG 14 / 15,
-scipy's L-BFGS-B in d 13 / 17; ``benchmarks/viscosity.py``).
+curvature s^T y > 0 (``ProjectedBFGS``). Stops when every free, non-held variable has a relative
+gradient |d_i df/dd_i| / |f| below ``tolerance`` (scale-free: the change of log f per change of
+log d_i), or when a step no longer changes f in its 14th digit. ``SpectralProjectedGradient`` is
+the method that Li & Tisseur (arXiv 2601.05404, 2026) propose for the trace criterion;
+``Solution.stats`` keeps the iteration and evaluation counts to compare
+(``benchmarks/viscosity.py`` compares both with scipy's L-BFGS-B and with optax's L-BFGS and
+optimistix's BFGS in log d, which take no bounds).
+
+The minimisers are host loops over one compiled value and gradient: each step costs one full
+evaluation per line-search trial, and no loop is compiled around the spectral engine.
 """
 
+import abc
 import dataclasses
 import time
 
@@ -68,7 +72,6 @@ from .._solver.spectral.energy import (
 from .._solver.spectral.modes import spectral_applies
 from .._solver.spectral.response import spectral_solve_with_result
 
-METHODS = ("bfgs", "spg")
 _SPG_MEMORY = 10  # the non-monotone line search compares with the largest of the last 10 values
 _ARMIJO = 1e-4
 _FIRST_STEP = 1.0  # the first step's length in log d (a factor e along the steepest descent)
@@ -273,10 +276,11 @@ def checked_bounds(lower, upper, size: int):
     return lo, hi
 
 
-def check_method(method, tolerance) -> None:
-    """The coefficient search's ``method`` and ``tolerance``."""
-    if method not in METHODS:
-        raise ValueError(MARK + f"method must be one of {METHODS}, got {method!r}.")
+def check_search(minimiser, tolerance) -> None:
+    """The coefficient search's ``minimiser`` and ``tolerance``."""
+    if not isinstance(minimiser, AbstractBoxMinimiser):
+        raise ValueError(MARK + "minimiser must be ProjectedBFGS() or SpectralProjectedGradient(), "
+                         f"got {minimiser!r}.")
     if (isinstance(tolerance, bool) or not isinstance(tolerance, float | int)
             or not 0 < tolerance < 1):
         raise ValueError(MARK + f"tolerance must lie in (0, 1), got {tolerance!r}.")
@@ -284,16 +288,18 @@ def check_method(method, tolerance) -> None:
 
 def search_coefficients(system: SecondOrderSystem, objective, *, free=None, lower=0.0,
                         upper=None, tolerance: float = 1e-6, max_iterations: int = 200,
-                        method: str = "bfgs", progress: bool = False) -> CoefficientRun:
+                        minimiser=None, progress: bool = False) -> CoefficientRun:
     """Optimal damper coefficients of ``system`` at full order (positions fixed): the algorithm
     of ``Coefficients``.
 
     ``objective``: a ``checked_objective``; ``free``: None or 0-based indices into the (g + p,)
     coefficient vector (grounded dampers first, then relative ones) that move; ``lower``,
     ``upper``: bounds, scalars or (g + p,); a coefficient with lower = upper stays there.
-    ``method``: ``"bfgs"`` (projected quasi-Newton) or ``"spg"`` (spectral projected gradient,
-    Li & Tisseur's globally convergent method). See the module docstring.
+    ``minimiser``: ``ProjectedBFGS()`` (default, projected quasi-Newton) or
+    ``SpectralProjectedGradient()`` (Li & Tisseur's globally convergent method). See the module
+    docstring.
     """
+    minimiser = ProjectedBFGS() if minimiser is None else minimiser
     check_x64()
     start = time.perf_counter()
     args = objective
@@ -304,7 +310,7 @@ def search_coefficients(system: SecondOrderSystem, objective, *, free=None, lowe
         raise ValueError(MARK + "system has no damper whose coefficient could be optimised.")
     mask = _free_mask(free, size)
     lo, hi = checked_bounds(lower, upper, size)
-    check_method(method, tolerance)
+    check_search(minimiser, tolerance)
     # a free coefficient whose bounds meet (lower = upper, 0 included) is fixed there, no search
     # variable: its log coordinate would be a constant, -inf at 0
     pinned = mask & (lo == hi)
@@ -358,10 +364,9 @@ def search_coefficients(system: SecondOrderSystem, objective, *, free=None, lowe
     # the first step changes log d by _FIRST_STEP along the steepest descent (then the method's
     # own scale takes over)
     first = _FIRST_STEP / max(np.linalg.norm(g), 1e-300)
-    search = _bfgs if method == "bfgs" else _spg
-    u, f, _, history, iterations, status = search(
-        evaluate, stationarity, held, u, f, g, first, u_lo, u_hi, tolerance, max_iterations,
-        report)
+    box = _Box(evaluate, held, u_lo, u_hi)
+    u, f, _, history, iterations, status = _minimise(
+        minimiser, box, stationarity, u, f, g, first, tolerance, max_iterations, report)
     d, g = design(u), last[u.tobytes()]
     converged = history[-1][1] < tolerance
     if converged:
@@ -370,99 +375,131 @@ def search_coefficients(system: SecondOrderSystem, objective, *, free=None, lowe
                            time.perf_counter() - start, history, status)
 
 
-def _record(history, stationarity, report, iterations, f, trial, f_trial, g_trial, tolerance):
-    """Record an accepted step in ``history`` and report it; whether the search stalled (f
-    unchanged to 1e-14 while not yet stationary)."""
-    history.append((f_trial, stationarity(trial, f_trial, g_trial)))
-    report(iterations, f_trial, history[-1][1], trial)
-    return abs(f_trial - f) / max(abs(f), 1e-300) < 1e-14 and history[-1][1] >= tolerance
+@dataclasses.dataclass(frozen=True)
+class _Box:
+    """What a minimiser sees of the search: ``evaluate`` (u -> f, df/du, one full-order value and
+    gradient), ``held`` (u, g -> the variables at a bound whose gradient pushes out), and the
+    bounds ``lower`` <= u <= ``upper`` (-inf, inf where none)."""
+
+    evaluate: object
+    held: object
+    lower: np.ndarray
+    upper: np.ndarray
 
 
-def _bfgs(evaluate, stationarity, held, d, f, g, first, fixed_lo, fixed_hi, tolerance,
-          max_iterations, report):
-    """Projected BFGS (Bertsekas 1982; see the module docstring): (d, f, g, history,
-    iterations, status)."""
-    size = d.shape[0]
-    h = np.eye(size) * first
-    history = [(f, stationarity(d, f, g))]
-    status, iterations = "max_iterations reached", 0
-    for iterations in range(1, max_iterations + 1):
-        if history[-1][1] < tolerance:
-            iterations -= 1
-            break
-        hold = held(d, g)
-        move = ~hold
+class AbstractBoxMinimiser(eqx.Module):
+    """How ``Coefficients`` minimises f(u) over the box of u = log c (host-side numpy, one
+    compiled value and gradient per trial point): ``init`` a state, ``step`` to the next accepted
+    point; the search around them records, reports and stops (see the module docstring)."""
+
+    @abc.abstractmethod
+    def init(self, size: int, first: float):
+        """The state before the first step: ``first`` is the first step's length per unit
+        gradient (a change of ``_FIRST_STEP`` in log c along the steepest descent)."""
+
+    @abc.abstractmethod
+    def step(self, state, box: _Box, u, f, g, history: list, iteration: int):
+        """(u, f, g, state) at the next accepted point, or None where its line search found no
+        decrease; ``history``: (value, relative gradient) of the points accepted so far."""
+
+
+class ProjectedBFGS(AbstractBoxMinimiser):
+    """Projected BFGS (Bertsekas, SIAM J. Control Optim. 20:221, 1982): the variables at a bound
+    whose gradient pushes outwards are held, a BFGS step is taken in the others, then an Armijo
+    backtracking search (step / 4, up to 30 times) along the projected arc; the inverse-Hessian
+    approximation starts at Barzilai-Borwein's scale and is updated only on curvature
+    s^T y > 0."""
+
+    def init(self, size: int, first: float):
+        """The first inverse-Hessian approximation, ``first`` times the identity."""
+        return np.eye(size) * first
+
+    def step(self, state, box, u, f, g, history, iteration):
+        """One projected quasi-Newton step from ``u`` (``AbstractBoxMinimiser.step``)."""
+        h, size = state, u.shape[0]
+        move = ~box.held(u, g)
         direction = np.zeros(size)
         direction[move] = -(h[np.ix_(move, move)] @ g[move])
         if g[move] @ direction[move] >= 0:  # not a descent direction: restart from the gradient
             h = np.eye(size) * (h.trace() / size)
             direction[move] = -(h[np.ix_(move, move)] @ g[move])
-        step, accepted = 1.0, False
+        step = 1.0
         for _ in range(_BACKTRACKS):
-            trial = np.clip(d + step * direction, fixed_lo, fixed_hi)
-            f_trial, g_trial = evaluate(trial)
-            if np.isfinite(f_trial) and f_trial <= f + _ARMIJO * (g @ (trial - d)):
-                accepted = True
+            trial = np.clip(u + step * direction, box.lower, box.upper)
+            f_trial, g_trial = box.evaluate(trial)
+            if np.isfinite(f_trial) and f_trial <= f + _ARMIJO * (g @ (trial - u)):
                 break
             step /= 4
-        if not accepted:
-            status = "line search failed (no decrease along the projected direction)"
-            break
-        s, y = trial - d, g_trial - g
+        else:
+            return None
+        s, y = trial - u, g_trial - g
         curvature = s @ y
         if curvature > 1e-12 * np.linalg.norm(s) * np.linalg.norm(y):
-            if iterations == 1:  # Barzilai-Borwein's scale once the first curvature is known
+            if iteration == 1:  # Barzilai-Borwein's scale once the first curvature is known
                 h = np.eye(size) * (curvature / (y @ y))
             rho = 1.0 / curvature
             left = np.eye(size) - rho * np.outer(s, y)
             h = left @ h @ left.T + rho * np.outer(s, s)
-        stalled = _record(history, stationarity, report, iterations, f, trial, f_trial, g_trial,
-                          tolerance)
-        d, f, g = trial, f_trial, g_trial
-        if stalled:
-            status = "stalled (f unchanged to 1e-14)"
-            break
-    return d, f, g, history, iterations, status
+        return trial, f_trial, g_trial, h
 
 
-def _spg(evaluate, stationarity, held, d, f, g, first, fixed_lo, fixed_hi, tolerance,
-         max_iterations, report):
+class SpectralProjectedGradient(AbstractBoxMinimiser):
     """Spectral projected gradient (Birgin, Martinez & Raydan, SIAM J. Optim. 10:1196, 2000,
-    algorithm SPG2; the method Li & Tisseur, arXiv 2601.05404, propose for optimal damping):
-    the projected Barzilai-Borwein step d -> P(d - alpha g), alpha = s^T s / s^T y, accepted by
-    a non-monotone Armijo test against the largest of the last ``_SPG_MEMORY`` values, with
-    safeguarded quadratic backtracking. (d, f, g, history, iterations, status)."""
-    alpha = first
-    history = [(f, stationarity(d, f, g))]
+    algorithm SPG2; the method Li & Tisseur, arXiv 2601.05404, propose for optimal damping): the
+    projected Barzilai-Borwein step u -> P(u - alpha g), alpha = s^T s / s^T y, accepted by a
+    non-monotone Armijo test against the largest of the last 10 values, with safeguarded
+    quadratic backtracking."""
+
+    def init(self, size: int, first: float):
+        """The first step length alpha."""
+        return first
+
+    def step(self, state, box, u, f, g, history, iteration):
+        """One projected Barzilai-Borwein step from ``u`` (``AbstractBoxMinimiser.step``)."""
+        alpha = state
+        direction = np.clip(u - alpha * g, box.lower, box.upper) - u
+        slope = g @ direction
+        reference = max(value for value, _ in history[-_SPG_MEMORY:])
+        step = 1.0
+        for _ in range(_BACKTRACKS):
+            trial = u + step * direction
+            f_trial, g_trial = box.evaluate(trial)
+            if np.isfinite(f_trial) and f_trial <= reference + _ARMIJO * step * slope:
+                break
+            curvature = f_trial - f - step * slope if np.isfinite(f_trial) else np.inf
+            guess = -0.5 * step**2 * slope / curvature if curvature > 0 else 0.0
+            step = guess if 0.1 * step <= guess <= 0.9 * step else step / 2
+        else:
+            return None
+        s, y = trial - u, g_trial - g
+        curvature = s @ y
+        alpha = (float(np.clip((s @ s) / curvature, 1e-30, 1e30)) if curvature > 0
+                 else 1e3 * alpha)
+        return trial, f_trial, g_trial, alpha
+
+
+def _minimise(minimiser, box, stationarity, u, f, g, first, tolerance, max_iterations, report):
+    """``minimiser``'s steps from u until stationary (every free, non-held relative gradient
+    below ``tolerance``), stalled (f unchanged to 1e-14), its line search fails, or
+    ``max_iterations``: (u, f, g, history, iterations, status)."""
+    state = minimiser.init(u.shape[0], first)
+    history = [(f, stationarity(u, f, g))]
     status, iterations = "max_iterations reached", 0
     for iterations in range(1, max_iterations + 1):
         if history[-1][1] < tolerance:
             iterations -= 1
             break
-        direction = np.clip(d - alpha * g, fixed_lo, fixed_hi) - d
-        slope = g @ direction
-        reference = max(value for value, _ in history[-_SPG_MEMORY:])
-        step, accepted = 1.0, False
-        for _ in range(_BACKTRACKS):
-            trial = d + step * direction
-            f_trial, g_trial = evaluate(trial)
-            if np.isfinite(f_trial) and f_trial <= reference + _ARMIJO * step * slope:
-                accepted = True
-                break
-            curvature = f_trial - f - step * slope if np.isfinite(f_trial) else np.inf
-            guess = -0.5 * step**2 * slope / curvature if curvature > 0 else 0.0
-            step = guess if 0.1 * step <= guess <= 0.9 * step else step / 2
-        if not accepted:
+        accepted = minimiser.step(state, box, u, f, g, history, iterations)
+        if accepted is None:
             status = "line search failed (no decrease along the projected direction)"
             break
-        s, y = trial - d, g_trial - g
-        curvature = s @ y
-        alpha = (float(np.clip((s @ s) / curvature, 1e-30, 1e30)) if curvature > 0
-                 else 1e3 * alpha)
-        stalled = _record(history, stationarity, report, iterations, f, trial, f_trial, g_trial,
-                          tolerance)
-        d, f, g = trial, f_trial, g_trial
+        trial, f_trial, g_trial, state = accepted
+        history.append((f_trial, stationarity(trial, f_trial, g_trial)))
+        report(iterations, f_trial, history[-1][1], trial)
+        stalled = (abs(f_trial - f) / max(abs(f), 1e-300) < 1e-14
+                   and history[-1][1] >= tolerance)
+        u, f, g = trial, f_trial, g_trial
         if stalled:
             status = "stalled (f unchanged to 1e-14)"
             break
-    return d, f, g, history, iterations, status
+    return u, f, g, history, iterations, status

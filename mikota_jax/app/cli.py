@@ -220,14 +220,17 @@ def _command(argv) -> int:
             report = reproduce(args.out, verbose=not args.quiet)
             return 1 if report["missed"] else 0
         if args.command == "optimise" and args.search != "rom":
+            from .. import ProjectedBFGS, SpectralProjectedGradient
             from .placement import full_order_scene
 
+            minimiser = dict(bfgs=ProjectedBFGS(),
+                             spg=SpectralProjectedGradient())[args.method]
             report = full_order_scene(
                 args.scene, args.out, search=args.search, objective=args.objective,
                 lowest=args.lowest, dof=args.dof, output_dofs=args.output_dofs,
                 input_dofs=args.input_dofs,
                 candidates=args.candidates, pair_candidates=args.pair_candidates,
-                method=args.method, progress=not (args.no_progress or args.quiet))
+                minimiser=minimiser, progress=not (args.no_progress or args.quiet))
             result = report["result"]
             positions = [float(p) for p in result["positions"]]
             say(f"{result['status']}\noptimum: positions {positions}, "

@@ -161,20 +161,21 @@ def _selection(dofs, n: int, name: str) -> np.ndarray | None:
 def full_order_scene(source, out, *, search: str, objective: str = "average_energy",
                      lowest: int | None = None, dof: int | None = None, output_dofs=None,
                      input_dofs=None, candidates=None, pair_candidates=None,
-                     method: str = "bfgs", progress: bool = True) -> dict:
+                     minimiser=None, progress: bool = True) -> dict:
     """Optimise a scene's dampers at full order; write ``placement.json`` and ``.png``.
 
     ``search``: ``"viscosities"`` (``Coefficients``: every damper's coefficient, grounded and
     relative, at fixed places) or ``"places"`` (``CoordinateDescent``: the grounded dampers
     moved over ``candidates``, 1-based DOFs, default all, the relative ones over
     ``pair_candidates`` when given, every coefficient re-optimised, each polish by
-    ``method``). ``objective``: one of ``FULL_ORDER_CRITERIA``; "energy" and "output" take the
-    scene's initial state over its time grid ("output" over the ``lowest`` modes' unit states
+    ``minimiser``: ``ProjectedBFGS()``, the default, or ``SpectralProjectedGradient()``).
+    ``objective``: one of ``FULL_ORDER_CRITERIA``; "energy" and "output" take the scene's
+    initial state over its time grid ("output" over the ``lowest`` modes' unit states
     when ``lowest`` is given), "average_energy" the ``lowest`` modes, "output" and "h2" the
     displacements at ``output_dofs``, "h2" unit forces at ``input_dofs``, "peak" the smooth
     peak of the displacement of ``dof`` over the scene's time grid.
     """
-    from .. import Coefficients, CoordinateDescent, H2Norm, OutputEnergy
+    from .. import Coefficients, CoordinateDescent, H2Norm, OutputEnergy, ProjectedBFGS
     from .figures import search_history
 
     if search not in ("viscosities", "places"):
@@ -207,9 +208,10 @@ def full_order_scene(source, out, *, search: str, objective: str = "average_ener
                                            horizon if free_vibration else None),
             "h2": lambda: H2Norm(None if inputs is None else inputs.T, cx),
             "peak": lambda: Peak(dof, scene.ts, x0, v0)}[objective]()
+    minimiser = ProjectedBFGS() if minimiser is None else minimiser
     if search == "viscosities":
         result = optimise(DamperDesign(system, goal),
-                          Coefficients(method=method, progress=progress))
+                          Coefficients(minimiser, progress=progress))
         history = [value for value, _ in result.history]
         extra = dict(relative_gradient=result.stats["relative_gradient"],
                      converged=result.result == "converged",
@@ -219,7 +221,7 @@ def full_order_scene(source, out, *, search: str, objective: str = "average_ener
         grounded = system.damping.positions.shape[0] > 0
         positions = (range(1, n + 1) if candidates is None else candidates) if grounded else None
         design = DamperDesign(system, goal, positions=positions, pairs=pair_candidates)
-        result = optimise(design, CoordinateDescent(method=method, progress=progress))
+        result = optimise(design, CoordinateDescent(minimiser=minimiser, progress=progress))
         history = [value for *_, value in result.history] or [result.value]
         extra = dict(sweeps=result.stats["sweeps"], evaluations=result.stats["evaluations"],
                      polishes=result.stats["polishes"], moves=result.history)
