@@ -39,7 +39,7 @@ def assert_modal(masses, springs, omega2, modes, tol):
     assert np.max(np.abs(projected - np.eye(masses.shape[0]))) < tol
 
 
-@pytest.mark.parametrize("n", [1, 2, 10, 300, 3000])
+@pytest.mark.parametrize("n", [1, 2, 10, 300, pytest.param(3000, marks=pytest.mark.slow)])
 def test_mikota_frequencies_are_l_squared_k_over_m_to_a_few_ulps_and_modes_orthonormal(n, close):
     masses, springs = mikota(n)
     omega2, modes = jax.jit(chain_modes)(masses, springs)

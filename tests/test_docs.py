@@ -155,7 +155,7 @@ def test_readme_example_gradient_agrees_with_central_differences(capsys, close):
     # h = 1e-4. The position: at an integer DOF J has a kink (the damper's split changes
     # sides) and jax.grad is the right-sided derivative: a second-order one-sided difference
     # (4 J(p + h) - J(p + 2h) - 3 J(p)) / 2h, h = 1e-3 (truncation ~1e-6, rounding ~1e-8)
-    energy = namespace["energy"]
+    energy = lambda p, c: namespace["gradient"](p, c)[0]  # noqa: E731 (the compiled program)
     h = 1e-4
     central = (float(energy(7.0, 1.0 + h)) - float(energy(7.0, 1.0 - h))) / (2 * h)
     close(namespace["d_coefficient"], central, rtol=1e-5, what="d_coefficient")
@@ -184,7 +184,7 @@ def test_the_three_steps_run_in_sequence_and_compute_what_they_say(capsys, close
     # 3: the gradient agrees with central differences. The exact energy carries ~1e-11 relative
     # rounding (Van Loan step and doublings), so the step is 1e-4 x scale, not sqrt(eps) x scale:
     # measured, it agrees to 6e-7 (position) and 1e-7 (coefficient), 6e-5 at 1e-7 x scale.
-    energy = namespace["energy"]
+    energy = lambda p, c: namespace["gradient"](p, c)[0]  # noqa: E731 (the compiled program)
     for which, point in (("d_position", 7.5), ("d_coefficient", 1.0)):
         h = 1e-4 * point
         plus, minus = ((7.5 + s * h, 1.0) if which == "d_position" else (7.5, 1.0 + s * h)

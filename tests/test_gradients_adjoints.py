@@ -52,13 +52,16 @@ MODES = {
 def value(basis):
     return jax.jit(objective(basis))
 
+# forward mode under -m slow: tests/test_solvers.py checks every adjoint against differences
+MODE_PARAMS = [pytest.param("forward", marks=pytest.mark.slow), "reverse"]
+
 
 @pytest.fixture(scope="module")
 def gradients(basis):
     return {name: jax.jit(make(basis)) for name, make in MODES.items()}
 
 
-@pytest.mark.parametrize("mode", list(MODES))
+@pytest.mark.parametrize("mode", MODE_PARAMS)
 def test_rom_gradient_matches_central_differences_at_a_fractional_position(
         mode, value, gradients, close):
     p, c, h = 7.3, 1.0, 1e-4
@@ -70,7 +73,7 @@ def test_rom_gradient_matches_central_differences_at_a_fractional_position(
     assert abs(float(grad_p)) > 1e-2 and abs(float(grad_c)) > 1e-2  # not trivially zero
 
 
-@pytest.mark.parametrize("mode", list(MODES))
+@pytest.mark.parametrize("mode", MODE_PARAMS)
 def test_rom_gradient_at_an_integer_position_is_the_right_sided_derivative(
         mode, value, gradients, close):
     p, c, h = 7.0, 1.0, 1e-4

@@ -47,6 +47,7 @@ def same(a, b):
     assert np.max(np.abs(a - b)) <= EXACT
 
 
+@pytest.mark.slow  # the builders have their own tests (test_classic, test_interpolatory)
 def test_structural_strategies_give_exactly_the_builders_basis():
     system = damped()
     force = np.asarray(mj.unit_vector(N, 3))
@@ -98,6 +99,7 @@ def test_pod_of_a_scene_is_the_pod_of_its_snapshots():
     assert model.rank == model.stats.decomposition.rank_for_energy(0.999)
 
 
+@pytest.mark.slow  # EnrichedPOD.basis calls the builder; test_enrichment tests the builder
 def test_enriched_pod_is_the_enriched_basis():
     s = scene(rank=5)
     basis, stats = enriched_reduce(s, ("coefficients",))

@@ -74,7 +74,8 @@ CUSTOM = {
 }
 
 
-@pytest.mark.parametrize("variant", list(CUSTOM))
+@pytest.mark.parametrize("variant", [  # one file format per default run, all under -m slow
+    v if v == "npz_and_mtx" else pytest.param(v, marks=pytest.mark.slow) for v in CUSTOM])
 def test_custom_matrices_from_files_reproduce_mikotas_scene(files, mikota_result, variant):
     path = files / "scene.toml"
     path.write_text('[chain]\ntype = "custom"\n' + CUSTOM[variant] + REST)

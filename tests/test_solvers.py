@@ -116,7 +116,8 @@ def test_exact_solve_on_a_non_uniform_grid_when_undamped(undamped, close):
     close(out.displacement, np.cos(OMEGA * (ts - ts[0]))[:, None] * u1, atol=1e-12 * N)
 
 
-@pytest.mark.parametrize("start, duration", [(0.0, 0.05), (0.21, 0.37), (0.2, 0.4)])
+@pytest.mark.parametrize("start, duration", [
+    (0.0, 0.05), pytest.param(0.21, 0.37, marks=pytest.mark.slow), (0.2, 0.4)])
 def test_exact_solve_with_a_pulse_matches_solve_ivp(damped, start, duration, close):
     # (0.2, 0.4): both jumps fall exactly on grid points (spacing 0.1)
     ts = np.linspace(0.0, 4.0, 41)

@@ -318,7 +318,7 @@ def test_systems_outside_the_slice_are_refused_with_the_argument_named():
 # --- the total average energy: trace X, A^T X + X A = -Z, in scaled modal coordinates ---------
 
 
-DEFAULT_TRACES = {("three dampers, no internal", 5), ("rayleigh", 1)}
+DEFAULT_TRACES = {("three dampers, no internal", 5)}
 TRACE_SYSTEMS = {
     "one grounded": lambda n: mj.mikota_chain(n, dampers=[mj.GroundedDamper(n / 2 + 0.3, 1.0)],
                                               internal_damping=mj.ModalDamping(0.002)),

@@ -120,7 +120,9 @@ def test_the_spectral_path_agrees_with_the_dense_path_within_the_dense_paths_own
         assert relative(out.velocity, dense.velocity) < tol, position
 
 
-@pytest.mark.parametrize("coefficient, position", [(1e4, 6.0), (1e8, 3.5), (1e8, 6.0)])
+@pytest.mark.parametrize("coefficient, position", [  # one strength per default run
+    pytest.param(1e4, 6.0, marks=pytest.mark.slow), (1e8, 3.5),
+    pytest.param(1e8, 6.0, marks=pytest.mark.slow)])
 def test_a_strong_damper_is_right_to_1e_12_against_a_60_digit_matrix_exponential(coefficient,
                                                                                   position):
     n = 6

@@ -32,7 +32,7 @@ def test_grid_is_the_row_major_product():
     assert grid["b"][:, 0].tolist() == [10, 20, 30, 10, 20, 30]
 
 
-@pytest.mark.parametrize("chunk_size", [None, 5, 12])
+@pytest.mark.parametrize("chunk_size", [None, 5, pytest.param(12, marks=pytest.mark.slow)])
 def test_mapped_sweep_equals_unbatched_bit_for_bit(unbatched, chunk_size):
     """Chunks of 5 leave a padded last chunk of 2 points."""
     result = mj.sweep(function(), points(), chunk_size=chunk_size, batch="map", progress=False)
