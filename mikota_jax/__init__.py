@@ -42,7 +42,7 @@ _MODULES = {
     "_objective.family": "AbstractObjective AverageEnergy Energy H2Norm OutputEnergy Peak",
     "_placement.optimise": ("AbstractDesignStrategy Coefficients CoordinateDescent DamperDesign "
                             "DesignResult Grid ScreenAndCertify Solution optimise"),
-    "_placement.viscosity": "ProjectedBFGS SpectralProjectedGradient",
+    "_placement.viscosity": "AbstractBoxMinimiser ProjectedBFGS SpectralProjectedGradient",
     "_rom.base": "POD AbstractReduction",
     "_rom.reduce": ("CraigBampton IRKA Krylov Modal ModalStatic Projection RationalKrylov Union "
                     "reduce"),
@@ -128,6 +128,7 @@ if _TYPE_CHECKING:  # the same names for static tools (type checkers, the API re
     from ._placement.optimise import ScreenAndCertify as ScreenAndCertify
     from ._placement.optimise import Solution as Solution
     from ._placement.optimise import optimise as optimise
+    from ._placement.viscosity import AbstractBoxMinimiser as AbstractBoxMinimiser
     from ._placement.viscosity import ProjectedBFGS as ProjectedBFGS
     from ._placement.viscosity import SpectralProjectedGradient as SpectralProjectedGradient
     from ._rom.base import POD as POD

@@ -390,7 +390,13 @@ class _Box:
 class AbstractBoxMinimiser(eqx.Module):
     """How ``Coefficients`` minimises f(u) over the box of u = log c (host-side numpy, one
     compiled value and gradient per trial point): ``init`` a state, ``step`` to the next accepted
-    point; the search around them records, reports and stops (see the module docstring)."""
+    point; the search around them records, reports and stops (see the module docstring).
+
+    Subclass it to add a minimiser: ``step`` receives the ``box``, whose ``evaluate(u)`` returns
+    (f, df/du) at a trial point (one full-order value and gradient), ``held(u, g)`` the boolean
+    mask of the variables at a bound whose gradient pushes out, and ``lower``, ``upper`` the
+    bounds of u (-inf, inf where none); project a trial point with ``np.clip(u, lower, upper)``.
+    """
 
     @abc.abstractmethod
     def init(self, size: int, first: float):
