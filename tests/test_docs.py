@@ -76,7 +76,9 @@ def own_doc(obj) -> str:
 def doc_of(dotted: str) -> str:
     obj = mj
     for part in dotted.split("."):
-        obj = inspect.getattr_static(obj, part) if obj is not mj else getattr(obj, part)
+        # modules by getattr (their names load on first use), class members statically
+        obj = (getattr(obj, part) if isinstance(obj, types.ModuleType)
+               else inspect.getattr_static(obj, part))
     return own_doc(obj.fget if isinstance(obj, property) else obj)
 
 
