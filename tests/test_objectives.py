@@ -54,7 +54,7 @@ def test_an_undamped_chain_integrates_its_constant_energy(close):
     close(mj.Energy(T, X0, V0)(system), e0 * T, rtol=1e-11)
 
 
-@pytest.mark.parametrize("lowest", [None, 3])
+@pytest.mark.parametrize("lowest", [None, pytest.param(3, marks=pytest.mark.slow)])
 def test_total_average_energy_equals_scipys_lyapunov_solution(lowest, close):
     system = damped()
     m, d, k = (np.asarray(a) for a in system.dense())

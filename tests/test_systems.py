@@ -155,7 +155,9 @@ def mikota_as(form):
 @pytest.mark.parametrize("form,structure", [
     pytest.param("dense", (Dense, Dense), marks=pytest.mark.slow),  # default-run time
     pytest.param("arrays", (Diagonal, SymmetricTridiagonal), marks=pytest.mark.slow),
-    ("bands", (Diagonal, SymmetricTridiagonal)), ("scipy", (Diagonal, SymmetricTridiagonal)),
+    ("bands", (Diagonal, SymmetricTridiagonal)),
+    # scipy.sparse input also in test_banded_sparse_and_dense_stiffness_give_the_same_solutions
+    pytest.param("scipy", (Diagonal, SymmetricTridiagonal), marks=pytest.mark.slow),
     ("mixed", (Diagonal, Dense))])
 def test_mikota_chain_as_user_matrices_gives_the_same_solution(form, structure):
     reference = mj.mikota_chain(N, dampers=[DAMPER], internal_damping=mj.Rayleigh(0.05, 0.002))

@@ -87,8 +87,9 @@ def dof_2_and_5(c2=1.0, c5=1.0):
     return mj.mikota_chain(6, dampers=[mj.GroundedDamper(2.0, c2), mj.GroundedDamper(5.0, c5)])
 
 
-@pytest.mark.parametrize("minimiser", [mj.ProjectedBFGS(), mj.SpectralProjectedGradient()],
-                         ids=["bfgs", "spg"])
+@pytest.mark.parametrize("minimiser", [  # SPG under -m slow: test_design_verb runs it by default
+    mj.ProjectedBFGS(), pytest.param(mj.SpectralProjectedGradient(), marks=pytest.mark.slow)],
+    ids=["bfgs", "spg"])
 def test_a_damper_pinned_at_zero_is_fixed_and_the_other_reaches_its_lone_optimum(minimiser,
                                                                                  close):
     # the truth: the DOF-5 damper alone, its trace by scipy's dense Bartels-Stewart (refined;
