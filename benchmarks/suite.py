@@ -38,10 +38,15 @@ def run(names: list[str], quick: bool) -> list[dict]:
         argv = [sys.executable, str(HERE / f"{name}.py")] + (["--quick"] if quick else [])
         done = subprocess.run(argv, capture_output=True, text=True)
         seconds = time.perf_counter() - start
+        # the error's last lines (JAX appends a note on traceback filtering after them)
+        lines = [line for line in (done.stderr or done.stdout).strip().splitlines()
+                 if line.strip() and not line.startswith(("For simplicity, JAX", "-----"))]
         outcomes.append({"name": name, "ok": done.returncode == 0, "seconds": seconds,
-                         "tail": (done.stderr or done.stdout).strip().splitlines()[-1:]})
-        status = "ok" if done.returncode == 0 else f"FAILED ({outcomes[-1]['tail']})"
-        print(f"{name:18s} {seconds:7.1f} s  {status}", flush=True)
+                         "tail": lines[-4:]})
+        print(f"{name:18s} {seconds:7.1f} s  {'ok' if done.returncode == 0 else 'FAILED'}",
+              flush=True)
+        if done.returncode != 0:
+            print("\n".join("    " + line for line in outcomes[-1]["tail"]), flush=True)
     return outcomes
 
 
