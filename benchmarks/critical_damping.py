@@ -28,7 +28,8 @@ Three parts, in one process (the memory figures in child processes, one per meas
   the physical bounds 0 <= J <= T E(0), time and peak memory.
 
 Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/critical_damping.py [--quick]`` (``--quick``: two
-cases, four deltas, n = 500 for memory). Writes ``results/critical_damping.json`` and ``.png``.
+cases, four deltas, n = 500 for memory, no earlier revision). Writes
+``results/critical_damping.json`` and ``.png``.
 """
 
 # _common first: it sets OPENBLAS_NUM_THREADS before jax and numpy load.
@@ -104,12 +105,22 @@ def accuracy(quick):
 CHILD = r"""
 import json, resource, sys, time
 import jax, numpy as np
-from pathlib import Path
 extra = {}
 jax.config.update("jax_enable_x64", True)
 import mikota_jax as mj
 mode, n = sys.argv[1], int(sys.argv[2])
 x0 = np.zeros(n); x0[2] = 1.0
+def scene_for(n):  # the crossover's scene: the Section 5 setting at size n
+    return mj.load_scene({
+        "name": f"crossover_{n}", "chain": {"type": "mikota", "n": n, "m": 1.0, "k": 1.0},
+        "damper": [{"type": "grounded", "position": 7.0, "coefficient": 1.0}],
+        "initial": {"displacement": {"3": 1.0}}, "time": {"end": 20.0, "step": 0.01},
+        "reduction": {"snapshots": [0.0, 10.0], "energy": 0.9999, "criterion": "paper"},
+        "output": {"dofs": [n // 2], "quantities": ["displacement"]}})
+def random_designs(n, count):  # the crossover's random designs (seed 20 + n)
+    rng = np.random.default_rng(20 + n)
+    return [(float(rng.uniform(1.0, n)), float(10 ** rng.uniform(-1.0, 3.0)))
+            for _ in range(count)]
 def energy(c):
     system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(7.0, c)])
     return mj.Energy(20.0, x0)(system)
@@ -123,8 +134,6 @@ elif mode == "vmap":
 elif mode == "loop":
     out = [energy(c) for c in np.linspace(0.5, 2.0, 64)]
 elif mode in ("sweep", "sweep-one"):  # crossover's scene: J of the full model per design
-    sys.path.insert(0, str(Path(sys.argv[3])))
-    from crossover import scene_for
     function = mj.SceneFunction(scene_for(n), "energy")
     count = 8 if mode == "sweep" else 1
     points = {"positions": np.linspace(5.0, n - 5.0, count)[:, None],
@@ -132,11 +141,13 @@ elif mode in ("sweep", "sweep-one"):  # crossover's scene: J of the full model p
     out = (mj.sweep(function, points) if mode == "sweep"
            else function(jax.tree.map(lambda a: a[0], points)))
 elif mode == "crowded":  # the crossover design whose pair the old rule called near-defective
-    sys.path.insert(0, str(Path(sys.argv[3])))
-    from crossover import design, full_query, random_designs, scene_for
     function = mj.SceneFunction(scene_for(n), "energy")
     position, coefficient = random_designs(n, 2)[int(sys.argv[4])]
-    value, jacobian = full_query(function, design(position, coefficient))
+    def energy(p):  # the full model's J by the spectral path, J as jacfwd's aux
+        value = mj.Energy(20.0, function.scene.x0, method=mj.Spectral())(function.system(p))
+        return value, value
+    jacobian, value = jax.jacfwd(energy, has_aux=True)(
+        {"positions": jax.numpy.array([position]), "coefficients": jax.numpy.array([coefficient])})
     out = value
     # physical bounds: 0 <= J <= T E(0), E(0) = K_33 / 2 = (k_3 + k_4) / 2 = (2n - 5) / 2
     extra = dict(position=position, coefficient=coefficient, J=float(value),
@@ -277,7 +288,8 @@ def main(argv=None):
     n = 100 if args.quick else 300
     repeats = 3 if args.quick else 7
     after = section5(mj, n, repeats)
-    before = section5(package_at(args.before), n, repeats)
+    # --quick: no earlier revision (a shallow clone, as in CI, may not hold it)
+    before = None if args.quick else section5(package_at(args.before), n, repeats)
     data = dict(quick=args.quick, accuracy=table, timing=timing, memory=mem,
                 section5=dict(n=n, before=before, after=after, revision=args.before),
                 meta=metadata())
@@ -293,7 +305,7 @@ def main(argv=None):
                        ("worst_value", "worst value err", ".1e"),
                        ("worst_gradient", "worst gradient err", ".1e"),
                        ("negative", "negative?", "")])
-    for key in ("energy_gradient", "history"):
+    for key in ("energy_gradient", "history") if before is not None else ():
         b, a = before[key]["seconds"], after[key]["seconds"]
         print(f"Section 5 {key}: before {b:.4f} s, after {a:.4f} s ({a / b - 1:+.0%}); values "
               f"{before[key + '_value']:.15g} / {after[key + '_value']:.15g}")

@@ -41,7 +41,7 @@ or when a step no longer changes f in its 14th digit. ``method="spg"`` is the sp
 gradient method that Li & Tisseur (arXiv 2601.05404, 2026) propose for the trace criterion
 (``_spg``); ``Solution.stats`` keeps the iteration and evaluation counts to compare (on
 FastOptimalDamping.jl's small example, n = 801, iterations / values: BFGS 8 / 10, SPG 14 / 15,
-scipy's L-BFGS-B in d 13 / 17; ``benchmarks/viscosity.py``).
+scipy's L-BFGS-B in d 13 / 17; ``docs/notes/viscosity.md``).
 """
 
 import dataclasses
