@@ -7,8 +7,9 @@ script's compiled programs and memory do not colour the next one's figures):
     OPENBLAS_NUM_THREADS=1 python benchmarks/suite.py           # full runs (hours), quiet machine
 
 ``--only NAME,NAME`` picks some. Full runs write ``results/NAME.{json,png}`` (the benchmark page
-of the docs is generated from them); quick runs write ``results/NAME_quick.*``, which git
-ignores. The other scripts in this folder answer one question each and are run on their own.
+of the docs is generated from them); quick runs, the same code on smaller problems, write
+``results/NAME_quick.*``, which git ignores. The exit code is 1 if any script failed (CI runs
+``--quick``). Investigations answered once are notes in ``docs/notes/``, not scripts.
 """
 
 import subprocess
