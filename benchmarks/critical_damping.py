@@ -27,8 +27,8 @@ Three parts, in one process (the memory figures in child processes, one per meas
   separation of 1.6e-7 that a fixed relative threshold once refused): J and its gradient, within
   the physical bounds 0 <= J <= T E(0), time and peak memory.
 
-Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/critical_damping.py [--quick]`` (``--quick``: two
-cases, four deltas, n = 500 for memory, no earlier revision). Writes
+Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/critical_damping.py [--quick]`` (``--quick``: one
+case, three deltas, n = 200 and 50 for memory, no earlier revision). Writes
 ``results/critical_damping.json`` and ``.png``.
 """
 
@@ -60,8 +60,8 @@ DELTAS = [0.0, 1e-16, -1e-16, 1e-14, -1e-14, 1e-12, -1e-12, 1e-10, -1e-10, 1e-8,
 def accuracy(quick):
     import test_critical_damping as cases
 
-    names = list(cases.CASES)[:2] if quick else list(cases.CASES)
-    deltas = [0.0, 1e-16, -1e-12, 1e-6] if quick else DELTAS
+    names = list(cases.CASES)[:1] if quick else list(cases.CASES)
+    deltas = [0.0, -1e-12, 1e-6] if quick else DELTAS
     table, timing = {}, {}
     for name in names:
         make, _, x0, v0 = cases.CASES[name]
@@ -167,13 +167,13 @@ def child(mode, n, which=0):
 
 
 def memory(quick):
-    sizes = [500] if quick else [1000, 2000]
+    sizes = [200] if quick else [1000, 2000]
     out = {"gradient": {}, "vmap": {}}
     for n in sizes:
         out["gradient"][str(n)] = {mode: child(mode, n) for mode in ("jit", "eager")}
         print(f"n = {n}: jit(value_and_grad) {out['gradient'][str(n)]['jit']}, eager "
               f"{out['gradient'][str(n)]['eager']}", flush=True)
-    n = 100 if quick else 300
+    n = 50 if quick else 300
     out["vmap"] = dict(n=n, designs=64, **{mode: child(mode, n) for mode in ("vmap", "loop")})
     print(f"vmap over 64 designs at n = {n}: {out['vmap']}", flush=True)
     return out

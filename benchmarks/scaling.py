@@ -46,8 +46,8 @@ offline cost always contains one full solve, and one query never pays off; the f
 the online speed-up and the number of queries that repay the offline cost are what this measures.
 
 Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/scaling.py [--quick] [--sizes N ...]``.
-``--quick``: n in {100, 300, 1000}, all in this one process (peak RSS is then cumulative), 1-2
-repeats, no Kvaerno5 and no Dopri8 of the ROM (two compiles fewer per n). Writes
+``--quick``: n = 100 alone, in this one process (no fitted exponents), 2 repeats, no Kvaerno5
+and no Dopri8 of the ROM (two compiles fewer). Writes
 ``benchmarks/results/scaling[_quick].json`` and ``.png``.
 """
 
@@ -88,7 +88,7 @@ from mikota_jax.testing import pod
 
 NAME = "scaling"
 SIZES = (100, 300, 1000, 3000, 10000, 30000)
-QUICK_SIZES = (100, 300, 1000)
+QUICK_SIZES = (100,)  # compiling is most of a smoke run: one size
 HORIZON = 1.0
 OUTPUT_STEP = 0.01  # 101 outputs at the three saved DOFs
 SNAPSHOT_EVERY = 5  # snapshots every 0.002: 501 columns (101 are too few for r(n) beyond n ~ 3000)
