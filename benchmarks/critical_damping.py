@@ -29,7 +29,7 @@ Three parts, in one process (the memory figures in child processes, one per meas
 
 Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/critical_damping.py [--quick]`` (``--quick``: one
 case, three deltas, jit and vmap memory at n = 200 and 50 without the eager comparisons, no
-earlier revision). Writes ``results/critical_damping.json`` and ``.png``.
+Section 5 before and after). Writes ``results/critical_damping.json`` and ``.png``.
 """
 
 # _common first: it sets OPENBLAS_NUM_THREADS before jax and numpy load.
@@ -292,8 +292,8 @@ def main(argv=None):
     mem = memory(args.quick)
     n = 100 if args.quick else 300
     repeats = 3 if args.quick else 7
-    after = section5(mj, n, repeats)
-    # --quick: no earlier revision (a shallow clone, as in CI, may not hold it)
+    # --quick: no before and after (a shallow clone, as in CI, may not hold the earlier revision)
+    after = None if args.quick else section5(mj, n, repeats)
     before = None if args.quick else section5(package_at(args.before), n, repeats)
     data = dict(quick=args.quick, accuracy=table, timing=timing, memory=mem,
                 section5=dict(n=n, before=before, after=after, revision=args.before),
