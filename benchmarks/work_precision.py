@@ -7,19 +7,20 @@ x_3(0) = 1, v(0) = 0, outputs at the 2001 times 0, 0.01, ..., 20. One reference,
 DOFs and outputs (solve_ivp returns the whole state regardless); the reference and the reduced rows
 also return the velocity, which eq. (5.4) reads. Measured in this one process:
 
-* ``exact_solve`` of the full model: the dense path (modal coordinates, one 2n x 2n matrix
-  exponential; a horizontal line: the reference, no error) and the spectral path (the default:
-  damped modes from the secular equation, ``_spectral``; a point at its distance from the
-  dense one);
-* ``simulate`` with diffrax Dopri8, Tsit5, Dopri5 and Kvaerno5 at rtol 1e-3 ... 1e-10,
-  atol = 1e-2 rtol (one executable per solver: tolerances are traced);
+* the exact solves of the full model (rows "exact_solve ..."): ``mj.DenseExponential()``
+  (modal coordinates, one 2n x 2n matrix exponential; a horizontal line: the reference, no
+  error) and ``mj.Spectral()`` (the default: damped modes from the secular equation; a point at
+  its distance from the dense one);
+* ``mj.ODE`` (rows "simulate ...") with diffrax Dopri8, Tsit5, Dopri5 and Kvaerno5 at rtol
+  1e-3 ... 1e-10, atol = 1e-2 rtol (one executable per solver: tolerances are traced);
 * scipy ``solve_ivp`` RK45, DOP853, Radau and LSODA at the same tolerances, as a user calls it:
   first-order form y = (x, v), an O(n) numpy right-hand side, ``t_eval`` = the 2001 outputs, no
   user Jacobian for Radau/LSODA;
 * the reduced model (POD of the exact displacement snapshots on [0, 10], Galerkin) at
-  r in {10, 20, 40, 76, 98, 140}, solved with ``exact_solve`` and with ``simulate`` Dopri8 at
-  rtol 1e-8, lifted to all DOFs and compared with the *full* exact solution, so truncation and
-  integration error show together; plus the phase error of eq. (5.4) and the offline cost.
+  r in {10, 20, 40, 76, 98, 140}, solved with ``mj.DenseExponential()`` and with ``mj.ODE``
+  Dopri8 at rtol 1e-8, lifted to all DOFs and compared with the *full* exact solution, so
+  truncation and integration error show together; plus the phase error of eq. (5.4) and the
+  offline cost.
 
 Time budget: one call over CALL_BUDGET_S seconds ends a solver's sweep (the tighter rtols are
 recorded as skipped, with the reason). A scipy call is abandoned at the budget (its right-hand side
