@@ -240,6 +240,27 @@ def elapsed(start: float) -> float:
     return time.perf_counter() - start
 
 
+SECTION5 = "section5_damped"
+QUICK_N = 60  # the chain size of the Section 5 scene in a --quick run
+
+
+def section5_scene(quick: bool = False) -> "mj.Scene":
+    """The paper's Section 5 scene (``load_scene("section5_damped")``: Mikota's chain n = 300, a
+    damper d = 1 at DOF 7, x_3(0) = 1, 2001 outputs on [0, 20], snapshots on [0, 10]); with
+    ``quick``, the same scene at n = ``QUICK_N`` (a smoke run's smaller problem, same code)."""
+    if not quick:
+        return mj.app.load_scene(SECTION5)
+    import tomllib
+    from importlib import resources
+
+    data = tomllib.loads(resources.files("mikota_jax").joinpath("scenes", f"{SECTION5}.toml")
+                         .read_text(encoding="utf-8"))
+    data["name"] = f"{SECTION5}_{QUICK_N}"
+    data["chain"]["n"] = QUICK_N
+    data["output"]["dofs"] = [QUICK_N // 2]
+    return mj.app.load_scene(data)
+
+
 def ode(solver: str, **options) -> "mj.ODE":
     """``mj.ODE`` with the diffrax solver a benchmark names: "dopri8", "tsit5", "dopri5" or
     "kvaerno5" (``mj.StructuredKvaerno5()``); ``options`` as ``mj.ODE``'s (rtol, atol, ...)."""

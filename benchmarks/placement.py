@@ -10,7 +10,14 @@ calls, then refines the coefficient of its 3 best DOFs by golden-section search.
 reduced objective and one gradient step (value and gradient), whose ratio the target bounds by 4.
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/placement.py [--quick] [--coefficients C]
+
+``--quick``: the same scene at n = 60, the optimiser once (cold) with one start and few
+iterations, the sweep at every 6th DOF x 4 coefficients, its best DOF refined.
 """
+
+# _common first: it sets OPENBLAS_NUM_THREADS before jax and numpy load.
+from _common import (figure, legend, parse_args, read_json, save_figure,  # noqa: I001
+                     section5_scene, subtitle, write_json)
 
 import json
 import time
@@ -18,10 +25,11 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _common import figure, legend, parse_args, read_json, save_figure, subtitle, write_json
 
 import mikota_jax as mj
 from mikota_jax.testing import DamperProblem, placement_objective
+
+QUICK_STRATEGY = dict(starts=1, iterations=5, keep=1, polish_iterations=3, max_rounds=1)
 
 
 def snapshot_basis(problem) -> np.ndarray:
@@ -42,13 +50,14 @@ def snapshot_basis(problem) -> np.ndarray:
 def plot(data: dict) -> None:
     """The swept landscape, the optimiser's coefficient searches, both optima and their times."""
     sweep, summary, result = data["sweep"], data["summary"], data["runs"][-1]["result"]
+    grid = sweep["stats"]  # the swept (P, C) values (None where a solve failed)
     fig, ax = figure(figsize=(8, 6.2), readable=True)
-    mesh = ax.pcolormesh(sweep["positions"], sweep["coefficients"],
-                         np.log10(sweep["objective"]).T, shading="nearest")
+    mesh = ax.pcolormesh(grid["positions"], grid["coefficients"],
+                         np.log10(np.asarray(grid["grid"], dtype=float)).T, shading="nearest")
     fig.colorbar(mesh, ax=ax, label=r"$\log_{10} J$, full model (J dimensionless)")
     searched = "optimiser's coefficient searches (polish)"
     for record in result["history"]:
-        if record["phase"] == "polish":
+        if record.get("phase") == "polish":
             positions, coefficients = np.asarray(record["positions"]), \
                 np.asarray(record["coefficients"])
             for s in range(positions.shape[1]):
@@ -76,8 +85,8 @@ def main(argv=None) -> None:
     args = parse_args(__doc__, argv, replot=True, coefficients=dict(type=int, default=17))
     if args.replot:
         return plot(read_json("placement", args.quick))
-    scene = mj.app.load_scene("section5_damped")
-    design, strategy = mj.app.problem_from_scene(scene)
+    scene = section5_scene(args.quick)
+    design, strategy = mj.app.problem_from_scene(scene, **(QUICK_STRATEGY if args.quick else {}))
     # the problem the strategy builds, for the reduced objective's timings
     problem = DamperProblem(design.system, strategy.ts, scene.x0, scene.v0, scene.load,
                             snapshots=strategy.snapshots, energy=strategy.energy,
@@ -101,21 +110,22 @@ def main(argv=None) -> None:
         times[name] = float(np.median(samples))
 
     runs = []
-    for label in ("cold", "warm"):
+    for label in ("cold",) if args.quick else ("cold", "warm"):
         t = time.perf_counter()
         result = mj.optimise(design, strategy)
         runs.append(dict(label=label, seconds=time.perf_counter() - t, result=result.to_json()))
     result_json = runs[-1]["result"]
     stats = result_json["stats"]
 
-    positions = np.arange(1.0, n + 1) if not args.quick else np.arange(1.0, n + 1, 30.0)
+    positions = np.arange(1.0, n + 1) if not args.quick else np.arange(1.0, n + 1, 6.0)
     coefficients = np.geomspace(0.1, 1000.0, 4 if args.quick else args.coefficients)
     grid = dict(ts=strategy.ts)
     last = mj.DamperDesign(design.system, design.objective, positions=positions[-1:])
     for c in (coefficients[0], coefficients[-1]):  # compile the ODE and the exact evaluator
         mj.optimise(last, mj.Grid([c], **grid))
     sweep = mj.optimise(mj.DamperDesign(design.system, design.objective, positions=positions),
-                        mj.Grid(coefficients, refine=3, progress=True, **grid))
+                        mj.Grid(coefficients, refine=1 if args.quick else 3,
+                                progress=not args.quick, **grid))
     sweep_seconds = sweep.stats["seconds"] + sweep.stats["seconds_refine"]
 
     warm = runs[-1]["seconds"]

@@ -14,12 +14,13 @@ for x alone), and the offline time to build the basis (warm: every method built 
 timing). The full model is the reference (spectral path).
 
 Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/reductions.py [--quick] [--replot]``
-(``--quick``: two sizes). Writes ``results/reductions[_quick].json`` and ``.png``.
+(``--quick``: the scene at n = 60, r = 10). Writes ``results/reductions[_quick].json``
+and ``.png``.
 """
 
 # _common first: it sets OPENBLAS_NUM_THREADS before jax and numpy load.
 from _common import (elapsed, figure, legend, parse_args, print_table,  # noqa: I001
-                     read_json, save_figure, subtitle, write_json)
+                     read_json, save_figure, section5_scene, subtitle, write_json)
 
 import time
 
@@ -29,9 +30,9 @@ import numpy as np
 import mikota_jax as mj
 
 NAME = "reductions"
-SCENE = "section5_damped"
 WRT = ("positions", "coefficients")
 SIZES = (20, 40, 60, 76, 98, 120, 140)  # the POD snapshots have numerical rank 148
+QUICK_SIZES = (10,)  # --quick: the scene at n = 60, one size (compiling is most of it)
 METHODS = ("POD", "enriched POD", "modal", "modal + static", "Krylov", "rational Krylov",
            "IRKA")
 HORIZON = 20.0
@@ -87,8 +88,8 @@ def main(argv=None) -> dict:
     args = parse_args(__doc__, argv, replot=True)
     if args.replot:
         return print(plot(read_json(NAME, args.quick), args.quick))
-    sizes = (40, 98) if args.quick else SIZES
-    scene = mj.app.load_scene(SCENE)
+    sizes = QUICK_SIZES if args.quick else SIZES
+    scene = section5_scene(args.quick)
     start = time.perf_counter()
     full = mj.sensitivities(scene, "energy", wrt=WRT)
     reference = np.asarray(mj.solve(scene.system, scene.ts, scene.x0,
@@ -120,7 +121,8 @@ def main(argv=None) -> dict:
     print_table(rows, [("method", "method", ""), ("r", "r", "d"), ("J", "J err", ".1e"),
                        ("gradient", "dJ err", ".1e"), ("history", "x err", ".1e"),
                        ("offline_s", "offline s", ".2f")])
-    data = dict(problem=dict(scene=SCENE, design=dict(position=7.0, coefficient=1.0),
+    data = dict(problem=dict(scene=scene.name, n=scene.size,
+                             design=dict(position=7.0, coefficient=1.0),
                              wrt=list(WRT), J="energy on [0, 20]",
                              errors="relative to the full model (spectral exact solve)",
                              modal_static="r - 2 modes + the split damper's two static "
@@ -151,8 +153,8 @@ def plot(data: dict, quick: bool):
         ax.grid(True, which="both", alpha=0.3)
     axes[0].set_ylabel("relative error (dimensionless)")
     legend(axes[2], "right")
-    fig.suptitle("Section 5 scene (n = 300, damper at DOF 7, c = 1): reductions against the full "
-                 "model; dotted: 1e-3\n" + subtitle(data["metadata"]))
+    fig.suptitle(f"Section 5 scene (n = {data['problem'].get('n', 300)}, damper at DOF 7, c = 1): "
+                 "reductions against the full model; dotted: 1e-3\n" + subtitle(data["metadata"]))
     return save_figure(fig, NAME, quick)
 
 

@@ -46,8 +46,8 @@ offline cost always contains one full solve, and one query never pays off; the f
 the online speed-up and the number of queries that repay the offline cost are what this measures.
 
 Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/scaling.py [--quick] [--sizes N ...]``.
-``--quick``: n in {100, 300, 1000}, all in this one process (peak RSS is then cumulative), 1-2
-repeats, no Kvaerno5 and no Dopri8 of the ROM (two compiles fewer per n). Writes
+``--quick``: n = 100 alone, in this one process (no fitted exponents), 2 repeats, no Kvaerno5
+and no Dopri8 of the ROM (two compiles fewer). Writes
 ``benchmarks/results/scaling[_quick].json`` and ``.png``.
 """
 
@@ -84,10 +84,11 @@ import numpy as np
 import scipy.linalg
 
 import mikota_jax as mj
+from mikota_jax.testing import pod
 
 NAME = "scaling"
 SIZES = (100, 300, 1000, 3000, 10000, 30000)
-QUICK_SIZES = (100, 300, 1000)
+QUICK_SIZES = (100,)  # compiling is most of a smoke run: one size
 HORIZON = 1.0
 OUTPUT_STEP = 0.01  # 101 outputs at the three saved DOFs
 SNAPSHOT_EVERY = 5  # snapshots every 0.002: 501 columns (101 are too few for r(n) beyond n ~ 3000)
@@ -159,11 +160,11 @@ class ModalRom:
     z = (Omega eta, eta'), z_{k+1} = expm(A h) z_k with A = [[0, Omega], [-Omega, -U^T D_r U]].
     """
 
-    def __init__(self, system, pod, rank_max: int, x0, dofs):
-        rom = mj.reduce(system, mj.Projection(pod.basis(rank_max)))
+    def __init__(self, system, decomposition, rank_max: int, x0, dofs):
+        rom = mj.reduce(system, mj.Projection(decomposition.basis(rank_max)))
         mass, damping, stiffness = (np.asarray(a) for a in rom.system.dense())
         self.mass, self.damping, self.stiffness = mass, damping, stiffness
-        self.basis = np.asarray(pod.basis(rank_max))
+        self.basis = np.asarray(decomposition.basis(rank_max))
         self.q0 = self.basis.T @ np.asarray(x0)
         self.rows = self.basis[np.asarray(dofs) - 1]
 
@@ -306,10 +307,10 @@ def measure(n: int, quick: bool) -> dict:
     snap_s, snap_times = more(snap_times, snap, system, x0, RTOL, repeats=repeats)
     q = jnp.asarray(snapshots.T)  # (n, m), eq. (3.5)
     pod_exe = Compiled(lambda a: pod(a), q)
-    pod, pod_s, pod_times = timed(pod_exe, q, repeats=repeats)
-    rank_max = pod.numerical_rank()
+    decomposition, pod_s, pod_times = timed(pod_exe, q, repeats=repeats)
+    rank_max = decomposition.numerical_rank()
     search_start = time.perf_counter()
-    modal = ModalRom(system, pod, rank_max, x0, dofs)
+    modal = ModalRom(system, decomposition, rank_max, x0, dofs)
     rank, search = rank_at_target(modal, rank_max, reference, scale)
     search_s = elapsed(search_start)
     out["rom"] = {
@@ -322,8 +323,8 @@ def measure(n: int, quick: bool) -> dict:
         "rank": rank,
         "rank_search": {"s": search_s, "relative_errors": {str(k): v for k, v in
                                                           sorted(search.items())}},
-        "rank_for_energy_0.99_squared": pod.rank_for_energy(0.99),
-        "rank_for_energy_0.999999_squared": pod.rank_for_energy(0.999999),
+        "rank_for_energy_0.99_squared": decomposition.rank_for_energy(0.99),
+        "rank_for_energy_0.999999_squared": decomposition.rank_for_energy(0.999999),
     }
     del snapshots, snapshots_run, q
     say(f"snapshots + POD timed, rank at target = {rank}")
@@ -331,7 +332,7 @@ def measure(n: int, quick: bool) -> dict:
         out["rom"]["note"] = (f"no rank up to the numerical rank {rank_max} meets the target "
                               f"{TARGET:g}: the ROM does not reach this accuracy")
         return finish(out, start)
-    basis = pod.basis(rank)
+    basis = decomposition.basis(rank)
     project = Compiled(lambda s, b: mj.reduce(s, mj.Projection(b)), system, basis)
     model, galerkin_s, galerkin_times = timed(project, system, basis, repeats=repeats)
     out["rom"]["galerkin"] = {"compile_s": project.compile_s, "run_s": galerkin_s,

@@ -7,13 +7,17 @@ script's compiled programs and memory do not colour the next one's figures):
     OPENBLAS_NUM_THREADS=1 python benchmarks/suite.py           # full runs (hours), quiet machine
 
 ``--only NAME,NAME`` picks some. Full runs write ``results/NAME.{json,png}`` (the benchmark page
-of the docs is generated from them); quick runs write ``results/NAME_quick.*``, which git
-ignores. The other scripts in this folder answer one question each and are run on their own.
+of the docs is generated from them); quick runs, the same code on smaller problems, write
+``results/NAME_quick.*``, which git ignores. The exit code is 1 if any script failed (CI runs
+``--quick``). Investigations answered once are notes in ``docs/notes/``, not scripts.
 """
 
+import os
 import subprocess
 import sys
+import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from _common import parse_args
@@ -30,32 +34,63 @@ SUITE = {
 }
 
 
-def run(names: list[str], quick: bool) -> list[dict]:
-    """Run each script (``--quick`` passed on); their outcome and wall time, in order."""
-    outcomes = []
-    for name in names:
-        start = time.perf_counter()
-        argv = [sys.executable, str(HERE / f"{name}.py")] + (["--quick"] if quick else [])
-        done = subprocess.run(argv, capture_output=True, text=True)
-        seconds = time.perf_counter() - start
-        outcomes.append({"name": name, "ok": done.returncode == 0, "seconds": seconds,
-                         "tail": (done.stderr or done.stdout).strip().splitlines()[-1:]})
-        status = "ok" if done.returncode == 0 else f"FAILED ({outcomes[-1]['tail']})"
-        print(f"{name:18s} {seconds:7.1f} s  {status}", flush=True)
-    return outcomes
+QUICK_ENV = {  # smoke runs only: XLA's cheapest backend optimisation (compiling is most of
+    # a quick run; the programs and their results are the same, only slower to run)
+    "XLA_FLAGS": "--xla_backend_optimization_level=0"}
+
+
+def run_one(name: str, quick: bool) -> dict:
+    """One script in its own process (``--quick`` passed on): outcome, wall and CPU seconds."""
+    argv = [sys.executable, str(HERE / f"{name}.py")] + (["--quick"] if quick else [])
+    env = dict(os.environ)
+    if quick:
+        env["XLA_FLAGS"] = " ".join(filter(None, (env.get("XLA_FLAGS"), QUICK_ENV["XLA_FLAGS"])))
+    start = time.perf_counter()
+    with tempfile.TemporaryFile("w+") as out:
+        child = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, text=True, env=env)
+        _, status, usage = os.wait4(child.pid, 0)  # the child's own CPU time, not its siblings'
+        child.returncode = os.waitstatus_to_exitcode(status)
+        out.seek(0)
+        text = out.read()
+    # the error's last lines (JAX appends a note on traceback filtering after them)
+    lines = [line for line in text.strip().splitlines()
+             if line.strip() and not line.startswith(("For simplicity, JAX", "-----"))]
+    return {"name": name, "ok": child.returncode == 0, "seconds": time.perf_counter() - start,
+            "cpu_seconds": usage.ru_utime + usage.ru_stime, "tail": lines[-4:]}
+
+
+def run(names: list[str], quick: bool, jobs: int = 1) -> list[dict]:
+    """Run the scripts, ``jobs`` at a time; their outcomes in the order of ``names``."""
+    def report(outcome: dict) -> dict:
+        status = "ok" if outcome["ok"] else "FAILED"
+        print(f"{outcome['name']:18s} {outcome['seconds']:7.1f} s  "
+              f"(CPU {outcome['cpu_seconds']:6.1f} s)  {status}", flush=True)
+        if not outcome["ok"]:
+            print("\n".join("    " + line for line in outcome["tail"]), flush=True)
+        return outcome
+
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        futures = [pool.submit(lambda n=name: report(run_one(n, quick))) for name in names]
+        return [f.result() for f in futures]
 
 
 def main(argv=None) -> int:
     args = parse_args(__doc__, argv, only={"help": "comma-separated names (default: all)",
-                                           "default": None})
+                                           "default": None},
+                      jobs={"type": int, "default": None,
+                            "help": "scripts run at a time (default: 2 with --quick, else 1)"})
     names = list(SUITE) if args.only is None else [n.strip() for n in args.only.split(",")]
     unknown = [n for n in names if n not in SUITE]
     if unknown:
         raise SystemExit(f"--only: unknown benchmark(s) {unknown}; the suite is {list(SUITE)}")
-    outcomes = run(names, args.quick)
+    jobs = args.jobs or (2 if args.quick else 1)
+    start = time.perf_counter()
+    outcomes = run(names, args.quick, jobs)
     failed = [o["name"] for o in outcomes if not o["ok"]]
-    total = sum(o["seconds"] for o in outcomes)
-    print(f"{len(outcomes) - len(failed)} of {len(outcomes)} ran in {total:.0f} s"
+    cpu = sum(o["cpu_seconds"] for o in outcomes)
+    wall = time.perf_counter() - start
+    print(f"{len(outcomes) - len(failed)} of {len(outcomes)} ran in {wall:.0f} s ({jobs} at a "
+          f"time; {cpu:.0f} CPU seconds)"
           + (f"; failed: {', '.join(failed)}" if failed else ""))
     return 1 if failed else 0
 

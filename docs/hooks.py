@@ -1,10 +1,11 @@
 """mkdocs hook: the benchmark pages, generated from ``benchmarks/results/*.json`` at build time.
 
 The guides are files in ``docs/``; measurements live only in the benchmarks' JSON. For every
-script ``benchmarks/NAME.py`` this writes a section of ``benchmarks.md``: the question the script
-answers (its module docstring), how it is run, and for each of its result files
-(``NAME.json``, ``NAME_gpu.json``, ...) the machine it ran on, its summary and rows as tables,
-and its figure.
+script ``benchmarks/NAME.py`` this writes a section of ``benchmarks.md`` (the suite's maintained
+scripts first, in the suite's order): the question the script answers (its module docstring),
+how it is run, and for each of its result files (``NAME.json``, ``NAME_gpu.json``, ...) the
+machine it ran on, its summary and rows as tables, and its figure. Then a list of the notes in
+``docs/notes/`` (investigations answered once, their scripts removed), each with its question.
 """
 
 import ast
@@ -18,18 +19,21 @@ from mkdocs.structure.files import File
 ROOT = Path(__file__).resolve().parent.parent
 SCRIPTS = ROOT / "benchmarks"
 RESULTS = SCRIPTS / "results"
+NOTES = ROOT / "docs" / "notes"
 MAX_ROWS, MAX_COLUMNS = 40, 12
 
 INTRO = """# Benchmarks
 
 Every figure and table on this page is generated from the JSON files the benchmark scripts wrote
 (`benchmarks/results/NAME.json`, with the machine, versions and date of the run), so a rerun
-updates the page. Run one script from the repository root:
+updates the page. The maintained benchmarks run as one suite, each script in its own process,
+from the repository root:
 
 ```bash
-OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/NAME.py           # full run
-OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/NAME.py --quick   # a smoke run, not committed
-OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/NAME.py --replot  # the figure from the JSON
+OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/suite.py --quick   # smoke runs (in CI)
+OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/suite.py           # full runs, a quiet machine
+OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/NAME.py [--quick]  # one script
+OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/NAME.py --replot  # its figure from the JSON
 ```
 
 Conventions (`benchmarks/_common.py`): correctness is checked before any timing; compilation is
@@ -97,7 +101,7 @@ def machine(data: dict) -> str:
 
 def result_section(path: Path) -> list[str]:
     data = json.loads(path.read_text(encoding="utf-8"))
-    lines = [f"### `{path.name}`", "", machine(data), ""]
+    lines = [f"#### `{path.name}`", "", machine(data), ""]
     summary = data.get("summary")
     if isinstance(summary, dict) and flat(summary):
         lines += ["Summary:", ""] + table([{"quantity": k, "value": v}
@@ -112,22 +116,54 @@ def result_section(path: Path) -> list[str]:
     return lines
 
 
+def suite() -> list[str]:
+    """The maintained scripts, in the suite's order (the keys of ``SUITE`` in ``suite.py``)."""
+    tree = ast.parse((SCRIPTS / "suite.py").read_text(encoding="utf-8"))
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "SUITE"
+                                                for t in node.targets):
+            return [key.value for key in node.value.keys]
+    raise ValueError("benchmarks/suite.py defines no SUITE")
+
+
+def notes() -> list[str]:
+    """One line per note in ``docs/notes/``: a link (its title) and its question."""
+    lines = []
+    for note in sorted(NOTES.glob("*.md")):
+        text = note.read_text(encoding="utf-8")
+        title = re.search(r"^# (.+)$", text, re.M).group(1)
+        question = re.search(r"\*\*Question\.\*\* (.+?)\n\n", text, re.S)
+        lines.append(f"- [{title}](notes/{note.name})"
+                     + (f": {' '.join(question.group(1).split())}" if question else ""))
+    return lines
+
+
 def benchmarks_page() -> str:
     lines = [INTRO]
-    for script in sorted(SCRIPTS.glob("[!_]*.py")):
-        name = script.stem
+    maintained = suite()
+    others = sorted(s.stem for s in SCRIPTS.glob("[!_]*.py")
+                    if s.stem not in maintained and s.stem != "suite")
+    for name in maintained + others:
+        script = SCRIPTS / f"{name}.py"
+        if name == maintained[0]:
+            lines += ["## The maintained benchmarks (`benchmarks/suite.py`)", ""]
+        elif name == (others or [None])[0]:
+            lines += ["## Other scripts", ""]
         results = sorted(p for p in RESULTS.glob(f"{name}*.json")
                          if not p.stem.endswith("_quick")
                          and re.fullmatch(rf"{name}(_[a-z0-9]+)?", p.stem)
                          and not any(p.stem.startswith(other.stem) and other.stem != name
                                      and len(other.stem) > len(name)
                                      for other in SCRIPTS.glob(f"{name}_*.py")))
-        lines += [f"## {name}", "", docstring(script), "",
+        lines += [f"### {name}", "", docstring(script), "",
                   f"Source: `benchmarks/{script.name}`.", ""]
         if not results:
             lines += ["No committed results.", ""]
         for path in results:
             lines += result_section(path)
+    lines += ["## Notes", "", "Investigations that answered one question once: the question, how "
+              "it was measured, the figures and the conclusion, frozen (the scripts that measured "
+              "them are in the repository's history).", ""] + notes() + [""]
     return "\n".join(lines)
 
 

@@ -300,7 +300,7 @@ class HierarchicalEstimator(eqx.Module):
     estimate ``safety`` |J_f - J_r| never under-estimates for theta <= 1 - 1 / safety (1/2 at
     the default 2) and over-estimates by at most safety (1 + theta) (3). Saturation is an
     assumption, checked, not proven: on 1000 random designs of the Section 5 box
-    (``benchmarks/hierarchical.py``) it never under-estimated, with effectivities 1.34-3.06
+    (``docs/notes/hierarchical.md``) it never under-estimated, with effectivities 1.34-3.06
     (the paper's POD, errors up to 121 %: 2.0-2.01); the fine models were within 1.2e-7 of J.
     (With 4 of the fixed basis' directions dropped as "below 1e-10" the fine model was 6.2e-7
     off and 5 designs were under-estimated: saturation is what fails first.) Unlike
@@ -404,7 +404,7 @@ class HierarchicalEstimator(eqx.Module):
         both derivatives with their bases held fixed (exact for a damper: its directions
         e_j, e_j+1, and so the design's moments, do not change with its coefficient, nor with
         its position between two DOFs). Saturation of the derivatives (dJ_f closer to dJ than
-        dJ_r) is a separate assumption from J's: ``benchmarks/hierarchical_gradient.py``
+        dJ_r) is a separate assumption from J's: ``docs/notes/hierarchical_gradient.md``
         checks it on the Section 5 box. Forward mode (2 g tangents) through both reduced
         models' spectral J (implicit differentiation of their secular equations,
         ``differentiable_roots``), still no full solve. Jit- and vmap-compatible.

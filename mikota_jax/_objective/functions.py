@@ -227,7 +227,7 @@ def integrated_energy(model, horizon: float, x0: Vector | None = None,
     structure alone: where it fails (a root not converged, three roots nearly coinciding) it
     says so in one line, eagerly and under ``jit``, and no dense path is compiled beside it. A
     fixed-free chain with dampers alone above n = 4096 runs in O(n) memory (404 s for J +
-    gradient at n = 30000 on 2 cores, ``benchmarks/spectral_energy_large.py``). ``"dense"``: a
+    gradient at n = 30000 on 2 cores, ``docs/notes/spectral_energy_large.md``). ``"dense"``: a
     matrix-exponential integral (Van Loan, doubling), O(n^3) -- the choice for a reduced model.
     ``method="ode"``: the integral is one more state of an adaptive Dopri8 solve (``rtol``/
     ``atol``, ``max_steps``, ``adjoint`` as in ``simulate``; use ``diffrax.ForwardMode()`` under

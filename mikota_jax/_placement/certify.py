@@ -27,8 +27,8 @@ fixed (no derivative through the SVD), and the optimum is certified on the full 
    the basis + low modes + the design's damper moments; Hain, Ohlberger, Radic & Urban, Adv.
    Comput. Math. 45 (2019)) decide instead, with no full solve: the basis is enriched (by one
    full simulation) only where an estimate exceeds ``tolerance``. The estimates rest on a
-   saturation assumption (checked on 1000 designs in ``benchmarks/hierarchical.py`` and
-   ``benchmarks/hierarchical_gradient.py``), not on a proof. The ``keep`` polished designs
+   saturation assumption (checked on 1000 designs in ``docs/notes/hierarchical.md`` and
+   ``docs/notes/hierarchical_gradient.md``), not on a proof. The ``keep`` polished designs
    are estimated too, so the result says whether the winner beats them by more than the
    estimates (the ranking certified, not only the value).
 

@@ -39,9 +39,10 @@ curvature s^T y > 0 (``ProjectedBFGS``). Stops when every free, non-held variabl
 gradient |d_i df/dd_i| / |f| below ``tolerance`` (scale-free: the change of log f per change of
 log d_i), or when a step no longer changes f in its 14th digit. ``SpectralProjectedGradient`` is
 the method that Li & Tisseur (arXiv 2601.05404, 2026) propose for the trace criterion;
-``Solution.stats`` keeps the iteration and evaluation counts to compare
-(``benchmarks/viscosity.py`` compares both with scipy's L-BFGS-B and with optax's L-BFGS and
-optimistix's BFGS in log d, which take no bounds).
+``Solution.stats`` keeps the iteration and evaluation counts to compare (on
+FastOptimalDamping.jl's small example, n = 801, iterations / values: BFGS 8 / 10, SPG 14 / 15,
+scipy's L-BFGS-B in d 13 / 17; against optax's L-BFGS and optimistix's BFGS in log d, which take
+no bounds: ``docs/notes/viscosity.md``).
 
 The minimisers are host loops over one compiled value and gradient: each step costs one full
 evaluation per line-search trial, and no loop is compiled around the spectral engine.

@@ -191,7 +191,7 @@ def exact_solve(model, ts: Times, x0: Vector | None = None, v0: Vector | None = 
     spectral one, except for a fixed-free chain with dampers alone above n = 4096: its spectral
     path holds neither U nor the (n, 2n) vectors (O(n (N + 2^24 / n)) memory: the (N, n) modal
     history, then x = U eta a chunk of modes at a time; 401 times x all DOFs at n = 30000 in
-    235 s at 1.9 GiB on 2 cores, ``benchmarks/spectral_response_large.py``).
+    235 s at 1.9 GiB on 2 cores, ``docs/notes/spectral_response_large.md``).
     """
     check_x64()
     if method not in METHODS:

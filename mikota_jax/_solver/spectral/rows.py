@@ -4,7 +4,7 @@ Every step of the Aberth sweep and of the energy is per root: a row of (2n, n) o
 complex work (29 GB each at n = 30000). Above n = ``BLOCK_ABOVE`` the rows are formed a block of
 roots at a time (``by_rows``: a ``lax.map`` of checkpointed blocks), O(n) memory in every mode
 and 2.3x / 3.0x faster for J + gradient at n = 1000 / 3000 than all at once (the blocks stay in
-cache; ``benchmarks/spectral_energy_large.py``). Here also the two all-pairs sums over roots:
+cache; ``docs/notes/spectral_energy_large.md``). Here also the two all-pairs sums over roots:
 Aberth's repulsion and the separation check.
 """
 
