@@ -160,6 +160,8 @@ def test_a_general_chain_offers_masses_and_springs_not_m_and_k():
     assert set(scene.parameters()) == {"masses", "springs", "amplitude"}
     with pytest.raises(ValueError, match="not Mikota"):
         scene.parameters(wrt=["m"])
+    with pytest.raises(ValueError, match="scene must be a Scene .* got SecondOrderSystem"):
+        mj.sensitivities(scene.system, "energy")  # one line, not an AttributeError
 
 
 @pytest.mark.slow  # default-run time (issue: CI under 15 min)

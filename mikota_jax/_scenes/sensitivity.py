@@ -58,6 +58,9 @@ MODES = ("auto", "forward", "reverse")
 def parameters_at(scene: Scene, wrt=None, parameters: dict | None = None) -> dict:
     """``scene_parameters(scene, wrt)`` with the entries of ``parameters`` (checked: names among
     ``wrt``, float64 of the nominal shapes) in place of the scene's values."""
+    if not isinstance(scene, Scene):
+        raise ValueError(MARK + f"scene must be a Scene (see mj.app.load_scene), got "
+                         f"{type(scene).__name__}.")
     nominal = scene_parameters(scene, wrt)
     if parameters is not None:
         unknown = set(parameters) - set(nominal)
@@ -256,7 +259,7 @@ def sensitivities(scene: Scene, output: str = "energy", *, wrt=None, model: str 
     """The Jacobian of one ``output`` of ``scene`` with respect to its physical parameters.
 
     ``wrt``: parameter names (module docstring; default all that apply), evaluated at the scene's
-    values or at ``parameters`` (a dict as from ``scene_parameters``). ``model``: "full" or
+    values or at ``parameters`` (a dict as from ``scene.parameters()``). ``model``: "full" or
     "reduced" (Galerkin ROM on a fixed basis: the scene's POD basis, or ``basis``). ``mode``:
     "forward" (``jax.jacfwd`` with ``diffrax.ForwardMode``: cheaper when the parameters are fewer
     than the outputs), "reverse" (``jax.jacrev``), or "auto" (forward when the parameters count
