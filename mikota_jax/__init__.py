@@ -44,12 +44,12 @@ _MODULES = {
                             "DesignResult Grid ScreenAndCertify Solution optimise"),
     "_placement.viscosity": "AbstractBoxMinimiser ProjectedBFGS SpectralProjectedGradient",
     "_rom.base": "POD AbstractReduction",
+    "_rom.io_model": "IOModel ErrorModel",
     "_rom.reduce": ("CraigBampton IRKA Krylov Modal ModalStatic Projection RationalKrylov Union "
                     "reduce"),
     "_scenes.run": "SceneResult run_scene",
     "_scenes.scene": "Scene",
     "_scenes.sensitivity": "SceneFunction Sensitivities sensitivities",
-    "_solver.frequency": "frequency_response",
     "_solver.implicit": "StructuredKvaerno5",
     "_solver.trajectory": "Trajectory",
     "_solver.solve": "AbstractMethod Auto DenseExponential ODE Spectral solve",
@@ -133,6 +133,8 @@ if _TYPE_CHECKING:  # the same names for static tools (type checkers, the API re
     from ._placement.viscosity import SpectralProjectedGradient as SpectralProjectedGradient
     from ._rom.base import POD as POD
     from ._rom.base import AbstractReduction as AbstractReduction
+    from ._rom.io_model import ErrorModel as ErrorModel
+    from ._rom.io_model import IOModel as IOModel
     from ._rom.reduce import IRKA as IRKA
     from ._rom.reduce import CraigBampton as CraigBampton
     from ._rom.reduce import Krylov as Krylov
@@ -148,7 +150,6 @@ if _TYPE_CHECKING:  # the same names for static tools (type checkers, the API re
     from ._scenes.sensitivity import SceneFunction as SceneFunction
     from ._scenes.sensitivity import Sensitivities as Sensitivities
     from ._scenes.sensitivity import sensitivities as sensitivities
-    from ._solver.frequency import frequency_response as frequency_response
     from ._solver.implicit import StructuredKvaerno5 as StructuredKvaerno5
     from ._solver.solve import ODE as ODE
     from ._solver.solve import AbstractMethod as AbstractMethod

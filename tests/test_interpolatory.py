@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import mikota_jax as mj
+from mikota_jax._model.pencil import modal_pencil
 from mikota_jax._rom.interpolatory import (
-    _pencil,
     _reduced_poles,
     band_shifts,
     irka_basis,
@@ -46,7 +46,7 @@ def test_the_modal_woodbury_solve_is_the_direct_complex_solve(case):
               "user": users_damping}[case]()
     forces = np.zeros((N, 2))
     forces[N - 1, 0], forces[4, 1] = 1.0, 1.0
-    pencil = _pencil(system)
+    pencil = modal_pencil(system)
     for s in (0.3 + 2.2j, 0.01 + 7.5j, 1.5 + 0.0j):
         expected = direct(system, s, forces)
         got = np.asarray(pencil(jnp.asarray(s), jnp.asarray(forces)))
@@ -63,8 +63,8 @@ def test_rational_krylov_interpolates_at_its_shifts_with_the_derivative():
     rom = mj.reduce(system, mj.Projection(basis))
 
     def collocated(model, w):  # b^T H(i w) b
-        return np.asarray(mj.frequency_response(model, np.atleast_1d(w), force,
-                                                dofs=[N]))[:, 0, 0]
+        io = mj.IOModel(model, force, cx=np.eye(model.size)[N - 1])
+        return np.asarray(io.frequency_response(np.atleast_1d(w)))[:, 0, 0]
 
     full, reduced = collocated(system, omegas), collocated(rom, omegas)
     assert np.max(np.abs(reduced - full) / np.abs(full)) < 1e-11

@@ -32,11 +32,8 @@ infinite horizon a nearly undamped pole's share is unbounded and the iteration r
 This is a dominant-pole heuristic with interpolation, not an H2-optimal model; the result says
 whether it settled.
 
-The shifted solves run in the M-orthonormal modal coordinates: U^T (sigma^2 M + sigma D + K) U =
-sigma^2 I + sigma (C_int + G W G^T) + Omega^2 with the dampers G W G^T of rank k (and a diagonal
-internal damping), solved by Woodbury in O(n k^2) after O(n^2) for the inputs' modal
-coordinates; a user's dense internal damping makes each solve O(n^3). The modes are O(n^2) for
-a chain (``_chain_modes``), O(n^3) otherwise.
+The shifted solves run in the M-orthonormal modal coordinates (``_model/pencil``): O(n k^2)
+per shift for k damper columns after O(n^2) for the inputs' modal coordinates.
 """
 
 import warnings
@@ -48,61 +45,13 @@ import numpy as np
 
 from .._custom_types import Basis
 from .._errors import MARK
-from .._model.dampers import Dampers
-from .._model.modal import modal_decomposition
-from .._model.operators import Diagonal
+from .._model.pencil import ModalPencil, modal_pencil
 from .._model.system import SecondOrderSystem
 from .classic import _check, _force_columns
 
 
-class _ModalPencil(eqx.Module):
-    """sigma -> U (sigma^2 I + sigma C + Omega^2)^-1 U^T F, C = diag(c) + G W G^T (or dense)."""
-
-    omega: jax.Array
-    modes: jax.Array
-    diagonal: jax.Array  # the internal damping's modal diagonal (zeros without)
-    factor: jax.Array  # G = U^T B of the dampers, (n, k)
-    weights: jax.Array  # W, (k,)
-    dense: jax.Array | None  # a user's internal damping in modes, (n, n), or None
-
-    def __call__(self, sigma, forces):
-        c = lambda a: a.astype(jnp.complex128)  # noqa: E731  (strict promotion: no mixing)
-        sigma = c(sigma)
-        f = c(self.modes.T @ forces)
-        delta = sigma**2 + c(self.omega**2) + sigma * c(self.diagonal)
-        g, w = c(self.factor), c(self.weights)
-        if self.dense is not None:
-            matrix = jnp.diag(delta) + sigma * (c(self.dense) + (g * w[None, :]) @ g.T)
-            return c(self.modes) @ jnp.linalg.solve(matrix, f)
-        # Woodbury on Delta + sigma G W G^T, no W^-1 (a split damper has a zero weight)
-        y = f / delta[:, None]
-        scaled = g / delta[:, None]
-        inner = jnp.eye(g.shape[1], dtype=jnp.complex128) + sigma * (g.T @ scaled) * w[None, :]
-        correction = scaled @ (sigma * w[:, None] * jnp.linalg.solve(inner, g.T @ y))
-        return c(self.modes) @ (y - correction)
-
-
-def _pencil(system: SecondOrderSystem) -> _ModalPencil:
-    omega, modes = modal_decomposition(system)
-    n = omega.shape[0]
-    damping = system.damping
-    factor, weights, diagonal, dense = jnp.zeros((n, 0)), jnp.zeros(0), jnp.zeros(n), None
-    if isinstance(damping, Dampers):
-        projected = damping.project(modes)
-        factor, weights = projected.factor, projected.weights
-    elif damping is not None:  # a user's damping operator: dense in the modes
-        dense = modes.T @ jax.vmap(damping.mv, in_axes=1, out_axes=1)(modes)
-    if system.internal is not None:
-        internal = system.internal.in_modes(omega**2, modes)
-        if isinstance(internal, Diagonal):
-            diagonal = internal.diagonal
-        else:
-            dense = internal.as_matrix() + (0 if dense is None else dense)
-    return _ModalPencil(omega, modes, diagonal, factor, weights, dense)
-
-
 @eqx.filter_jit
-def _responses(pencil: _ModalPencil, shifts, forces):
+def _responses(pencil: ModalPencil, shifts, forces):
     """(n, 2 m s) real columns [Re X(sigma_1), Im X(sigma_1), ...] for s shifts."""
     blocks = jax.vmap(pencil, in_axes=(0, None))(shifts, forces)  # (s, n, m)
     pairs = jnp.stack([blocks.real, blocks.imag], axis=1)  # (s, 2, n, m)
@@ -135,7 +84,7 @@ def rational_krylov_basis(system: SecondOrderSystem, shifts, inputs) -> Basis:
                          f"{type(system).__name__}.")
     shifts = _check_shifts(shifts)
     forces = _force_columns(system, inputs, "inputs")
-    return jnp.asarray(_filled(_pencil(system), shifts, forces, system.size, system.size)[0])
+    return jnp.asarray(_filled(modal_pencil(system), shifts, forces, system.size, system.size)[0])
 
 
 class IRKABasis(eqx.Module):
@@ -217,7 +166,7 @@ def band_shifts(system: SecondOrderSystem, count: int, inputs) -> np.ndarray:
     if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= system.size:
         raise ValueError(MARK + f"count must be an integer in 1..{system.size}, got {count!r}.")
     forces = _force_columns(system, inputs, "inputs")
-    return _initial_shifts(_pencil(system), forces, count)
+    return _initial_shifts(modal_pencil(system), forces, count)
 
 
 def irka_basis(system: SecondOrderSystem, rank: int, inputs, horizon: float, *,
@@ -247,7 +196,7 @@ def irka_basis(system: SecondOrderSystem, rank: int, inputs, horizon: float, *,
             np.isfinite(horizon) and horizon > 0):
         raise ValueError(MARK + f"horizon must be a finite time > 0, got {horizon!r}.")
     forces = _force_columns(system, inputs, "inputs")
-    pencil = _pencil(system)
+    pencil = modal_pencil(system)
     shifts = (_initial_shifts(pencil, forces, -(-rank // 2)) if shifts is None
               else _check_shifts(shifts))
     changes, converged, energy = [], False, None

@@ -32,21 +32,29 @@ from .classic import (
     modal_basis,
     modal_static_basis,
 )
+from .io_model import IOModel
 
 
-def reduce(problem, strategy: AbstractReduction) -> ReducedModel:
+def reduce(problem, strategy: AbstractReduction) -> ReducedModel | IOModel:
     """The reduced model of ``problem`` by ``strategy``: Phi^T M Phi q'' + Phi^T D Phi q' +
     Phi^T K Phi q = Phi^T f (eq. 3.4) on the strategy's (n, r) orthonormal basis Phi, x ~ Phi q
     (eq. 3.2).
 
-    ``problem``: a ``SecondOrderSystem`` or a ``Scene``; ``strategy``: an ``AbstractReduction``
-    (``Modal(10)``, ``POD(energy=0.9999)``, ...). The result's ``stats`` says what the reduction
-    did. Structural strategies whose basis is pure JAX (``Modal``, ``Projection``) pass
-    ``jax.jit``, ``jax.vmap`` and ``jax.grad`` with respect to the system's values.
+    ``problem``: a ``SecondOrderSystem`` or a ``Scene``, or an ``IOModel`` of a full system (then
+    the result is the ``IOModel`` of the reduced model, with the same inputs and outputs);
+    ``strategy``: an ``AbstractReduction`` (``Modal(10)``, ``POD(energy=0.9999)``, ...). The
+    result's ``stats`` says what the reduction did. Structural strategies whose basis is pure
+    JAX (``Modal``, ``Projection``) pass ``jax.jit``, ``jax.vmap`` and ``jax.grad`` with respect
+    to the system's values.
     """
     if not isinstance(strategy, AbstractReduction):
         raise ValueError(MARK + f"strategy must be an AbstractReduction (Modal, POD, ...), got "
                          f"{type(strategy).__name__}.")
+    if isinstance(problem, IOModel):
+        if isinstance(problem.model, ReducedModel):
+            raise ValueError(MARK + "problem: this IOModel is reduced already; reduce the "
+                             "IOModel of the full system.")
+        return IOModel(reduce(problem.model, strategy), problem.inputs, problem.cx, problem.cv)
     system = problem_system(problem, type(strategy).__name__)
     result = strategy.basis(problem)
     if not (isinstance(result, tuple) and len(result) == 2):

@@ -19,147 +19,16 @@ step-size control, dense output, events and adjoints work unchanged around it.
 from typing import ClassVar
 
 import diffrax
-import jax
 import jax.numpy as jnp
-import numpy as np
 
-from .._model.dampers import Dampers
-from .._model.operators import Diagonal, LowRank, SymmetricTridiagonal
+from .._model.pencil import (  # noqa: F401  (re-exported: the stage solves live with the pencil)
+    dense_shifted_solver,
+    physical_mass,
+    shifted_solver,
+    symmetric_tridiagonal_solve,
+)
 
 _TABLEAU = diffrax.Kvaerno5.tableau
-
-
-def symmetric_tridiagonal_solve(diagonal, off_diagonal, rhs):
-    """Solve a symmetric tridiagonal system for rhs (n,) or (n, p) (no pivoting: it is SPD)."""
-    vector = rhs.ndim == 1
-    rhs = rhs[:, None] if vector else rhs
-    if diagonal.shape[0] == 1:
-        out = rhs / diagonal[:, None]
-    else:
-        lower = jnp.pad(off_diagonal, (1, 0))
-        upper = jnp.pad(off_diagonal, (0, 1))
-        out = jax.lax.linalg.tridiagonal_solve(lower, diagonal, upper, rhs)
-    return out[:, 0] if vector else out
-
-
-def _woodbury(base_solve, factor, weights):
-    """y -> (T + U diag(w) U^T)^-1 y given y -> T^-1 y; no inverse of w (it may be zero)."""
-    z = base_solve(factor)  # T^-1 U, (n, p)
-    capacitance = jnp.eye(factor.shape[1]) + weights[:, None] * (factor.T @ z)
-
-    def solve(rhs):
-        y = base_solve(rhs)
-        return y - z @ jnp.linalg.solve(capacitance, weights * (factor.T @ y))
-
-    return solve
-
-
-def _internal_bands(system, s):
-    """s D_internal as (diagonal, off-diagonal, link weights), or None when it is not tridiagonal.
-
-    Rayleigh's alpha M + beta K is as tridiagonal as K (its links scale by beta); a user's
-    diagonal or tridiagonal D adds its bands; modal damping is diagonal only in modal coordinates
-    (where ``unpack`` has turned it into a ``Diagonal`` matrix already).
-    """
-    n, internal, stiffness = system.size, system.internal, system.stiffness
-    diagonal, off, links = jnp.zeros(n), jnp.zeros(max(n - 1, 0)), None
-    if internal is None:
-        return diagonal, off, links
-    if internal.modal is not None:
-        return None
-    matrix = internal.matrix
-    if isinstance(matrix, Diagonal):
-        diagonal = diagonal + s * matrix.diagonal
-    elif isinstance(matrix, SymmetricTridiagonal) and not matrix.links:
-        diagonal, off = diagonal + s * matrix.diagonal, off + s * matrix.off_diagonal
-    elif matrix is not None:
-        return None
-    if internal.rayleigh is not None:
-        mass = system.mass
-        if not (physical_mass(mass) and isinstance(stiffness, Diagonal | SymmetricTridiagonal)):
-            return None
-        alpha, beta = s * internal.rayleigh.alpha, s * internal.rayleigh.beta
-        diagonal = diagonal + alpha * mass.diagonal + beta * stiffness.diagonal
-        if isinstance(mass, SymmetricTridiagonal):
-            off = off + alpha * mass.off_diagonal
-        if isinstance(stiffness, SymmetricTridiagonal):
-            off = off + beta * stiffness.off_diagonal
-            links = None if not stiffness.links else beta * stiffness.link_springs
-    return diagonal, off, links
-
-
-def physical_mass(mass) -> bool:
-    """A mass solved in physical coordinates: diagonal, or tridiagonal without links (a
-    consistent finite-element mass of a bar, say)."""
-    return isinstance(mass, Diagonal) or (isinstance(mass, SymmetricTridiagonal)
-                                           and not mass.links)
-
-
-def dense_shifted_solver(system, s):
-    """rhs -> (M + s D + s^2 K)^-1 rhs by one Cholesky factorization per step (it is SPD)."""
-    matrix = system.mass.as_matrix() + s**2 * system.stiffness.as_matrix()
-    damping = system.damping_operator()
-    if damping is not None:
-        matrix = matrix + s * damping.as_matrix()
-    factor = jax.scipy.linalg.cho_factor((matrix + matrix.T) / 2)
-    return lambda rhs: jax.scipy.linalg.cho_solve(factor, rhs)
-
-
-def _pair_factor(n: int, pairs):
-    """(n, p) columns e_i - e_j for 0-based pairs (i, j)."""
-    pairs = jnp.asarray(pairs).reshape(-1, 2)
-    columns = jnp.arange(pairs.shape[0])
-    return jnp.zeros((n, pairs.shape[0])).at[pairs[:, 0], columns].set(1.0).at[
-        pairs[:, 1], columns].add(-1.0)
-
-
-def shifted_solver(system, s):
-    """rhs -> (M + s D + s^2 K)^-1 rhs, prepared once per step (s = h gamma), in O(n) structure.
-
-    Structured when M is diagonal or tridiagonal and K (with D's internal part) tridiagonal or
-    diagonal: a tridiagonal solve, plus Woodbury for relative dampers, a branched chain's links
-    and projected dampers; any other system (banded, sparse or dense matrices) is solved densely.
-    """
-    mass, stiffness, damping = system.mass, system.stiffness, system.damping
-    internal = _internal_bands(system, s)
-    structured = (physical_mass(mass) and internal is not None
-                  and isinstance(stiffness, Diagonal | SymmetricTridiagonal)
-                  and isinstance(damping, Dampers | LowRank | None))
-    if not structured:
-        return dense_shifted_solver(system, s)
-    d_internal, off_internal, link_internal = internal
-    diagonal = mass.diagonal + s**2 * stiffness.diagonal + d_internal
-    if isinstance(damping, Dampers):
-        diagonal = diagonal + s * damping.grounded_diagonal()
-    factors, weights = [], []
-    tridiagonal = isinstance(stiffness, SymmetricTridiagonal) or isinstance(
-        mass, SymmetricTridiagonal)
-    if tridiagonal:
-        off = off_internal
-        if isinstance(mass, SymmetricTridiagonal):
-            off = off + mass.off_diagonal
-        if isinstance(stiffness, SymmetricTridiagonal):
-            off = off + s**2 * stiffness.off_diagonal
-        if isinstance(stiffness, SymmetricTridiagonal) and stiffness.links:
-            # K's links are -k at (i, j) with +k on the diagonal: k (e_i - e_j)(e_i - e_j)^T
-            # taken out of the tridiagonal part and put back by Woodbury
-            w = s**2 * stiffness.link_springs + (0.0 if link_internal is None else link_internal)
-            i, j = (np.asarray(a) for a in zip(*stiffness.links))
-            diagonal = diagonal.at[i].add(-w).at[j].add(-w)
-            factors.append(_pair_factor(system.size, stiffness.links))
-            weights.append(w)
-        solve = lambda rhs: symmetric_tridiagonal_solve(diagonal, off, rhs)  # noqa: E731
-    else:
-        solve = lambda rhs: rhs / (diagonal if rhs.ndim == 1 else diagonal[:, None])  # noqa: E731
-    if isinstance(damping, Dampers) and damping.pair_count:
-        factors.append(_pair_factor(system.size, damping.pairs))
-        weights.append(s * damping.pair_coefficients)
-    elif isinstance(damping, LowRank):
-        factors.append(damping.factor)
-        weights.append(s * damping.weights)
-    if factors:
-        solve = _woodbury(solve, jnp.concatenate(factors, axis=1), jnp.concatenate(weights))
-    return solve
 
 
 class StructuredKvaerno5(diffrax.AbstractSolver):

@@ -1,0 +1,277 @@
+"""Input-output second-order models, their transfer functions, H2 norms and error systems.
+
+M x'' + D x' + K x = B u(t), y = C_x x + C_v x': m inputs u, q outputs y, and the transfer
+function G(s) = (C_x + s C_v)(s^2 M + s D + K)^-1 B (the second-order models of pyMOR's
+``SecondOrderModel`` and of Reis & Stykel, "Balanced truncation model reduction of second-order
+systems", Math. Comput. Model. Dyn. Syst. 14 (2008) 391-406). ``IOModel`` wraps a full system or
+a reduced model (B and C stay in full coordinates; a reduced model's are B_r = Phi^T B,
+C_r = C Phi) and ``full - reduced`` is the ``ErrorModel`` G_1 - G_2.
+
+G(s) is one solve with s^2 M + s D + K per point (``_model/pencil``): O(n (m + k^2)) for a chain
+with k relative dampers (a pivoted tridiagonal solve, Woodbury for the dampers that leave the
+band), O(r^3) for a reduced model, O(n^3) for dense user matrices.
+
+The H2 norm of an error system is ||G_1 - G_2||^2 = ||G_1||^2 + ||G_2||^2 - 2 Re <G_1, G_2>.
+The norms are the exact ones of ``h2_norm`` (the damped modes, or a reduced model's Gramian);
+the inner product is tr(C_1 X C_2^T) with the cross Gramian X of A_1 X + E_1 X A_2^T + B_1 B_2^T
+= 0 (E_1 z' = A_1 z + B_1 u: the larger model in first-order form), solved as Bartels & Stewart
+do ("Solution of the matrix equation AX + XB = C", Comm. ACM 15 (1972) 820-826): the smaller
+model's state matrix in complex Schur form (stable also where its poles coalesce), then one
+shifted solve of the larger model per column, O(r n (k^2 + r)) for a reduced model of order r.
+The subtraction loses what rounding leaves of ||G_1||^2: an error below about
+sqrt(eps) (||G_1|| + ||G_2||) is not resolved (it comes back as that floor or 0).
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._custom_types import Array, Complex, Float
+from .._errors import MARK, array_module, as_float, check, check_dense_memory
+from .._model.pencil import modal_pencil, pencil_solver
+from .._model.reduced import ReducedModel
+from .._model.system import SecondOrderSystem
+from .._objective.outputs import _matrix, h2_norm
+from .._solver.solve import AbstractMethod, Auto, solve
+from .._solver.spectral.modes import damped_modes, spectral_applies
+
+_AUTO = Auto()
+
+
+class IOModel(eqx.Module):
+    """M x'' + D x' + K x = B u, y = C_x x + C_v x': a system with m inputs and q outputs.
+
+    ``model``: a ``SecondOrderSystem`` or a ``ReducedModel``; ``inputs``: B, (n, m) force
+    directions (an (n,) vector is one input); ``cx``, ``cv``: (q, n) outputs on displacements
+    and velocities (an (n,) vector is one output; a missing one is zero; at least one).
+    Full coordinates throughout, also for a reduced model. ``reduce(io_model, strategy)``
+    reduces the model and keeps B and C; ``full - reduced`` is their ``ErrorModel``.
+
+    >>> import jax.numpy as jnp, mikota_jax as mj
+    >>> system = mj.mikota_chain(40, dampers=[mj.GroundedDamper(7.0, 1.0)])
+    >>> full = mj.IOModel(system, mj.unit_vector(40, 3), cx=mj.unit_vector(40, 20))
+    >>> reduced = mj.reduce(full, mj.Modal(10))
+    >>> error = full - reduced
+    >>> bool(error.h2_norm() < full.h2_norm())
+    True
+    """
+
+    model: SecondOrderSystem | ReducedModel
+    inputs: Float[Array, "n m"]
+    cx: Float[Array, "q n"]
+    cv: Float[Array, "q n"]
+
+    def __init__(self, model, inputs, cx=None, cv=None):
+        if not isinstance(model, SecondOrderSystem | ReducedModel):
+            raise ValueError(MARK + "model must be a SecondOrderSystem or a ReducedModel, got "
+                             f"{type(model).__name__}.")
+        n = model.size
+        if inputs is None:
+            raise ValueError(MARK + f"inputs must be (n, m) or (n,) with n = {n}, got None.")
+        cx, cv = _matrix(cx, n, "cx", True), _matrix(cv, n, "cv", True)
+        if cx is None and cv is None:
+            raise ValueError(MARK + "give an output: cx (on displacements) and/or cv (on "
+                             "velocities), each (q, n) or (n,).")
+        if cx is not None and cv is not None and cx.shape[0] != cv.shape[0]:
+            raise ValueError(MARK + f"cx and cv must have the same number of rows (outputs), "
+                             f"got {cx.shape[0]} and {cv.shape[0]}.")
+        zero = jnp.zeros((cx if cv is None else cv).shape)
+        self.model = model
+        self.inputs = _matrix(inputs, n, "inputs", False)
+        self.cx = zero if cx is None else cx
+        self.cv = zero if cv is None else cv
+
+    @property
+    def size(self) -> int:
+        """n, the number of full DOFs."""
+        return self.model.size
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(q, m): outputs and inputs, the shape of G(s)."""
+        return self.cx.shape[0], self.inputs.shape[1]
+
+    def transfer(self, s) -> Complex[Array, "F q m"]:
+        """G(s) = (C_x + s C_v)(s^2 M + s D + K)^-1 B at the (F,) complex points ``s``: complex128
+        (F, q, m). Differentiable; a point on a pole is inf or NaN (no pole lies in Re s > 0)."""
+        s = jnp.asarray(s)
+        if jnp.issubdtype(s.dtype, jnp.complexfloating) and s.dtype != jnp.complex128:
+            raise ValueError(MARK + f"s must be complex128 or float64, got {s.dtype}.")
+        s = jnp.atleast_1d(s).astype(jnp.complex128)
+        if s.ndim != 1:
+            raise ValueError(MARK + f"s must be a scalar or an (F,) array, got shape {s.shape}.")
+        return _transfer(self, s)
+
+    def frequency_response(self, omegas) -> Complex[Array, "F q m"]:
+        """G(i omega) at the (F,) angular frequencies ``omegas`` (rad per unit time, >= 0): the
+        steady-state complex amplitude of the outputs under inputs e^(i omega t)."""
+        omegas = as_float(omegas, "omegas")
+        if omegas.ndim != 1 or omegas.shape[0] < 1:
+            raise ValueError(MARK + f"omegas must be a non-empty (F,) array, got {omegas.shape}.")
+        xp = array_module(omegas)
+        values = np.asarray(omegas) if xp is np else omegas
+        omegas = check(omegas, ~xp.all(xp.isfinite(values) & (values >= 0)),
+                       "omegas must be finite and >= 0.")
+        return self.transfer(jax.lax.complex(jnp.zeros_like(omegas), omegas))
+
+    def h2_norm(self) -> Float[Array, ""]:
+        """||G||_H2: the square root of the outputs' energy over the impulse responses of the
+        inputs (``h2_norm``; exact from the damped modes, or a reduced model's Gramian).
+        Refused where a mode that nothing damps is excited and seen."""
+        return h2_norm(self.model, self.inputs, self.cx, self.cv)
+
+    def poles(self) -> Complex[Array, " p"]:
+        """The 2 r eigenvalues of s^2 M + s D + K (r = n, or a reduced model's rank): a full
+        system with dampers from its damped modes (the secular equation, O(n^2)), anything else
+        densely (O(r^3))."""
+        if isinstance(self.model, SecondOrderSystem) and spectral_applies(self.model) is None:
+            modes = damped_modes(self.model)
+            roots = check(modes.eigenvalues, ~jnp.all(modes.converged),
+                          "model: the damped modes did not converge.")
+            return roots
+        system = self.model.system if isinstance(self.model, ReducedModel) else self.model
+        check_dense_memory(2 * system.size, 3, "IOModel.poles")
+        return jnp.linalg.eigvals(_first_order(system)[0])
+
+    def output(self, ts, u=None, *, x0=None, v0=None, method: AbstractMethod = _AUTO
+               ) -> Float[Array, "N q"]:
+        """y(t) = C_x x(t) + C_v x'(t) at the (N,) times ``ts`` under the inputs ``u`` (a
+        callable t -> (m,), or None: free vibration) from x0, v0 (full coordinates, default
+        zero): ``solve`` with the load B u(t) and ``method``, then C; (N, q)."""
+        inputs = self.inputs
+        if u is not None and not callable(u):
+            raise ValueError(MARK + f"u must be None or a callable t -> (m,), got {u!r:.60}.")
+        load = None if u is None else (lambda t: inputs @ jnp.atleast_1d(u(t)))
+        trajectory = solve(self.model, ts, x0, v0, load, method=method, velocity=True)
+        return trajectory.displacement @ self.cx.T + trajectory.velocity @ self.cv.T
+
+    def __sub__(self, other: "IOModel") -> "ErrorModel":
+        """The error system ``self - other`` (the same q outputs and m inputs)."""
+        if not isinstance(other, IOModel):
+            return NotImplemented
+        if self.shape != other.shape:
+            raise ValueError(MARK + f"the two models must have the same (outputs, inputs), got "
+                             f"{self.shape} and {other.shape}.")
+        return ErrorModel(self, other)
+
+
+class ErrorModel(eqx.Module):
+    """G_1 - G_2 of two ``IOModel``s with the same inputs and outputs (``first - second``, e.g.
+    ``full - reduced``): its transfer function, frequency response and H2 norm."""
+
+    first: IOModel
+    second: IOModel
+
+    def transfer(self, s) -> Complex[Array, "F q m"]:
+        """G_1(s) - G_2(s) at the (F,) complex points ``s``."""
+        return self.first.transfer(s) - self.second.transfer(s)
+
+    def frequency_response(self, omegas) -> Complex[Array, "F q m"]:
+        """G_1(i omega) - G_2(i omega) at the (F,) angular frequencies ``omegas`` (>= 0)."""
+        return self.first.frequency_response(omegas) - self.second.frequency_response(omegas)
+
+    def h2_norm(self) -> Float[Array, ""]:
+        """||G_1 - G_2||_H2 (module docstring: the two norms and the cross Gramian's inner
+        product; resolved down to about sqrt(eps) (||G_1|| + ||G_2||)). Differentiable with
+        respect to the larger model's values (``jax.grad``), not the smaller one's (JAX has no
+        derivative of the Schur form): a reduced model held fixed while the full one moves."""
+        first, second = self.first.h2_norm(), self.second.h2_norm()
+        small, large = sorted((self.first, self.second), key=_order)
+        square = first**2 + second**2 - 2 * _inner(large, small)
+        return jnp.sqrt(jnp.maximum(square, 0.0))
+
+    def poles(self) -> Complex[Array, " p"]:
+        """The poles of both models (those of G_1 - G_2 where nothing cancels)."""
+        return jnp.concatenate([self.first.poles(), self.second.poles()])
+
+
+def _order(io: IOModel) -> int:
+    """The order of a model's pencil: the rank of a reduced model, else n."""
+    return io.model.rank if isinstance(io.model, ReducedModel) else io.model.size
+
+
+def _coordinates(io: IOModel):
+    """(system, B, C_x, C_v) in the coordinates of the model's own system: a reduced model's
+    B_r = Phi^T B and C_r = C Phi; a full system's as they are."""
+    model = io.model
+    if isinstance(model, ReducedModel):
+        basis = model.basis
+        return model.system, basis.T @ io.inputs, io.cx @ basis, io.cv @ basis
+    return model, io.inputs, io.cx, io.cv
+
+
+@eqx.filter_jit
+def _transfer(io: IOModel, s):
+    system, b, cx, cv = _coordinates(io)
+    cx, cv = cx.astype(jnp.complex128), cv.astype(jnp.complex128)
+
+    def one(sigma):
+        solve = pencil_solver(system, sigma**2, sigma, jnp.ones((), jnp.complex128))
+        return (cx + sigma * cv) @ solve(b.astype(jnp.complex128))
+
+    return jax.lax.map(one, s)
+
+
+def _first_order(system):
+    """A = [[0, I], [-Omega^2, -C]] in the modal coordinates (eta, eta'), x = U eta, and U."""
+    pencil = modal_pencil(system)
+    n = pencil.omega.shape[0]
+    c = pencil.damping_modal(jnp.eye(n, dtype=jnp.complex128)).real
+    a = jnp.block([[jnp.zeros((n, n)), jnp.eye(n)], [-jnp.diag(pencil.omega**2), -c]])
+    return a, pencil.modes
+
+
+def _complex_mv(mv):
+    """A real operator's product applied to a complex vector, part by part."""
+    return lambda v: jax.lax.complex(mv(v.real), mv(v.imag))
+
+
+@jax.custom_jvp
+def _schur(a):
+    return jax.scipy.linalg.schur(a, output="complex")
+
+
+@_schur.defjvp
+def _schur_jvp(primals, tangents):
+    raise ValueError(MARK + "ErrorModel.h2_norm is differentiable in the larger model only (the "
+                     "smaller one's Schur form has no derivative); keep the smaller model fixed.")
+
+
+@eqx.filter_jit
+def _inner(large: IOModel, small: IOModel):
+    """Re <G_large, G_small>_H2 = Re tr(C_1 X C_2^T), A_1 X + E_1 X A_2^T + B_1 B_2^T = 0, by
+    Bartels-Stewart on the small side (module docstring). The large side is E_1 z' = A_1 z +
+    B_1 u in its own coordinates z = (x, x'): E_1 = diag(I, M), A_1 = [[0, I], [-K, -D]], B_1 =
+    (0, B), C_1 = (C_x, C_v); the small side in its modal coordinates."""
+    system, b1, cx1, cv1 = _coordinates(large)
+    n = system.size
+    damping = system.damping_operator()
+    damp = (lambda v: jnp.zeros_like(v)) if damping is None else _complex_mv(damping.mv)
+    mass = _complex_mv(system.mass.mv)
+    small_system, b2_physical, cx2, cv2 = _coordinates(small)
+    a2, modes2 = _first_order(small_system)
+    r = modes2.shape[1]
+    b2 = jnp.concatenate([jnp.zeros((r, b1.shape[1])), modes2.T @ b2_physical]
+                         ).astype(jnp.complex128)
+    c2 = jnp.concatenate([cx2 @ modes2, cv2 @ modes2], axis=1).astype(jnp.complex128)
+    t, q = _schur(a2.T.astype(jnp.complex128))  # A_2^T = Q T Q^H, T upper triangular
+    # A_1 Y + E_1 Y T = R with Y = X Q, R = -B_1 B_2^T Q: only its velocity half is nonzero
+    rhs_velocity = -(b1.astype(jnp.complex128) @ (b2.T @ q))  # (n, 2r)
+    one = jnp.ones((), jnp.complex128)
+
+    def column(y, j):
+        # (A_1 - sigma E_1) y_j = R_j - E_1 sum_{i<j} y_i T_ij, sigma = -T_jj (columns >= j of
+        # y are still 0); then y_2 = r_1 + sigma y_1, -(sigma^2 M + sigma D + K) y_1 = r_2 +
+        # (D + sigma M) r_1
+        accumulated = y @ t[:, j]
+        r1 = -accumulated[:n]
+        r2 = rhs_velocity[:, j] - mass(accumulated[n:])
+        sigma = -t[j, j]
+        solve = pencil_solver(system, sigma**2, sigma, one)
+        y1 = -solve(r2 + damp(r1) + sigma * mass(r1))
+        return y.at[:, j].set(jnp.concatenate([y1, r1 + sigma * y1])), None
+
+    y, _ = jax.lax.scan(column, jnp.zeros((2 * n, 2 * r), jnp.complex128), jnp.arange(2 * r))
+    c1 = jnp.concatenate([cx1, cv1], axis=1).astype(jnp.complex128)
+    return jnp.real(jnp.trace(c1 @ y @ (q.conj().T @ c2.T)))
