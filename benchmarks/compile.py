@@ -19,9 +19,9 @@ DOF 7, x_3(0) = 1, 2001 outputs on [0, 20]; POD of the exact snapshots on [0, 10
   total. (JAX records trace events only for top-level traces: under an eager ``jax.grad`` the
   inner traces are invisible, so there the check rests on "no compile", which any retrace of a
   jitted function would cause.)
-* **Correctness.** Each process checks what it timed (simulate vs exact_solve, the paper's rank
-  76, the ROM's phase error, eager vs jitted results, cold vs warm results equal) before anything
-  is written; a failed check stops the script.
+* **Correctness.** Each process checks what it timed (the ODE solve vs the Spectral one, the
+  paper's rank 76, the ROM's phase error, eager vs jitted results, cold vs warm results equal)
+  before anything is written; a failed check stops the script.
 * **Scene.** ``run_scene(load_scene("section5_damped"))`` in a fresh process, cold and warm.
 * **Cold start of a scene.** ``python -m mikota_jax run section5_damped --quiet`` from process
   start to exit, each cold run with a new empty cache directory, each warm run after it with the
@@ -33,11 +33,11 @@ DOF 7, x_3(0) = 1, 2001 outputs on [0, 20]; POD of the exact snapshots on [0, 10
   ``jax.monitoring``) and run (the rest); one more plain ``python -m`` warm run (no listener) is a
   cross-check. Target: compile / run <= 3 on a warm cache.
 
-Diagnostic (full run): simulate cold/warm with ``EQX_ON_ERROR=nan``, which removes the host
-callbacks of diffrax's input checks, to show what the cache would save if simulate were storable.
+Diagnostic (full run): the ODE solve cold/warm with ``EQX_ON_ERROR=nan``, which removes the host
+callbacks of diffrax's input checks, to show what the cache would save if that solve were storable.
 
 Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/compile.py [--quick]``. ``--quick``: mikota_chain,
-simulate (dopri8), exact_solve and pod cold/warm plus their retrace checks; no scene, no
+solve ODE(Dopri8), solve Spectral and POD cold/warm plus their retrace checks; no scene, no
 reproduce. Writes ``benchmarks/results/compile[_quick].json`` and ``.png``.
 """
 
@@ -182,7 +182,7 @@ class Entry:
 
 
 def snapshots(ctx) -> np.ndarray:
-    return np.asarray(ctx["exact_solve"].displacement)[:WINDOW].T  # (n, m), eq. (3.5)
+    return np.asarray(ctx["solve Spectral"].displacement)[:WINDOW].T  # (n, m), eq. (3.5)
 
 
 def make_objective(basis):
@@ -217,40 +217,42 @@ JITTED = {"jit_simulate": jax.jit(jit_simulate), "jit_exact_solve": jax.jit(jit_
 ENTRIES = [
     Entry("mikota_chain", lambda c: damped(), quick=True),
     Entry("load_scene", lambda c: mj.app.load_scene(SCENE)),
-    Entry("simulate dopri8", lambda c: mj.solve(c["mikota_chain"], TS, X0,
+    Entry("solve ODE(Dopri8)", lambda c: mj.solve(c["mikota_chain"], TS, X0,
                                                 method=mj.ODE(rtol=1e-8, atol=1e-10)),
           "simulate_with_result", True),
-    Entry("simulate tsit5", lambda c: mj.solve(c["mikota_chain"], TS, X0,
+    Entry("solve ODE(Tsit5)", lambda c: mj.solve(c["mikota_chain"], TS, X0,
                                                method=mj.ODE(diffrax.Tsit5(), rtol=1e-6,
                                                              atol=1e-8)),
           "simulate_with_result"),
-    Entry("exact_solve", lambda c: mj.solve(c["mikota_chain"], TS, X0, velocity=True,
+    Entry("solve Spectral", lambda c: mj.solve(c["mikota_chain"], TS, X0, velocity=True,
                                             method=mj.Spectral()),
           "_exact", True),
     Entry("modal_decomposition", lambda c: mj.modal_decomposition(c["mikota_chain"])),
-    Entry("pod svd", lambda c: pod(c["snapshots"]), "_pod_svd", True),
-    Entry("pod snapshots", lambda c: pod(c["snapshots"], method="snapshots"),
+    Entry("POD svd", lambda c: pod(c["snapshots"]), "_pod_svd", True),
+    Entry("POD snapshots", lambda c: pod(c["snapshots"], method="snapshots"),
           "_pod_snapshots"),
-    Entry("POD.basis", lambda c: c["pod svd"].basis(RANK)),
-    Entry("galerkin", lambda c: mj.reduce(c["mikota_chain"], mj.Projection(c["POD.basis"]))),
-    Entry("simulate dopri8 ROM", lambda c: mj.solve(c["galerkin"], TS, X0,
+    Entry("POD.basis", lambda c: c["POD svd"].basis(RANK)),
+    Entry("reduce Projection",
+          lambda c: mj.reduce(c["mikota_chain"], mj.Projection(c["POD.basis"]))),
+    Entry("solve ROM ODE(Dopri8)", lambda c: mj.solve(c["reduce Projection"], TS, X0,
                                                     method=mj.ODE(rtol=1e-8, atol=1e-10)),
           "simulate_with_result"),
-    Entry("exact_solve ROM", lambda c: mj.solve(c["galerkin"], TS, X0, velocity=True,
-                                                method=mj.DenseExponential()),
+    Entry("solve ROM DenseExponential",
+          lambda c: mj.solve(c["reduce Projection"], TS, X0, velocity=True,
+                             method=mj.DenseExponential()),
           "_exact"),
     Entry("phase_error", lambda c: mj.metrics.phase_error(
-        c["exact_solve"].displacement, c["exact_solve"].velocity,
-        c["exact_solve ROM"].displacement, c["exact_solve ROM"].velocity)),
-    Entry("relative_error", lambda c: mj.metrics.relative_error(c["exact_solve"].displacement,
-                                                        c["exact_solve ROM"].displacement)),
-    Entry("pseudo_energy", lambda c: mj.metrics.pseudo_energy(c["pod svd"].singular_values)),
-    Entry("grad ROM simulate", lambda c: grad_fn(c)(7.5, 1.0)),
-    Entry("jit(grad) ROM simulate", lambda c: grad_fn(c, jitted=True)(7.5, 1.0),
+        c["solve Spectral"].displacement, c["solve Spectral"].velocity,
+        c["solve ROM DenseExponential"].displacement, c["solve ROM DenseExponential"].velocity)),
+    Entry("relative_error", lambda c: mj.metrics.relative_error(
+        c["solve Spectral"].displacement, c["solve ROM DenseExponential"].displacement)),
+    Entry("pseudo_energy", lambda c: mj.metrics.pseudo_energy(c["POD svd"].singular_values)),
+    Entry("grad ROM solve", lambda c: grad_fn(c)(7.5, 1.0)),
+    Entry("jit(grad) ROM solve", lambda c: grad_fn(c, jitted=True)(7.5, 1.0),
           "energy_at_dof_150"),
-    Entry("jit(simulate dopri8)", lambda c: JITTED["jit_simulate"](c["mikota_chain"], X0, 1e-8),
+    Entry("jit(solve ODE(Dopri8))", lambda c: JITTED["jit_simulate"](c["mikota_chain"], X0, 1e-8),
           "jit_simulate"),
-    Entry("jit(exact_solve)", lambda c: JITTED["jit_exact_solve"](c["mikota_chain"], X0),
+    Entry("jit(solve Spectral)", lambda c: JITTED["jit_exact_solve"](c["mikota_chain"], X0),
           "jit_exact_solve"),
 ]
 
@@ -268,16 +270,17 @@ def variations(ctx, quick: bool) -> list[tuple[str, str, list]]:
                                           lambda: damped(1.0, 4.0, m=0.7, k=1.9)]},
         "load_scene": {"damper, x0": [lambda: mj.app.load_scene(scene_dict(9, 0.5, 2.0)),
                                       lambda: mj.app.load_scene(scene_dict(4.5, 3.0, -1.0))]},
-        "pod svd": {"snapshots": [lambda: pod(snaps * 2.0), lambda: pod(snaps[:, ::-1])]},
-        "pod snapshots": {"snapshots": [lambda: pod(snaps * 2.0, method="snapshots"),
+        "POD svd": {"snapshots": [lambda: pod(snaps * 2.0), lambda: pod(snaps[:, ::-1])]},
+        "POD snapshots": {"snapshots": [lambda: pod(snaps * 2.0, method="snapshots"),
                                         lambda: pod(snaps[:, ::-1], method="snapshots")]},
         "POD.basis": {"POD values": [lambda: pod(snaps * 0.5).basis(RANK)]},
-        "galerkin": {"system, basis": [lambda: mj.reduce(sys_a(), mj.Projection(other_basis()))]},
+        "reduce Projection": {"system, basis": [
+            lambda: mj.reduce(sys_a(), mj.Projection(other_basis()))]},
         "modal_decomposition": {"damper, masses/springs": [
             lambda: mj.modal_decomposition(sys_a()),
             lambda: mj.modal_decomposition(mj.chain(masses * 1.1, springs * 0.9, dampers))]},
         "pseudo_energy": {"singular values": [
-            lambda: mj.metrics.pseudo_energy(np.asarray(ctx["pod svd"].singular_values) * 2)]},
+            lambda: mj.metrics.pseudo_energy(np.asarray(ctx["POD svd"].singular_values) * 2)]},
     }
 
     def solver_cases(name, call, tolerances):
@@ -298,9 +301,9 @@ def variations(ctx, quick: bool) -> list[tuple[str, str, list]]:
         return lambda s, x0=X0, v0=None, rtol=rtol, atol=rtol * 1e-2: mj.solve(
             s, TS, x0, v0, method=mj.ODE(solver, rtol=rtol, atol=atol))
 
-    solver_cases("simulate dopri8", sim(diffrax.Dopri8(), 1e-8), (1e-6, 1e-9))
-    solver_cases("simulate tsit5", sim(diffrax.Tsit5(), 1e-6), (1e-5, 1e-7))
-    solver_cases("exact_solve", lambda s, x0=X0, v0=None: mj.solve(s, TS, x0, v0, velocity=True,
+    solver_cases("solve ODE(Dopri8)", sim(diffrax.Dopri8(), 1e-8), (1e-6, 1e-9))
+    solver_cases("solve ODE(Tsit5)", sim(diffrax.Tsit5(), 1e-6), (1e-5, 1e-7))
+    solver_cases("solve Spectral", lambda s, x0=X0, v0=None: mj.solve(s, TS, x0, v0, velocity=True,
                                                                    method=mj.Spectral()), ())
     if "POD.basis" in ctx:
         basis = ctx["POD.basis"]
@@ -309,28 +312,28 @@ def variations(ctx, quick: bool) -> list[tuple[str, str, list]]:
             method=mj.ODE(rtol=rtol, atol=rtol * 1e-2))
         rom_exact = lambda s, b=basis: mj.solve(mj.reduce(s, mj.Projection(b)), TS, X0,
                                                 velocity=True, method=mj.DenseExponential())
-        full, red = ctx["exact_solve"], ctx["exact_solve ROM"]
+        full, red = ctx["solve Spectral"], ctx["solve ROM DenseExponential"]
         cases.update({
-            "simulate dopri8 ROM": {
+            "solve ROM ODE(Dopri8)": {
                 "damper position, coefficient": [lambda: rom_sim(damped(9.5, 1.0)),
                                                  lambda: rom_sim(damped(7.0, 3.0))],
                 "basis": [lambda: rom_sim(damped(), other_basis())],
                 "x0/v0": [lambda: rom_sim(damped(), x0=unit(5, 0.5), v0=unit(1, 0.2))],
                 "rtol/atol": [lambda: rom_sim(damped(), rtol=1e-6)]},
-            "exact_solve ROM": {
+            "solve ROM DenseExponential": {
                 "damper position, coefficient": [lambda: rom_exact(damped(9.5, 3.0))],
                 "basis": [lambda: rom_exact(damped(), other_basis())]},
             "phase_error": {"trajectories": [lambda: mj.metrics.phase_error(
                 red.displacement, red.velocity, full.displacement, full.velocity)]},
             "relative_error": {"trajectories": [
                 lambda: mj.metrics.relative_error(red.displacement, full.displacement)]},
-            "grad ROM simulate": {"damper position, coefficient": [
+            "grad ROM solve": {"damper position, coefficient": [
                 lambda: ctx["grad"](8.25, 0.5), lambda: ctx["grad"](12.0, 2.0)]},
-            "jit(grad) ROM simulate": {"damper position, coefficient": [
+            "jit(grad) ROM solve": {"damper position, coefficient": [
                 lambda: ctx["jit(grad)"](8.25, 0.5), lambda: ctx["jit(grad)"](12.0, 2.0)]},
-            "jit(simulate dopri8)": {"system, x0, rtol": [
+            "jit(solve ODE(Dopri8))": {"system, x0, rtol": [
                 lambda: JITTED["jit_simulate"](sys_a(), unit(5, 0.5), 1e-7)]},
-            "jit(exact_solve)": {"system, x0": [
+            "jit(solve Spectral)": {"system, x0": [
                 lambda: JITTED["jit_exact_solve"](sys_a(), unit(5, 0.5))]},
         })
     out = []
@@ -366,7 +369,7 @@ def digest(value) -> float:
 def time_entries(entries, ctx, recorder, repeats: int) -> list[dict]:
     rows = []
     for entry in entries:
-        if entry.name == "pod svd":
+        if entry.name == "POD svd":
             ctx["snapshots"] = snapshots(ctx)  # numpy, no compile
         mark = recorder.mark()
         start = time.perf_counter()
@@ -416,35 +419,36 @@ def retrace(ctx, recorder, rows, quick: bool) -> list[dict]:
 def checks(ctx) -> dict:
     """Correctness of what was timed (max abs differences, or flags)."""
     found = {}
-    exact = ctx.get("exact_solve")
+    exact = ctx.get("solve Spectral")
 
     def diff(a, b):
         return float(np.max(np.abs(np.asarray(a) - np.asarray(b))))
 
-    if exact is not None and "simulate dopri8" in ctx:
-        found["dopri8 rtol 1e-8 vs exact_solve"] = (
-            diff(ctx["simulate dopri8"].displacement, exact.displacement), 1e-4)
-    if exact is not None and "simulate tsit5" in ctx:
-        found["tsit5 rtol 1e-6 vs exact_solve"] = (
-            diff(ctx["simulate tsit5"].displacement, exact.displacement), 1e-2)
-    if "pod svd" in ctx:
-        rank = ctx["pod svd"].rank_for_energy(0.99, "paper")
+    if exact is not None and "solve ODE(Dopri8)" in ctx:
+        found["ODE(Dopri8) rtol 1e-8 vs Spectral"] = (
+            diff(ctx["solve ODE(Dopri8)"].displacement, exact.displacement), 1e-4)
+    if exact is not None and "solve ODE(Tsit5)" in ctx:
+        found["ODE(Tsit5) rtol 1e-6 vs Spectral"] = (
+            diff(ctx["solve ODE(Tsit5)"].displacement, exact.displacement), 1e-2)
+    if "POD svd" in ctx:
+        rank = ctx["POD svd"].rank_for_energy(0.99, "paper")
         found["paper rank at 99 % is 76"] = (abs(rank - RANK), 0.5)
-    if "pod snapshots" in ctx:
-        found["pod snapshots vs svd, sigma_1..10 (rel.)"] = (
-            diff(ctx["pod snapshots"].singular_values[:10], ctx["pod svd"].singular_values[:10])
-            / float(ctx["pod svd"].singular_values[0]), 1e-8)
+    if "POD snapshots" in ctx:
+        found["POD snapshots vs svd, sigma_1..10 (rel.)"] = (
+            diff(ctx["POD snapshots"].singular_values[:10], ctx["POD svd"].singular_values[:10])
+            / float(ctx["POD svd"].singular_values[0]), 1e-8)
     if "phase_error" in ctx:
         found["phase error r = 76 (sum) < 0.1"] = (float(ctx["phase_error"]), 0.1)
-        found["ROM dopri8 vs ROM exact"] = (diff(ctx["simulate dopri8 ROM"].displacement,
-                                                 ctx["exact_solve ROM"].displacement), 1e-4)
-    if "jit(grad) ROM simulate" in ctx:
-        g, gj = (np.asarray(ctx[k]) for k in ("grad ROM simulate", "jit(grad) ROM simulate"))
+        found["ROM ODE vs ROM DenseExponential"] = (
+            diff(ctx["solve ROM ODE(Dopri8)"].displacement,
+                 ctx["solve ROM DenseExponential"].displacement), 1e-4)
+    if "jit(grad) ROM solve" in ctx:
+        g, gj = (np.asarray(ctx[k]) for k in ("grad ROM solve", "jit(grad) ROM solve"))
         found["grad eager vs jit (rel.)"] = (float(np.max(np.abs(g - gj) / np.abs(g))), 1e-6)
-        found["jit(simulate) vs simulate"] = (diff(ctx["jit(simulate dopri8)"].displacement,
-                                                   ctx["simulate dopri8"].displacement), 1e-9)
-        found["jit(exact_solve) vs exact_solve"] = (diff(ctx["jit(exact_solve)"].displacement,
-                                                         exact.displacement), 1e-10)
+        found["jit(solve ODE) vs solve ODE"] = (diff(ctx["jit(solve ODE(Dopri8))"].displacement,
+                                                   ctx["solve ODE(Dopri8)"].displacement), 1e-9)
+        found["jit(solve Spectral) vs solve Spectral"] = (
+            diff(ctx["jit(solve Spectral)"].displacement, exact.displacement), 1e-10)
     return {k: dict(value=v, limit=limit, ok=bool(np.isfinite(v) and v < limit))
             for k, (v, limit) in found.items()}
 
@@ -755,11 +759,11 @@ def main(argv=None) -> dict:
                          warm=child("scene", tmp, scene_cache, False))
             retraced = retraced + scene["warm"]["retrace"]
             repro = reproduce_runs(tmp)
-            print("\ndiagnostic: simulate with EQX_ON_ERROR=nan (no host callbacks), cold then "
+            print("\ndiagnostic: solve ODE with EQX_ON_ERROR=nan (no host callbacks), cold then "
                   "warm ...", flush=True)
             nan_cache, nan_env = tmp / "eqx_nan_cache", {"EQX_ON_ERROR": "nan"}
             diagnostic = [child("entries", tmp, nan_cache, True, env=nan_env,
-                                only="mikota_chain,simulate dopri8") for _ in range(2)]
+                                only="mikota_chain,solve ODE(Dopri8)") for _ in range(2)]
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
@@ -776,7 +780,7 @@ def main(argv=None) -> dict:
         raise SystemExit("correctness check failed: " + "; ".join(failed))
     report(rows, retraced, repro)
     diag_rows = None if diagnostic is None else merge(diagnostic[0]["rows"], diagnostic[1]["rows"])
-    for r in [r for r in diag_rows or [] if r["entry"].startswith("simulate")]:
+    for r in [r for r in diag_rows or [] if r["entry"].startswith("solve ODE")]:
         print(f"\nwith EQX_ON_ERROR=nan: {r['entry']}: compile cold {r['cold_compile_s']:.2f} s, "
               f"warm {r['warm_compile_s']:.2f} s (trace + lower {r['warm_trace_lower_s']:.2f} s; "
               f"cache hit/uncacheable {r['warm_cache']})")
@@ -795,7 +799,7 @@ def main(argv=None) -> dict:
         scene=None if scene is None else {k: v["wall_s"] for k, v in scene.items()},
         cli_run=cli,
         reproduce=repro, diagnostic_eqx_on_error_nan=None if diagnostic is None else dict(
-            note="diffrax's SaveAt checks (eqx.error_if) put host callbacks into every simulate "
+            note="diffrax's SaveAt checks (eqx.error_if) put host callbacks into every ODE solve "
                  "executable, so the persistent cache cannot store it; EQX_ON_ERROR=nan turns "
                  "those checks into NaN-poisoning (no callback): this shows what the cache "
                  "would save. A diagnostic only; not a recommended setting.",

@@ -1,17 +1,23 @@
 """Test configuration: float64, strict dtype promotion and no implicit rank promotion, so that a
 silent float32 downgrade or an accidental broadcast fails loudly in the tests."""
 
+import importlib.metadata
 import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 # The CLI turns on JAX's persistent compilation cache; in-process CLI tests must not change the
 # global config or write to ~/.cache (test_paper checks the cache in a child process instead).
 os.environ.setdefault("MIKOTA_JAX_CACHE", "0")
-# The suite is compile-bound (most tests build a few small systems once): XLA's CPU backend
-# without its LLVM optimisation passes compiles faster (tests/test_spectral.py: 88 s -> 72 s);
-# the compiled code runs slower but computes the same IEEE operations.
-os.environ["XLA_FLAGS"] = " ".join(filter(None, (os.environ.get("XLA_FLAGS"),
-                                                 "--xla_backend_optimization_level=0")))
+# The suite is compile-bound (most tests build a few small systems once). XLA's CPU backend
+# without its LLVM optimisation passes compiles faster (tests/test_spectral.py: 88 s -> 72 s),
+# and its classic fusion emitters instead of the MLIR ones halve the rest (the critical-damping
+# gradients: backend compile 48 s -> 24 s); the compiled code runs slower but computes the same
+# IEEE operations. XLA aborts on a flag it does not know: the second is given only to jaxlib
+# 0.6 and later, which have it.
+_FLAGS = ["--xla_backend_optimization_level=0"]
+if tuple(int(p) for p in importlib.metadata.version("jaxlib").split(".")[:2]) >= (0, 6):
+    _FLAGS.append("--xla_cpu_use_fusion_emitters=false")
+os.environ["XLA_FLAGS"] = " ".join(filter(None, (os.environ.get("XLA_FLAGS"), *_FLAGS)))
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
