@@ -52,7 +52,7 @@ def test_run_writes_the_requested_results_and_figures(tmp_path, capsys):
     assert set(result["full"]["displacement"]) == {"1", "6"}
     assert len(result["singular_values"]) == 6
     assert 0 < result["phase_error"] < 1
-    assert result["meta"]["x64"] is True and result["meta"]["solver"]["method"] == "exact"
+    assert result["meta"]["x64"] is True and result["meta"]["solver"]["method"] == "spectral"
     for name in result["figures"]:
         assert (tmp_path / "out" / name).read_bytes()[:4] == b"\x89PNG"
     # a summary a person can read: the system, the POD rank, the metric as in the JSON, the files

@@ -2,7 +2,7 @@
 reduction, outputs), built in Python or read from TOML (``mikota_jax.app.scene_file``).
 
 A scene holds arrays as traced leaves (so ``jax.grad`` sees the physical values) and everything that
-changes a shape or the control flow (n, which outputs, the solver, the rank rule) as static data.
+changes a shape or the control flow (n, which outputs, the rank rule) as static data.
 DOFs are 1-based. This module is data only: reading and validating scene files is the application
 layer's job (``load_scene``), so the core library never parses TOML.
 """
@@ -18,9 +18,7 @@ from .._model.loads import Pulse
 from .._model.parameters import is_chain
 from .._model.system import SecondOrderSystem
 from .._rom.base import POD, AbstractSnapshotProblem
-from .._solver.exact import exact_solve
-from .._solver.ode import simulate
-from .._solver.select import choose_solver
+from .._solver.solve import ODE, AbstractMethod, DenseExponential, Spectral, solve
 
 PARAMETERS = ("m", "k", "masses", "springs", "positions", "coefficients", "relative_coefficients",
               "alpha", "beta", "zeta", "amplitude")
@@ -48,9 +46,11 @@ class Scene(AbstractSnapshotProblem):
     ``system``: the chain or system (n DOFs); ``ts``: (N,) output times; ``x0``, ``v0``: (n,)
     initial state or None (zero); ``load``: a ``Pulse`` (eq. 4.3) or None; ``reduction``: the
     ``POD`` strategy (snapshot window, rank rule, method; eqs. 3.5-3.8), or None; ``output``:
-    1-based DOFs and quantities; ``solver``: "exact" (``solve``'s exact methods) or an ``ODE``
-    solver with ``rtol``, ``atol``, ``max_steps``. Consistent units, as in the paper's dimensionless
-    scenes.
+    1-based DOFs and quantities; ``method``: how ``solve`` solves the full model (``Spectral()``,
+    ``DenseExponential()`` or ``ODE(...)``; ``Auto().select`` names one). The reduced model of a
+    scene is solved by the same ``ODE``, or by ``DenseExponential()`` where the full model is
+    solved exactly (the damped modes apply to full systems only). Consistent units, as in the
+    paper's dimensionless scenes.
     """
 
     system: SecondOrderSystem
@@ -60,10 +60,7 @@ class Scene(AbstractSnapshotProblem):
     load: Pulse | None
     reduction: POD | None = eqx.field(static=True, default=None)
     output: Output = eqx.field(static=True, default=Output(None, ("displacement",)))
-    solver: str = eqx.field(static=True, default="exact")
-    rtol: float = eqx.field(static=True, default=1e-10)
-    atol: float = eqx.field(static=True, default=1e-12)
-    max_steps: int = eqx.field(static=True, default=100_000)
+    method: AbstractMethod = Spectral()
     name: str = eqx.field(static=True, default="scene")
 
     @property
@@ -88,17 +85,23 @@ class Scene(AbstractSnapshotProblem):
         return full.velocity if velocity else full.displacement
 
 
+def scene_method(model, scene: Scene, adjoint=None) -> AbstractMethod:
+    """The method that solves ``model`` (the scene's system or its reduced model) for ``scene``:
+    ``scene.method``, with ``DenseExponential()`` for a reduced model where that is
+    ``Spectral()``, and an ``ODE``'s adjoint replaced by ``adjoint`` where one is given."""
+    method = scene.method
+    if isinstance(method, Spectral) and not isinstance(model, SecondOrderSystem):
+        method = DenseExponential()
+    if isinstance(method, ODE) and adjoint is not None:
+        method = eqx.tree_at(lambda m: m.adjoint, method, adjoint, is_leaf=lambda x: x is None)
+    return method
+
+
 def solve_scene(model, scene: Scene, dofs, displacement: bool, velocity: bool, adjoint=None):
-    """``model`` solved as ``scene`` says: exactly, by ``simulate`` with the scene's tolerances,
-    or ("auto") by what ``Auto().select`` names, integrated at the scene's tolerances."""
-    kwargs = dict(dofs=dofs, displacement=displacement, velocity=velocity)
-    solver = choose_solver(model, scene.ts, scene.load) if scene.solver == "auto" else scene.solver
-    if solver == "exact":
-        return exact_solve(model, scene.ts, scene.x0, scene.v0, scene.load, **kwargs,
-                           **({"method": "spectral"} if scene.solver == "auto" else {}))
-    return simulate(model, scene.ts, scene.x0, scene.v0, scene.load, solver=solver,
-                    rtol=scene.rtol, atol=scene.atol, max_steps=scene.max_steps,
-                    adjoint=adjoint, **kwargs)
+    """``model`` solved as ``scene`` says (``scene_method``)."""
+    return solve(model, scene.ts, scene.x0, scene.v0, scene.load,
+                 method=scene_method(model, scene, adjoint), dofs=dofs,
+                 displacement=displacement, velocity=velocity)
 
 
 def mikota_parameters(system: SecondOrderSystem) -> tuple[float, float] | None:

@@ -50,6 +50,7 @@ from .._model.reduced import galerkin
 from .._model.system import SecondOrderSystem
 from .._objective.functions import integrated_energy
 from .._rom.base import pod_basis, snapshot_window
+from .._solver.solve import ODE
 from .scene import Scene, scene_parameters
 from .scene import solve_scene as _solve
 
@@ -176,13 +177,16 @@ class SceneFunction(eqx.Module):
                               adjoint)
             return getattr(solution, out)
         if out == "energy":
-            exact = scene.solver == "exact" and load is None
+            method = scene.method
             horizon = scene.ts[-1] - scene.ts[0]
-            if exact:
+            if not isinstance(method, ODE) and load is None:
                 return integrated_energy(model, horizon, x0, v0)
+            # a pulse's energy is integrated: at the scene's ODE, else at rtol 1e-10
+            method = method if isinstance(method, ODE) else ODE(rtol=1e-10, atol=1e-12)
+            atol = 1e-12 if method.atol is None else method.atol
             return integrated_energy(model, horizon, x0, v0, load, method="ode",
-                                     rtol=scene.rtol, atol=scene.atol,
-                                     max_steps=scene.max_steps, adjoint=adjoint)
+                                     rtol=method.rtol, atol=atol,
+                                     max_steps=method.max_steps, adjoint=adjoint)
         if out == "phase_error":
             full = _solve(system, scene, None, True, True, adjoint)
             reduced = _solve(rom, scene, None, True, True, adjoint)

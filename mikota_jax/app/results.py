@@ -67,7 +67,9 @@ def result_dict(result: SceneResult) -> dict:
 def run_summary(result: SceneResult, out: Path, figures=()) -> str:
     """A few lines for a person: what ``run`` computed, its key numbers, where the files are."""
     scene, times = result.scene, np.asarray(result.times)
-    solver = scene.solver if scene.solver == "exact" else f"{scene.solver}, rtol {scene.rtol:g}"
+    solver = method_record(scene.method)
+    solver = ", ".join([solver["method"]] + (
+        [f"rtol {solver['rtol']:g}"] if "rtol" in solver else []))
     lines = [f"{scene.name}: n = {scene.size} DOFs, full model ({solver}) on "
              f"[{times[0]:g}, {times[-1]:g}] at {times.shape[0]} times, "
              f"{len(result.dofs)} output DOF(s); outputs: {', '.join(scene.output.quantities)}"]
@@ -92,6 +94,22 @@ def run_summary(result: SceneResult, out: Path, figures=()) -> str:
     return "\n".join(lines)
 
 
+def method_record(method) -> dict:
+    """The scene's method as JSON: {"method": "spectral" | "dense" | a [solver] name (with
+    rtol, atol, max_steps) | the method's class name}."""
+    from .._solver.ode import SOLVERS
+    from .._solver.solve import ODE, DenseExponential, Spectral
+
+    if isinstance(method, Spectral | DenseExponential):
+        return {"method": "spectral" if isinstance(method, Spectral) else "dense"}
+    if isinstance(method, ODE):
+        names = {cls: name for name, cls in SOLVERS.items()}
+        return {"method": names.get(type(method.solver), type(method.solver).__name__),
+                "rtol": float(method.rtol), "atol": None if method.atol is None
+                else float(method.atol), "max_steps": method.max_steps}
+    return {"method": type(method).__name__}
+
+
 def meta(scene: Scene, timings: dict) -> dict:
     """The versions, backend, x64 flag, solver, reduction request and wall times of a run."""
     import diffrax
@@ -99,9 +117,7 @@ def meta(scene: Scene, timings: dict) -> dict:
 
     from .. import __version__
 
-    solver = {"method": scene.solver}
-    if scene.solver != "exact":
-        solver.update(rtol=scene.rtol, atol=scene.atol, max_steps=scene.max_steps)
+    solver = method_record(scene.method)
     return {
         "mikota_jax": __version__, "jax": jax.__version__, "diffrax": diffrax.__version__,
         "equinox": equinox.__version__, "numpy": np.__version__,

@@ -23,6 +23,8 @@ from .._rom.base import POD
 from .._rom.pod import CRITERIA, METHODS
 from .._scenes.scene import QUANTITIES, REDUCED_QUANTITIES, Output, Scene
 from .._solver.ode import SOLVERS
+from .._solver.solve import ODE, Auto, DenseExponential, Spectral
+from .._solver.spectral.modes import spectral_applies
 from .scene_systems import system_from
 from .toml_checks import choice as _choice
 from .toml_checks import fail as _fail
@@ -164,15 +166,22 @@ def _output_from(data, n: int, reduced: bool) -> Output:
     return Output(dofs, tuple(dict.fromkeys(quantities)), aggregate, figures)
 
 
-def _solver_from(data) -> dict:
+def _method_from(data, system, ts, load):
+    """[solver] as the scene's ``method``: "exact" is ``Spectral()`` where the damped modes apply
+    (``spectral_applies``), else ``DenseExponential()``; "auto" is what ``Auto().select`` names;
+    an ODE solver's name is ``ODE`` with it at rtol, atol and max_steps."""
     table = _table(data, "solver", {"method", "rtol", "atol", "max_steps"})
-    method = _choice(table, "[solver]", "method", ("exact", "auto", *SOLVERS), "exact")
-    return dict(
-        solver=method,
-        rtol=float(_number(table, "[solver]", "rtol", default=1e-10, low=0, strict_low=True,
-                           high=1, strict_high=True)),
-        atol=float(_number(table, "[solver]", "atol", default=1e-12, low=0, strict_low=True)),
-        max_steps=_number(table, "[solver]", "max_steps", default=100_000, low=1, integer=True))
+    name = _choice(table, "[solver]", "method", ("exact", "auto", *SOLVERS), "exact")
+    rtol = float(_number(table, "[solver]", "rtol", default=1e-10, low=0, strict_low=True,
+                         high=1, strict_high=True))
+    atol = float(_number(table, "[solver]", "atol", default=1e-12, low=0, strict_low=True))
+    max_steps = _number(table, "[solver]", "max_steps", default=100_000, low=1, integer=True)
+    if name == "exact":
+        return Spectral() if spectral_applies(system) is None else DenseExponential()
+    method = Auto().select(system, ts, load) if name == "auto" else ODE(SOLVERS[name]())
+    if isinstance(method, ODE):
+        method = ODE(method.solver, rtol=rtol, atol=atol, max_steps=max_steps)
+    return method
 
 
 def scene_from_dict(data: Mapping, name: str = "scene", base: str | Path | None = None) -> Scene:
@@ -198,7 +207,8 @@ def scene_from_dict(data: Mapping, name: str = "scene", base: str | Path | None 
     reduction = _reduction_from(data, ts, n)
     output = _output_from(data, n, reduction is not None)
     _check_output_memory(ts, n, output, reduction)
-    return Scene(system, ts, x0, v0, load, reduction, output, name=name, **_solver_from(data))
+    return Scene(system, ts, x0, v0, load, reduction, output, name=name,
+                 method=_method_from(data, system, ts, load))
 
 
 def _is_file(path: Path) -> bool:
