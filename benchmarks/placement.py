@@ -42,8 +42,8 @@ def snapshot_basis(problem) -> np.ndarray:
     request = mj.POD(problem.snapshots, energy=problem.energy, rank=problem.rank,
                      criterion=problem.criterion)
     scene = mj.Scene(model, ts, problem.x0, problem.v0, problem.load, reduction=request,
-                     solver="dopri8", rtol=problem.rtol, atol=problem.rtol * 1e-2,
-                     max_steps=problem.max_steps)
+                     method=mj.ODE(rtol=problem.rtol, atol=problem.rtol * 1e-2,
+                                   max_steps=problem.max_steps))
     return mj.reduce(scene, request).basis
 
 

@@ -77,11 +77,16 @@ def output_arguments(system, cx, cv):
     why = None if isinstance(system, ReducedModel) else spectral_applies(system)
     if why is not None:
         raise ValueError(MARK + f"system: {why}.")
-    n = system.size
+    return output_matrices(system.size, cx, cv)
+
+
+def output_matrices(n: int, cx, cv):
+    """(C_x, C_v), each checked (q, n) (an (n,) vector is one output; a missing one is zero;
+    at least one given)."""
     cx, cv = _matrix(cx, n, "cx", True), _matrix(cv, n, "cv", True)
     if cx is None and cv is None:
         raise ValueError(MARK + "give an output: cx (on displacements) and/or cv (on "
-                         "velocities), each (q, n).")
+                         "velocities), each (q, n) or (n,).")
     if cx is not None and cv is not None and cx.shape[0] != cv.shape[0]:
         raise ValueError(MARK + f"cx and cv must have the same number of rows (outputs), got "
                          f"{cx.shape[0]} and {cv.shape[0]}.")

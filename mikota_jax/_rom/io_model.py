@@ -32,7 +32,7 @@ from .._errors import MARK, array_module, as_float, check, check_dense_memory
 from .._model.pencil import modal_pencil, pencil_solver
 from .._model.reduced import ReducedModel
 from .._model.system import SecondOrderSystem
-from .._objective.outputs import _matrix, h2_norm
+from .._objective.outputs import _matrix, h2_norm, output_matrices
 from .._solver.solve import AbstractMethod, Auto, solve
 from .._solver.spectral.modes import damped_modes, spectral_applies
 
@@ -69,18 +69,9 @@ class IOModel(eqx.Module):
         n = model.size
         if inputs is None:
             raise ValueError(MARK + f"inputs must be (n, m) or (n,) with n = {n}, got None.")
-        cx, cv = _matrix(cx, n, "cx", True), _matrix(cv, n, "cv", True)
-        if cx is None and cv is None:
-            raise ValueError(MARK + "give an output: cx (on displacements) and/or cv (on "
-                             "velocities), each (q, n) or (n,).")
-        if cx is not None and cv is not None and cx.shape[0] != cv.shape[0]:
-            raise ValueError(MARK + f"cx and cv must have the same number of rows (outputs), "
-                             f"got {cx.shape[0]} and {cv.shape[0]}.")
-        zero = jnp.zeros((cx if cv is None else cv).shape)
         self.model = model
         self.inputs = _matrix(inputs, n, "inputs", False)
-        self.cx = zero if cx is None else cx
-        self.cv = zero if cv is None else cv
+        self.cx, self.cv = output_matrices(n, cx, cv)
 
     @property
     def size(self) -> int:
