@@ -118,3 +118,19 @@ def test_reduced_model_and_pod_trace_once():
     changes = solver_changes(call)
     changes["basis"] = lambda: call(chain(), b=other)
     assert_traced_once(lambda: call(chain()), "simulate_with_result", changes)
+
+
+def test_error_norms_of_reduced_models_of_one_shape_share_one_program():
+    # a reduced model's stats are static (here its shifts): they must not enter the compiled
+    # norms, or every new model of the same rank would compile them again
+    io = mj.IOModel(chain(), unit(3), cx=unit(10))
+
+    def error(shifts):
+        reduced = mj.reduce(io, mj.RationalKrylov(np.array(shifts), unit(3)))
+        assert reduced.model.rank == 4
+        return (io - reduced).h2_norm(), reduced.frequency_response(np.linspace(0.0, 3.0, 5))
+
+    jax.block_until_ready(error([1.1j, 5.1j]))
+    with recorded() as log:
+        jax.block_until_ready(error([2.3j, 7.3j]))
+    assert not log, f"a new reduced model of the same shape traced/compiled again: {log}"

@@ -146,7 +146,7 @@ def output_energy(system: SecondOrderSystem, cx=None, cv=None, *, x0=None, v0=No
     x0, v0 = output_states(system.size, x0, v0, lowest)
     if isinstance(system, ReducedModel):
         check_lowest(lowest, system.rank)
-        value, ok = _reduced_output_energy(system, x0, v0, None, cx, cv,
+        value, ok = _reduced_output_energy(_bare(system), x0, v0, None, cx, cv,
                                            output_horizon(horizon), lowest)
         return check(value, ~ok, _NOT_OK_REDUCED)
     value, ok = spectral_output_energy_with_result(system, x0, v0, None, cx, cv,
@@ -167,12 +167,19 @@ def h2_norm(system: SecondOrderSystem, inputs, cx=None, cv=None) -> Float[Array,
     cx, cv = output_arguments(system, cx, cv)
     forces = state_matrix(inputs, system.size, "inputs", required=True)
     if isinstance(system, ReducedModel):
-        value, ok = _reduced_output_energy(system, None, None, forces, cx, cv, None, None)
+        value, ok = _reduced_output_energy(_bare(system), None, None, forces, cx, cv, None,
+                                           None)
         return jnp.sqrt(check(value, ~ok, _NOT_OK_REDUCED))
     value, ok = spectral_output_energy_with_result(system, None, None, forces, cx, cv, None,
                                                    None)
     value = check(value, ~ok & ~jnp.isinf(value), _NOT_OK)
     return jnp.sqrt(check(value, jnp.isinf(value), _UNDAMPED_SEEN))
+
+
+def _bare(model: ReducedModel) -> ReducedModel:
+    """The model without its stats: they are static data (a strategy's shifts, a greedy
+    history), and two models of one shape must share one compiled program."""
+    return ReducedModel(model.system, model.basis)
 
 
 @eqx.filter_jit

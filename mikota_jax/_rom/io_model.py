@@ -61,6 +61,7 @@ class IOModel(eqx.Module):
     inputs: Float[Array, "n m"]
     cx: Float[Array, "q n"]
     cv: Float[Array, "q n"]
+    given: tuple[bool, bool] = eqx.field(static=True)  # whether cx, cv were given (else zero)
 
     def __init__(self, model, inputs, cx=None, cv=None):
         if not isinstance(model, SecondOrderSystem | ReducedModel):
@@ -71,6 +72,7 @@ class IOModel(eqx.Module):
             raise ValueError(MARK + f"inputs must be (n, m) or (n,) with n = {n}, got None.")
         self.model = model
         self.inputs = _matrix(inputs, n, "inputs", False)
+        self.given = (cx is not None, cv is not None)
         self.cx, self.cv = output_matrices(n, cx, cv)
 
     @property
@@ -92,7 +94,7 @@ class IOModel(eqx.Module):
         s = jnp.atleast_1d(s).astype(jnp.complex128)
         if s.ndim != 1:
             raise ValueError(MARK + f"s must be a scalar or an (F,) array, got shape {s.shape}.")
-        return _transfer(self, s)
+        return _transfer(*_coordinates(self), s)
 
     def frequency_response(self, omegas) -> Complex[Array, "F q m"]:
         """G(i omega) at the (F,) angular frequencies ``omegas`` (rad per unit time, >= 0): the
@@ -134,8 +136,15 @@ class IOModel(eqx.Module):
         if u is not None and not callable(u):
             raise ValueError(MARK + f"u must be None or a callable t -> (m,), got {u!r:.60}.")
         load = None if u is None else (lambda t: inputs @ jnp.atleast_1d(u(t)))
-        trajectory = solve(self.model, ts, x0, v0, load, method=method, velocity=True)
-        return trajectory.displacement @ self.cx.T + trajectory.velocity @ self.cv.T
+        has_x, has_v = self.given  # only the states an output reads are solved for
+        trajectory = solve(self.model, ts, x0, v0, load, method=method, displacement=has_x,
+                           velocity=has_v)
+        parts = [trajectory.displacement @ self.cx.T] if has_x else []
+        return sum(parts + ([trajectory.velocity @ self.cv.T] if has_v else []))
+
+    def outputs(self) -> tuple:
+        """(cx, cv) as given: each a (q, n) matrix, or None where it was left out."""
+        return tuple(c if g else None for c, g in zip((self.cx, self.cv), self.given))
 
     def __sub__(self, other: "IOModel") -> "ErrorModel":
         """The error system ``self - other`` (the same q outputs and m inputs)."""
@@ -169,7 +178,7 @@ class ErrorModel(eqx.Module):
         derivative of the Schur form): a reduced model held fixed while the full one moves."""
         first, second = self.first.h2_norm(), self.second.h2_norm()
         small, large = sorted((self.first, self.second), key=_order)
-        square = first**2 + second**2 - 2 * _inner(large, small)
+        square = first**2 + second**2 - 2 * _inner(_coordinates(large), _coordinates(small))
         return jnp.sqrt(jnp.maximum(square, 0.0))
 
     def poles(self) -> Complex[Array, " p"]:
@@ -193,8 +202,7 @@ def _coordinates(io: IOModel):
 
 
 @eqx.filter_jit
-def _transfer(io: IOModel, s):
-    system, b, cx, cv = _coordinates(io)
+def _transfer(system, b, cx, cv, s):
     cx, cv = cx.astype(jnp.complex128), cv.astype(jnp.complex128)
 
     def one(sigma):
@@ -230,17 +238,19 @@ def _schur_jvp(primals, tangents):
 
 
 @eqx.filter_jit
-def _inner(large: IOModel, small: IOModel):
+def _inner(large, small):
     """Re <G_large, G_small>_H2 = Re tr(C_1 X C_2^T), A_1 X + E_1 X A_2^T + B_1 B_2^T = 0, by
     Bartels-Stewart on the small side (module docstring). The large side is E_1 z' = A_1 z +
     B_1 u in its own coordinates z = (x, x'): E_1 = diag(I, M), A_1 = [[0, I], [-K, -D]], B_1 =
-    (0, B), C_1 = (C_x, C_v); the small side in its modal coordinates."""
-    system, b1, cx1, cv1 = _coordinates(large)
+    (0, B), C_1 = (C_x, C_v); the small side in its modal coordinates. Each side is given as
+    ``_coordinates`` gives it: a reduced model's stats (static) never enter, so models of one
+    shape share one compiled program."""
+    system, b1, cx1, cv1 = large
     n = system.size
     damping = system.damping_operator()
     damp = (lambda v: jnp.zeros_like(v)) if damping is None else _complex_mv(damping.mv)
     mass = _complex_mv(system.mass.mv)
-    small_system, b2_physical, cx2, cv2 = _coordinates(small)
+    small_system, b2_physical, cx2, cv2 = small
     a2, modes2 = _first_order(small_system)
     r = modes2.shape[1]
     b2 = jnp.concatenate([jnp.zeros((r, b1.shape[1])), modes2.T @ b2_physical]

@@ -54,7 +54,7 @@ def reduce(problem, strategy: AbstractReduction) -> ReducedModel | IOModel:
         if isinstance(problem.model, ReducedModel):
             raise ValueError(MARK + "problem: this IOModel is reduced already; reduce the "
                              "IOModel of the full system.")
-        return IOModel(reduce(problem.model, strategy), problem.inputs, problem.cx, problem.cv)
+        return IOModel(reduce(problem.model, strategy), problem.inputs, *problem.outputs())
     system = problem_system(problem, type(strategy).__name__)
     result = strategy.basis(problem)
     if not (isinstance(result, tuple) and len(result) == 2):
