@@ -33,6 +33,8 @@ SUITE = {
     "reductions": "seven reductions of the Section 5 scene: error against size and cost",
     "critical_damping": "the exact path across critical damping: values, gradients, memory",
     "io_models": "input-output models: frequency response against scipy, H2 errors of reductions",
+    "engine": "the spectral engine: energy gradient against scipy, compile, all-DOF histories, "
+              "batched designs",
 }
 
 
