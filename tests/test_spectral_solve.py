@@ -103,6 +103,30 @@ def test_the_spectral_path_equals_scipys_matrix_exponential_on_a_non_uniform_gri
     assert relative(out.velocity, v) < 1e-12
 
 
+def test_both_orders_of_the_history_product_equal_scipys_matrix_exponential():
+    # all DOFs: at 6 times the modal history comes first (then U eta), at 61 times U Y first;
+    # each against scipy's expm at every time (truth to ~1e-14 here); under a pulse against the
+    # dense path on the 61-point grid (1e-14 there; on the 6-point grid, steps of 4 s, the
+    # dense path itself is 1.4e-11 off), whose every 12th time is the coarse grid
+    from mikota_jax._solver.spectral.response import modal_first
+
+    system = chain(mj.GroundedDamper(7.3, 0.8), mj.RelativeDamper((2, 9), 0.3))
+    load = mj.pulse(N, 4, 2.0, 3.0, 1.0)
+    fine = np.linspace(0.0, 20.0, 61)
+    dense = mj.solve(system, fine, X0, V0, load, velocity=True, method=mj.DenseExponential())
+    for count, eta_first in ((6, True), (61, False)):
+        ts = np.linspace(0.0, 20.0, count)
+        assert modal_first(count, N, N) is eta_first
+        x, v = expm_reference(system, ts, X0, V0)
+        out = spectral(system, ts, X0, V0, velocity=True)
+        assert relative(out.displacement, x) < 1e-12, count
+        assert relative(out.velocity, v) < 1e-12, count
+        forced = spectral(system, ts, X0, V0, load, velocity=True)
+        every = (fine.size - 1) // (count - 1)
+        assert relative(forced.displacement, dense.displacement[::every]) < 1e-12, count
+        assert relative(forced.velocity, dense.velocity[::every]) < 1e-12, count
+
+
 POSITIONS = [1.0, 7.0, 7.3, float(N)]
 
 

@@ -162,6 +162,15 @@ def _real_product(c, w):
     return stacked @ rows
 
 
+def modal_first(times: int, n: int, dofs: int) -> bool:
+    """Whether the history of ``dofs`` outputs at ``times`` is cheaper as the modal history
+    eta = Re(C Y^T) (N, n) followed by U[dofs] eta, 2 N n^2 + N n d real multiply-adds, than as
+    U[dofs] Y (three real (d, n) x (n, n) products) followed by Re(C (U[dofs] Y)^T), 3 d n^2 +
+    2 N n d: the same sums associated the other way, chosen from the shapes alone (all DOFs at
+    2001 times: eta first from n = 668 on, 2.2x fewer flops at n = 3000)."""
+    return 2 * times * n * n + times * n * dofs < 3 * dofs * n * n + 2 * times * n * dofs
+
+
 @eqx.filter_jit
 def spectral_solve_with_result(system, ts, x0, v0, load, *, dofs, displacement, velocity,
                                block=None):
@@ -199,16 +208,24 @@ def spectral_solve_with_result(system, ts, x0, v0, load, *, dofs, displacement, 
     index = None if dofs == tuple(range(1, system.size + 1)) else jnp.asarray(dofs) - 1
     rows = modes_u if index is None else modes_u[index]
     y = modes.vectors()  # (n, 2n)
-    y_first = y[:, first]
-    w1 = jax.lax.complex(rows @ jnp.real(y_first), rows @ jnp.imag(y_first))  # U[dofs] Y
-    w2 = rows @ jnp.real(y[:, second])
-    w = jnp.where(real[None, :], jax.lax.complex(jnp.real(w1), -w2), w1)
 
     def pack(c, r):
         return jnp.where(real[None, :], jax.lax.complex(jnp.real(c), r), 2 * c)
 
-    x = None if cx is None else _real_product(pack(cx, rx), w)
-    v = None if cv is None else _real_product(pack(cv, rv), w)
+    if modal_first(ts.shape[0], system.size, rows.shape[0]):
+        # the modal history eta (N, n) first, then U[dofs] eta: fewer flops for many DOFs
+        y_first = y[:, first]
+        w = jnp.where(real[None, :], jax.lax.complex(jnp.real(y_first), -jnp.real(y[:, second])),
+                      y_first)  # (n, slots), packed as the tables
+        x = None if cx is None else _real_product(pack(cx, rx), w) @ rows.T
+        v = None if cv is None else _real_product(pack(cv, rv), w) @ rows.T
+    else:
+        y_first = y[:, first]
+        w1 = jax.lax.complex(rows @ jnp.real(y_first), rows @ jnp.imag(y_first))  # U[dofs] Y
+        w2 = rows @ jnp.real(y[:, second])
+        w = jnp.where(real[None, :], jax.lax.complex(jnp.real(w1), -w2), w1)
+        x = None if cx is None else _real_product(pack(cx, rx), w)
+        v = None if cv is None else _real_product(pack(cv, rv), w)
 
     @complex_arithmetic
     def clusters(x, v):
