@@ -33,7 +33,7 @@ def energy(design, block):
     system = chain(design[0], design[1])
     if block:
         vectors = jnp.stack([jnp.asarray(X0), jnp.zeros(N)], axis=1)
-        modes, projected, _ = live_rows(system, vectors, block)
+        modes, projected, _, _ = live_rows(system, vectors, block)
         q0, p0 = projected[:, 0], projected[:, 1]
     else:
         modes, u, _ = live_modes(system)

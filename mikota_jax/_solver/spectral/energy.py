@@ -278,7 +278,7 @@ def spectral_energy_with_result(system, horizon, x0, v0, *, block: int | None = 
     choice): blocks above n = 512, and a chain above n = 4096 (``uses_rows``) without U, O(n)
     memory; 0: all at once from U (the benchmarks' comparison)."""
     if block != 0 and uses_rows(system):  # a large chain: no U, the roots a block at a time
-        modes, projected, ok = live_rows(system, jnp.stack([x0, v0], axis=1), block)
+        modes, projected, ok, _ = live_rows(system, jnp.stack([x0, v0], axis=1), block)
         q0, p0 = projected[:, 0], projected[:, 1]
     else:
         modes, modes_u, ok = live_modes(system, block)

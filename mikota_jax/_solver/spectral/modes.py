@@ -47,16 +47,20 @@ def uses_rows(system) -> bool:
             and _chain_springs(system) is not None)
 
 
-def modal_rows(system, vectors):
-    """(omega, F, d, U^T M vectors) of a chain (``uses_rows``) without U: its modes a chunk at
-    a time (``chain_mode_data``), keeping the rows the dampers touch (``Dampers.touched``) and
-    the projections of ``vectors`` (n, p). O(n^2) time, O(n (p + dampers)) memory (U at
+def modal_rows(system, vectors, dofs=None):
+    """(omega, F, d, U^T M vectors, U[dofs]) of a chain (``uses_rows``) without U: its modes a
+    chunk at a time (``chain_mode_data``), keeping the rows the dampers touch
+    (``Dampers.touched``), the rows ``dofs`` (0-based, (d,); None: none, and None returned) and
+    the projections of ``vectors`` (n, p). O(n^2) time, O(n (p + d + dampers)) memory (U at
     n = 30000 is 7.2 GB)."""
     masses = system.mass.diagonal
+    touched = system.damping.touched()
+    wanted = touched if dofs is None else jnp.concatenate([touched, dofs])
     omega2, rows, projected = unchecked_chain_mode_data(
-        masses, _chain_springs(system), system.damping.touched(), masses[:, None] * vectors)
-    low_rank = system.damping.project_rows(rows)
-    return jnp.sqrt(omega2), low_rank.factor, low_rank.weights, projected
+        masses, _chain_springs(system), wanted, masses[:, None] * vectors)
+    low_rank = system.damping.project_rows(rows[:touched.shape[0]])
+    picked = None if dofs is None else rows[touched.shape[0]:]
+    return jnp.sqrt(omega2), low_rank.factor, low_rank.weights, projected, picked
 
 
 def modal_data(system):
@@ -104,15 +108,16 @@ def live_modes(system, block: int | None = None):
     return modes, modes_u, ok
 
 
-def live_rows(system, vectors, block: int | None = None):
-    """(differentiable ``DampedModes``, U^T M vectors, ok) of a chain that ``uses_rows``:
-    ``live_modes`` in O(n) memory (``block``: as ``modal_damped_modes``)."""
+def live_rows(system, vectors, block: int | None = None, dofs=None):
+    """(differentiable ``DampedModes``, U^T M vectors, ok, U[dofs]) of a chain that
+    ``uses_rows``: ``live_modes`` in O(n) memory (``block``: as ``modal_damped_modes``;
+    ``dofs``: as ``modal_rows``)."""
     why = spectral_applies(system)
     if why is not None:
         raise ValueError(MARK + f"system: {why}.")
-    omega, factor, weights, projected = modal_rows(system, vectors)
+    omega, factor, weights, projected, picked = modal_rows(system, vectors, dofs)
     modes, ok = _live(omega, factor, weights, None, block)
-    return modes, projected, ok
+    return modes, projected, ok, picked
 
 
 def _live(omega, factor, weights, gamma, block=None):

@@ -258,13 +258,20 @@ def rows_response(system, ts, x0, v0, load, *, dofs, displacement, velocity, blo
     (``sum_by_rows``; each block's eigenvector rows, normalisers and coefficients a_j, b_j made
     there), then x = U eta for the requested DOFs by ``chain_mode_combination`` (U a chunk at a
     time). O(N n^2) flops either way; the (n, 2n) vectors, the (2n, 2n) partner search and U
-    are never held. ``block``: roots per block (``response_block``; the secular equation's own
-    blocks are ``row_block``'s).
+    are never held. For few outputs (``modal_first`` false, as for the path with U) the rows
+    U[dofs] come with the chain's modes, and each block adds its outputs directly: O(n^2 d +
+    N n d), no modal history. ``block``: roots per block (``response_block``; the secular
+    equation's own blocks are ``row_block``'s).
     """
     n = system.size
     masses = system.mass.diagonal
     columns = [x0, v0] + ([] if load is None else [load.direction / masses])  # U^T M (f / m)
-    modes, projected, modes_ok = live_rows(system, jnp.stack(columns, axis=1))
+    index = jnp.asarray(dofs) - 1
+    # few outputs (``modal_first`` false): U[dofs] from the chain's modes, and each block adds
+    # its outputs (N, d) directly, O(n^2 d + N n d), instead of the modal history (N, n)
+    direct = not modal_first(ts.shape[0], n, len(dofs))
+    modes, projected, modes_ok, out_rows = live_rows(system, jnp.stack(columns, axis=1),
+                                                     dofs=index if direct else None)
     q0, p0 = projected[:, 0], projected[:, 1]
     g = None if load is None else projected[:, 2]
     lam = modes.eigenvalues
@@ -289,6 +296,8 @@ def rows_response(system, ts, x0, v0, load, *, dofs, displacement, velocity, blo
                                velocity)
         w = jnp.where(is_real[:, None], jax.lax.complex(jnp.real(y1), -jnp.real(y2)), y1)
         w = (weight[:, None] * w).T  # (n, block); padded slots add nothing
+        if direct:
+            w = jax.lax.complex(out_rows @ jnp.real(w), out_rows @ jnp.imag(w))  # (d, block)
 
         def history(c, r):
             packed = jnp.where(is_real[None, :], jax.lax.complex(jnp.real(c), r), 2 * c)
@@ -301,14 +310,18 @@ def rows_response(system, ts, x0, v0, load, *, dofs, displacement, velocity, blo
     def clusters(etas):
         parts = _cluster_history(modes, q0, p0, g, ts, load, displacement, velocity)
         tables = [[t for t in (tx, tv) if t is not None] for tx, tv, _ in parts]
-        return tuple(e + sum(_real_product(t[i], vectors.T) for t, (*_, vectors) in
-                             zip(tables, parts)) for i, e in enumerate(etas))
+        outs = [vectors.T if out_rows is None else out_rows @ vectors.T
+                for *_, vectors in parts]  # (n or d, P)
+        return tuple(e + sum(_real_product(t[i], out) for t, out in zip(tables, outs))
+                     for i, e in enumerate(etas))
 
     etas = jax.lax.cond(modes.clusters.any, clusters, lambda e: e, etas)
-    index = jnp.asarray(dofs) - 1
-    outputs = chain_mode_combination(masses, system.stiffness.springs, index,
-                                     jnp.concatenate([e.T for e in etas], axis=1))
-    outputs = jnp.split(outputs.T, len(etas))  # (N, d) each
+    if direct:
+        outputs = etas  # (N, d) each
+    else:
+        outputs = chain_mode_combination(masses, system.stiffness.springs, index,
+                                         jnp.concatenate([e.T for e in etas], axis=1))
+        outputs = jnp.split(outputs.T, len(etas))  # (N, d) each
     x = outputs[0] if displacement else None
     v = outputs[-1] if velocity else None
     finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(y)) for y in (x, v) if y is not None]))
