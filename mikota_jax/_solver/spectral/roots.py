@@ -281,14 +281,57 @@ def _secular_rows(poles, gamma, factor, weights, active, anchor, offset):
     return phi, phi_prime, others, c, scale
 
 
-def _reanchor(poles, active, anchor, offset, block=None):
-    """Move each root's anchor to its nearest pole of a damped mode (same lambda)."""
+def _axis_order(poles, candidates):
+    """For poles on the imaginary axis (no internal damping: +-i omega): (order, values), the
+    indices of the poles sorted by imaginary part with the candidates first (stable: equal
+    values in index order) and their sorted imaginary parts (inf for the others)."""
+    key = jnp.where(candidates, jnp.imag(poles), jnp.inf)
+    order = jnp.argsort(key, stable=True)
+    return order, key[order]
+
+
+def _axis_nearest(poles, axis, lam, count: int):
+    """(roots, count) indices of the ``count`` candidate poles nearest each root ``lam``, for
+    poles on the imaginary axis (``_axis_order``'s ``axis``), in O(log n) per root instead of a
+    pass over all 2n poles: the distance to i w grows with |Im lambda - w|, so the nearest lie
+    among the ``count`` below and above Im lambda in the sorted order. Picked by (distance,
+    index), as successive argmins over all poles pick them; for one pole the lower neighbour is
+    the first of its run of equal values (the lowest index), so that the pick is the argmin's
+    even where frequencies repeat exactly."""
+    order, values = axis
+    size = values.shape[0]
+    above = jnp.searchsorted(values, jnp.imag(lam), side="left")  # (roots,)
+    slots = above[:, None] + jnp.arange(-count, count)[None, :]
+    if count == 1:
+        below = jnp.searchsorted(values, values[jnp.clip(above - 1, 0, size - 1)], side="left")
+        slots = jnp.stack([jnp.where(above > 0, below, -1), above], axis=1)
+    valid = (slots >= 0) & (slots < size)
+    index = order[jnp.clip(slots, 0, size - 1)]
+    valid = valid & jnp.isfinite(values[jnp.clip(slots, 0, size - 1)])
+    distance = jnp.where(valid, jnp.abs(lam[:, None] - poles[index]), jnp.inf)
+    rows = jnp.arange(lam.shape[0])
+    picks = []
+    for _ in range(count):
+        tie = distance == jnp.min(distance, axis=1, keepdims=True)
+        pick = jnp.argmin(jnp.where(tie, index, size), axis=1)
+        picks.append(index[rows, pick])
+        distance = distance.at[rows, pick].set(jnp.inf)
+    return jnp.stack(picks, axis=1)
+
+
+def _reanchor(poles, active, anchor, offset, block=None, on_axis=False):
+    """Move each root's anchor to its nearest pole of a damped mode (same lambda). ``on_axis``:
+    the poles lie on the imaginary axis (no internal damping), found by ``_axis_nearest``."""
     candidates = jnp.concatenate([active, active])
+    axis = _axis_order(poles, candidates) if on_axis else None
 
     def rows(anchor, offset):
         lam = poles[anchor] + offset
-        distance = jnp.abs(lam[:, None] - poles[None, :])
-        new_anchor = jnp.argmin(jnp.where(candidates[None, :], distance, jnp.inf), axis=1)
+        if on_axis:
+            new_anchor = _axis_nearest(poles, axis, lam, 1)[:, 0]
+        else:
+            distance = jnp.abs(lam[:, None] - poles[None, :])
+            new_anchor = jnp.argmin(jnp.where(candidates[None, :], distance, jnp.inf), axis=1)
         return new_anchor, offset + (poles[anchor] - poles[new_anchor])
 
     return by_rows(rows, block, anchor, offset)
@@ -297,7 +340,8 @@ def _reanchor(poles, active, anchor, offset, block=None):
 _ANCHOR_CANDIDATES = 4
 
 
-def _best_anchors(poles, gamma, factor, weights, active, anchor, offset, block=None):
+def _best_anchors(poles, gamma, factor, weights, active, anchor, offset, block=None,
+                  on_axis=False):
     """Re-anchor each root (same lambda) at the one of its nearest poles where phi_J vanishes.
 
     phi_J is zero at a root only if H_J = H - lambda r_J f_J f_J^T W stays regular there. Where
@@ -305,14 +349,17 @@ def _best_anchors(poles, gamma, factor, weights, active, anchor, offset, block=N
     nearest pole may belong to a weakly coupled mode whose removal leaves H_J as singular as H:
     phi_J is then O(1) at the (correct) root and Newton on it jumps to another root. So the
     ``_ANCHOR_CANDIDATES`` nearest poles of damped modes are tried, and each root keeps the one
-    with the smallest relative residual |phi_J| / (its terms).
+    with the smallest relative residual |phi_J| / (its terms). ``on_axis``: as ``_reanchor``.
     """
     n = gamma.shape[0]
     candidates = jnp.concatenate([active, active])
     columns = jnp.arange(2 * n)[None, :]
+    axis = _axis_order(poles, candidates) if on_axis else None
 
     def rows(anchor, offset):
         lam = poles[anchor] + offset
+        if on_axis:
+            return _axis_nearest(poles, axis, lam, min(_ANCHOR_CANDIDATES, 2 * n))
         distance = jnp.where(candidates[None, :], jnp.abs(lam[:, None] - poles[None, :]),
                              jnp.inf)
         # successive argmins, not ``lax.top_k``: XLA's CPU top_k sorts each row (40 ms at
@@ -396,7 +443,7 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
         offset = offset - step
         lam = poles[anchor] + offset
         size = jnp.max(jnp.where(root_active, jnp.abs(step) / jnp.abs(lam), 0.0))
-        anchor, offset = _reanchor(poles, active, anchor, offset, block)
+        anchor, offset = _reanchor(poles, active, anchor, offset, block, not internal)
         offset = jnp.where(root_active, offset, 0.0)
         return anchor, offset, it + 1, size
 
@@ -407,7 +454,8 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
     init = (anchor, offset, jnp.array(0), jnp.array(jnp.inf))
     anchor, offset, iterations, _ = jax.lax.while_loop(not_done, sweep, init)
     anchor = jnp.where(root_active, anchor, jnp.arange(2 * n))
-    anchor, offset = _best_anchors(poles, gamma, factor, weights, active, anchor, offset, block)
+    anchor, offset = _best_anchors(poles, gamma, factor, weights, active, anchor, offset, block,
+                                   not internal)
     def settle(anchor, offset, moving, steps):
         """``steps`` Newton steps on the roots ``moving``, then the secular terms at the result:
         (offset, (phi, phi', c, scale)). A loop, not unrolled, whose last pass only evaluates:
