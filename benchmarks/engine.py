@@ -19,6 +19,10 @@ x_3(0) = 1, v(0) = 0. Every comparison of a row runs in this one process, compil
   n = 300, 1000, 3000; each one's largest error over all DOFs and times against the spectral
   history, relative to max |x| (the spectral path is the truth here: 1e-14 against the dense
   exponential in ``scaling.py``).
+* **A long chain, one DOF**: n = 10^4, the history of DOF 150 at the same 2001 times, the
+  spectral path (the chain's modes a chunk at a time, no U) against our Dopri8 at rtol 1e-10
+  (atol 1e-12), first call and one warm call each (full runs only), the Dopri8 history's
+  error relative to max |x|.
 * **Batched designs**: ``jax.jit(jax.vmap(jax.value_and_grad(J)))`` over B designs (p in [5,
   2n/3], c in [0.5, 3]), n = 300: time per design against one design alone, and XLA's temporary
   memory per design (``memory_analysis``).
@@ -136,6 +140,29 @@ def history_row(n: int, repeats: int, with_scipy: bool) -> dict:
     return row
 
 
+LONG_N, LONG_DOF = 10_000, 150
+
+
+def long_row() -> dict:
+    ts = jnp.linspace(0.0, HORIZON, TIMES)
+    x0 = mj.unit_vector(LONG_N, 3)
+    row = dict(n=LONG_N, dof=LONG_DOF)
+    histories = {}
+    for key, method in (("spectral", mj.Spectral()),
+                        ("dopri8", ode("dopri8", rtol=1e-10, atol=1e-12, max_steps=10**6))):
+        fn = Compiled(lambda s, m=method: mj.solve(s, ts, x0, method=m,
+                                                   dofs=(LONG_DOF,)).displacement,
+                      chain(LONG_N))
+        first, first_s, _ = timed(fn, chain(LONG_N), repeats=1)
+        histories[key], run_s, _ = timed(fn, chain(LONG_N), repeats=1)
+        row.update({f"{key}_s": run_s, f"{key}_first_call_s": fn.compile_s + first_s})
+    truth = np.asarray(histories["spectral"])
+    row["dopri8_error"] = float(np.max(np.abs(np.asarray(histories["dopri8"]) - truth))
+                                / np.max(np.abs(truth)))
+    row["dopri8_ratio"] = row["dopri8_s"] / row["spectral_s"]
+    return row
+
+
 def batch_row(n: int, batch: int, repeats: int) -> dict:
     g = jax.value_and_grad(energy_function(n), argnums=(0, 1))
     one = Compiled(g, 7.0, 1.0)
@@ -171,6 +198,12 @@ def main(argv=None) -> dict:
                             ("dopri8_s", "Dopri8 s", ".3f"), ("dopri8_error", "its error", ".1e"),
                             ("dop853_s", "scipy DOP853 s", ".3f"),
                             ("dop853_error", "its error", ".1e")])
+    long = None if args.quick else long_row()
+    if long is not None:
+        print_table([long], [("n", "n", "d"), ("spectral_s", "spectral s", ".1f"),
+                             ("dopri8_s", "Dopri8 rtol 1e-10 s", ".1f"),
+                             ("dopri8_ratio", "ratio", ".2f"),
+                             ("dopri8_error", "its error", ".1e")])
     batch = batch_row(QUICK_BATCH_N if args.quick else BATCH_N,
                       QUICK_BATCH if args.quick else BATCH, repeats)
     print_table([batch], [("n", "n", "d"), ("batch", "designs", "d"),
@@ -178,13 +211,36 @@ def main(argv=None) -> dict:
                           ("per_design_s", "per design in batch s", ".4f"),
                           ("per_design_ratio", "ratio", ".2f"),
                           ("temp_mb_per_design", "MB per design", ".1f")])
-    data = dict(gradients=gradients, histories=histories, batch=batch,
+    data = dict(summary=summarise(gradients, histories, long, batch), rows=histories,
+                gradients=gradients, histories=histories, long_chain=long, batch=batch,
                 problem=dict(horizon=HORIZON, times=TIMES, rtol=RTOL, atol=ATOL,
                              damper=dict(position=7.0, coefficient=1.0), x0="e_3"),
                 total_wall_s=elapsed(start))
     write_json(NAME, args.quick, data)
     print(plot(read_json(NAME, args.quick), args.quick))
     return data
+
+
+def summarise(gradients, histories, long, batch) -> dict:
+    """The issue's target rows, one quantity each (the benchmark page shows them)."""
+    out = {}
+    for row in gradients:
+        out[f"gradient n={row['n']}: run s"] = row["run_s"]
+        out[f"gradient n={row['n']}: first call s"] = row["first_call_s"]
+        if "speedup" in row:
+            out[f"gradient n={row['n']}: x scipy Van Loan value"] = row["speedup"]
+            out[f"gradient n={row['n']}: difference to scipy"] = row["difference"]
+    for row in histories:
+        for key in ("dopri8", "dop853"):
+            if f"{key}_ratio" in row:
+                out[f"all DOFs n={row['n']}: {key} time / spectral time"] = row[f"{key}_ratio"]
+    if long is not None:
+        out[f"DOF {long['dof']} n={long['n']}: Dopri8 1e-10 time / spectral time"] = (
+            long["dopri8_ratio"])
+    out[f"{batch['batch']} designs n={batch['n']}: time per design / one alone"] = (
+        batch["per_design_ratio"])
+    out[f"{batch['batch']} designs n={batch['n']}: MB per design"] = batch["temp_mb_per_design"]
+    return out
 
 
 def plot(data: dict, quick: bool):

@@ -420,3 +420,37 @@ def test_a_missing_far_root_is_restarted_from_the_trace(d1):
     spectral = float(total_average_energy(system, 20, method="spectral"))
     dense = float(total_average_energy(system, 20, method="dense"))
     assert spectral == pytest.approx(dense, rel=1e-9)
+
+
+def test_the_nearest_poles_on_the_axis_are_the_argmins_over_all_poles():
+    # truth: successive argmins over all 2n poles (the general path), ties to the lowest index;
+    # frequencies with exact repeats (a run of five), inactive modes, roots between, on and off
+    # the axis, on the real axis (equidistant from +-i omega) and beyond the spectrum
+    from mikota_jax._solver.spectral.roots import _axis_nearest, _axis_order, _poles
+
+    rng = np.random.default_rng(11)
+    omega = np.sort(np.concatenate([rng.uniform(0.5, 30.0, 40), np.full(5, 7.25)]))
+    n = omega.size
+    active = rng.uniform(size=n) > 0.2
+    with jax.numpy_dtype_promotion("standard"):  # the engine's own arithmetic (complex roots)
+        poles = _poles(jnp.asarray(omega), jnp.zeros(n))
+    candidates = jnp.concatenate([jnp.asarray(active), jnp.asarray(active)])
+    lam = jnp.asarray(np.concatenate([
+        rng.uniform(-3, 0, 200) + 1j * rng.uniform(-35, 35, 200),
+        -rng.uniform(0, 5, 20) + 0j, 1j * omega[:10], -0.1 + 1j * np.full(3, 7.25),
+        np.array([-1.0 + 60j, -2.0 - 60j])]))
+    axis = _axis_order(poles, candidates)
+    for count in (1, 4):
+        with jax.numpy_dtype_promotion("standard"):
+            found = np.asarray(_axis_nearest(poles, axis, lam, count))
+        distance = np.where(np.asarray(candidates)[None, :],
+                            np.abs(np.asarray(lam)[:, None] - np.asarray(poles)[None, :]),
+                            np.inf)
+        for k in range(count):
+            pick = np.argmin(distance, axis=1)
+            if count == 1:
+                assert np.array_equal(found[:, k], pick)
+            else:  # a run of five equal frequencies: which four of them is not the argmin's
+                same = np.abs(np.asarray(poles)[found[:, k]] - np.asarray(poles)[pick]) == 0
+                assert np.all(same), k
+            distance[np.arange(lam.shape[0]), pick] = np.inf
