@@ -208,19 +208,18 @@ def spectral_solve_with_result(system, ts, x0, v0, load, *, dofs, displacement, 
     index = None if dofs == tuple(range(1, system.size + 1)) else jnp.asarray(dofs) - 1
     rows = modes_u if index is None else modes_u[index]
     y = modes.vectors()  # (n, 2n)
+    y_first = y[:, first]
 
     def pack(c, r):
         return jnp.where(real[None, :], jax.lax.complex(jnp.real(c), r), 2 * c)
 
     if modal_first(ts.shape[0], system.size, rows.shape[0]):
         # the modal history eta (N, n) first, then U[dofs] eta: fewer flops for many DOFs
-        y_first = y[:, first]
         w = jnp.where(real[None, :], jax.lax.complex(jnp.real(y_first), -jnp.real(y[:, second])),
                       y_first)  # (n, slots), packed as the tables
         x = None if cx is None else _real_product(pack(cx, rx), w) @ rows.T
         v = None if cv is None else _real_product(pack(cv, rv), w) @ rows.T
     else:
-        y_first = y[:, first]
         w1 = jax.lax.complex(rows @ jnp.real(y_first), rows @ jnp.imag(y_first))  # U[dofs] Y
         w2 = rows @ jnp.real(y[:, second])
         w = jnp.where(real[None, :], jax.lax.complex(jnp.real(w1), -w2), w1)
