@@ -319,15 +319,15 @@ def _axis_nearest(poles, axis, lam, count: int):
     return jnp.stack(picks, axis=1)
 
 
-def _reanchor(poles, active, anchor, offset, block=None, on_axis=False):
-    """Move each root's anchor to its nearest pole of a damped mode (same lambda). ``on_axis``:
-    the poles lie on the imaginary axis (no internal damping), found by ``_axis_nearest``."""
+def _reanchor(poles, active, anchor, offset, block=None, axis=None):
+    """Move each root's anchor to its nearest pole of a damped mode (same lambda). ``axis``:
+    ``_axis_order`` where the poles lie on the imaginary axis (no internal damping; sorted once
+    per system, not per sweep), found by ``_axis_nearest``; None: a pass over all poles."""
     candidates = jnp.concatenate([active, active])
-    axis = _axis_order(poles, candidates) if on_axis else None
 
     def rows(anchor, offset):
         lam = poles[anchor] + offset
-        if on_axis:
+        if axis is not None:
             new_anchor = _axis_nearest(poles, axis, lam, 1)[:, 0]
         else:
             distance = jnp.abs(lam[:, None] - poles[None, :])
@@ -341,7 +341,7 @@ _ANCHOR_CANDIDATES = 4
 
 
 def _best_anchors(poles, gamma, factor, weights, active, anchor, offset, block=None,
-                  on_axis=False):
+                  axis=None):
     """Re-anchor each root (same lambda) at the one of its nearest poles where phi_J vanishes.
 
     phi_J is zero at a root only if H_J = H - lambda r_J f_J f_J^T W stays regular there. Where
@@ -349,16 +349,15 @@ def _best_anchors(poles, gamma, factor, weights, active, anchor, offset, block=N
     nearest pole may belong to a weakly coupled mode whose removal leaves H_J as singular as H:
     phi_J is then O(1) at the (correct) root and Newton on it jumps to another root. So the
     ``_ANCHOR_CANDIDATES`` nearest poles of damped modes are tried, and each root keeps the one
-    with the smallest relative residual |phi_J| / (its terms). ``on_axis``: as ``_reanchor``.
+    with the smallest relative residual |phi_J| / (its terms). ``axis``: as ``_reanchor``.
     """
     n = gamma.shape[0]
     candidates = jnp.concatenate([active, active])
     columns = jnp.arange(2 * n)[None, :]
-    axis = _axis_order(poles, candidates) if on_axis else None
 
     def rows(anchor, offset):
         lam = poles[anchor] + offset
-        if on_axis:
+        if axis is not None:
             return _axis_nearest(poles, axis, lam, min(_ANCHOR_CANDIDATES, 2 * n))
         distance = jnp.where(candidates[None, :], jnp.abs(lam[:, None] - poles[None, :]),
                              jnp.inf)
@@ -420,6 +419,8 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
     total = jnp.sqrt(jnp.sum(reach**2))
     active = reach * total > eps * jnp.maximum(jnp.max(omega), total**2)
     anchor = jnp.arange(2 * n)
+    # no internal damping: the poles +-i omega lie on the imaginary axis, sorted once here
+    axis = None if internal else _axis_order(poles, jnp.concatenate([active, active]))
     sign = jnp.concatenate([jnp.ones(n), -jnp.ones(n)])
     # start inside the left half plane, off the poles, asymmetric so pairs can split onto the
     # real axis: on the arc each root follows as the dampers grow (``arc_starts``)
@@ -443,7 +444,7 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
         offset = offset - step
         lam = poles[anchor] + offset
         size = jnp.max(jnp.where(root_active, jnp.abs(step) / jnp.abs(lam), 0.0))
-        anchor, offset = _reanchor(poles, active, anchor, offset, block, not internal)
+        anchor, offset = _reanchor(poles, active, anchor, offset, block, axis)
         offset = jnp.where(root_active, offset, 0.0)
         return anchor, offset, it + 1, size
 
@@ -455,7 +456,7 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
     anchor, offset, iterations, _ = jax.lax.while_loop(not_done, sweep, init)
     anchor = jnp.where(root_active, anchor, jnp.arange(2 * n))
     anchor, offset = _best_anchors(poles, gamma, factor, weights, active, anchor, offset, block,
-                                   not internal)
+                                   axis)
     def settle(anchor, offset, moving, steps):
         """``steps`` Newton steps on the roots ``moving``, then the secular terms at the result:
         (offset, (phi, phi', c, scale)). A loop, not unrolled, whose last pass only evaluates:
