@@ -43,8 +43,10 @@ _MODULES = {
     "_placement.optimise": ("AbstractDesignStrategy Coefficients CoordinateDescent DamperDesign "
                             "DesignResult Grid ScreenAndCertify Solution optimise"),
     "_placement.viscosity": "AbstractBoxMinimiser ProjectedBFGS SpectralProjectedGradient",
-    "_rom.base": "POD AbstractReduction",
+    "_rom.base": "POD AbstractIOReduction AbstractReduction",
+    "_rom.h2_optimal": "H2Optimal",
     "_rom.io_model": "IOModel ErrorModel",
+    "_rom.lti": "LTIModel",
     "_rom.reduce": ("CraigBampton IRKA Krylov Modal ModalStatic Projection RationalKrylov Union "
                     "reduce"),
     "_scenes.run": "SceneResult run_scene",
@@ -132,9 +134,12 @@ if _TYPE_CHECKING:  # the same names for static tools (type checkers, the API re
     from ._placement.viscosity import ProjectedBFGS as ProjectedBFGS
     from ._placement.viscosity import SpectralProjectedGradient as SpectralProjectedGradient
     from ._rom.base import POD as POD
+    from ._rom.base import AbstractIOReduction as AbstractIOReduction
     from ._rom.base import AbstractReduction as AbstractReduction
+    from ._rom.h2_optimal import H2Optimal as H2Optimal
     from ._rom.io_model import ErrorModel as ErrorModel
     from ._rom.io_model import IOModel as IOModel
+    from ._rom.lti import LTIModel as LTIModel
     from ._rom.reduce import IRKA as IRKA
     from ._rom.reduce import CraigBampton as CraigBampton
     from ._rom.reduce import Krylov as Krylov

@@ -37,6 +37,8 @@ class ReductionStats(eqx.Module):
     - ``shifts``, ``iterations``, ``converged``, ``changes``: the interpolation shifts
       (``RationalKrylov``, ``IRKA``), and IRKA's iterations run, whether it settled and its
       relative change per iteration.
+    - ``optimality``: ``H2Optimal``'s largest relative mismatch of the first-order H2
+      conditions (interpolation at the mirrored poles of the reduced model).
     - ``certified``, ``bounds``, ``history``, ``full_solves``: ``Greedy``'s certificate,
       final relative bounds at the training designs, (rank, largest bound, design) per
       iteration, and the full solves taken.
@@ -59,6 +61,7 @@ class ReductionStats(eqx.Module):
     bounds: tuple[float, ...] | None = eqx.field(static=True, default=None)
     history: tuple[tuple[int, float, int], ...] | None = eqx.field(static=True, default=None)
     full_solves: int | None = eqx.field(static=True, default=None)
+    optimality: float | None = eqx.field(static=True, default=None)
     parts: tuple["ReductionStats", ...] | None = None
 
     @property

@@ -39,6 +39,16 @@ class AbstractReduction(eqx.Module):
         the class name and r)."""
 
 
+class AbstractIOReduction(eqx.Module):
+    """How to reduce an input-output map: a strategy for ``reduce(io_model, strategy)`` that
+    builds its reduced model from the inputs and outputs (H2-optimal, balanced), not from a
+    one-sided basis. Implement ``reduce_io``; ``reduce`` returns its ``LTIModel``."""
+
+    @abc.abstractmethod
+    def reduce_io(self, io):
+        """The reduced ``LTIModel`` of the ``IOModel`` ``io`` of a full system."""
+
+
 class AbstractSnapshotProblem(eqx.Module):
     """A problem that can give snapshots: a system with an excitation and a time grid. ``Scene``
     is the one the package defines (it lives above the reductions, so the reductions know it by

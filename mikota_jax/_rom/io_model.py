@@ -35,6 +35,8 @@ from .._model.system import SecondOrderSystem
 from .._objective.outputs import _matrix, h2_norm, output_matrices
 from .._solver.solve import AbstractMethod, Auto, solve
 from .._solver.spectral.modes import damped_modes, spectral_applies
+from .hinf import hinf_norm
+from .lti import LTIModel, _schur, sylvester_inner
 
 _AUTO = Auto()
 
@@ -146,22 +148,34 @@ class IOModel(eqx.Module):
         """(cx, cv) as given: each a (q, n) matrix, or None where it was left out."""
         return tuple(c if g else None for c, g in zip((self.cx, self.cv), self.given))
 
-    def __sub__(self, other: "IOModel") -> "ErrorModel":
-        """The error system ``self - other`` (the same q outputs and m inputs)."""
-        if not isinstance(other, IOModel):
+    def hinf_norm(self) -> Float[Array, ""]:
+        """||G||_inf = sup_omega sigma_max(G(i omega)): level sets of the Hamiltonian on the
+        model's modal realization (``LTIModel.hinf_norm``). A mode damped below rounding is
+        left out where its resonance peak is below rounding of the norm, and the norm is
+        refused where it is not (a peak that float64 cannot resolve). Dense: O(n^3)."""
+        return jnp.asarray(hinf_norm(*_realization(self, "IOModel.hinf_norm"))[0])
+
+    def __sub__(self, other) -> "ErrorModel":
+        """The error system ``self - other`` (the same q outputs and m inputs; ``other`` an
+        ``IOModel`` or an ``LTIModel``)."""
+        if not isinstance(other, IOModel | LTIModel):
             return NotImplemented
-        if self.shape != other.shape:
-            raise ValueError(MARK + f"the two models must have the same (outputs, inputs), got "
-                             f"{self.shape} and {other.shape}.")
         return ErrorModel(self, other)
 
 
 class ErrorModel(eqx.Module):
-    """G_1 - G_2 of two ``IOModel``s with the same inputs and outputs (``first - second``, e.g.
-    ``full - reduced``): its transfer function, frequency response and H2 norm."""
+    """G_1 - G_2 of two models with the same inputs and outputs (``first - second``, e.g.
+    ``full - reduced``), each an ``IOModel`` or an ``LTIModel``: its transfer function,
+    frequency response, H2 and H-infinity norms."""
 
-    first: IOModel
-    second: IOModel
+    first: "IOModel | LTIModel"
+    second: "IOModel | LTIModel"
+
+    def __init__(self, first, second):
+        if first.shape != second.shape:
+            raise ValueError(MARK + f"the two models must have the same (outputs, inputs), got "
+                             f"{first.shape} and {second.shape}.")
+        self.first, self.second = first, second
 
     def transfer(self, s) -> Complex[Array, "F q m"]:
         """G_1(s) - G_2(s) at the (F,) complex points ``s``."""
@@ -174,21 +188,98 @@ class ErrorModel(eqx.Module):
     def h2_norm(self) -> Float[Array, ""]:
         """||G_1 - G_2||_H2 (module docstring: the two norms and the cross Gramian's inner
         product; resolved down to about sqrt(eps) (||G_1|| + ||G_2||)). Differentiable with
-        respect to the larger model's values (``jax.grad``), not the smaller one's (JAX has no
-        derivative of the Schur form): a reduced model held fixed while the full one moves."""
+        respect to a full system's values (``jax.grad``), not a reduced or dense model's (JAX
+        has no derivative of the Schur form): a reduced model held fixed while the full one
+        moves."""
         first, second = self.first.h2_norm(), self.second.h2_norm()
-        small, large = sorted((self.first, self.second), key=_order)
-        square = first**2 + second**2 - 2 * _inner(_coordinates(large), _coordinates(small))
-        return jnp.sqrt(jnp.maximum(square, 0.0))
+        full = [io for io in (self.first, self.second) if _is_full(io)]
+        if full:
+            small, large = sorted((self.first, self.second),
+                                  key=lambda io: (_is_full(io), _order(io)))
+            cross = _inner(_coordinates(large), _first_order_of(small))
+        else:
+            cross = sylvester_inner(_first_order_of(self.first), _first_order_of(self.second))
+        return jnp.sqrt(jnp.maximum(first**2 + second**2 - 2 * cross, 0.0))
+
+    def hinf_norm(self) -> Float[Array, ""]:
+        """||G_1 - G_2||_inf: level sets of the Hamiltonian (``LTIModel.hinf_norm``) on the
+        two realizations side by side (``IOModel.hinf_norm``'s modal one for an IOModel)."""
+        (a1, b1, c1), (a2, b2, c2) = (_realization(io, "ErrorModel.hinf_norm")
+                                      for io in (self.first, self.second))
+        zero = np.zeros((a1.shape[0], a2.shape[0]))
+        a = np.block([[a1, zero], [zero.T, a2]])
+        return jnp.asarray(hinf_norm(a, np.vstack([b1, b2]), np.hstack([c1, -c2]))[0])
 
     def poles(self) -> Complex[Array, " p"]:
         """The poles of both models (those of G_1 - G_2 where nothing cancels)."""
         return jnp.concatenate([self.first.poles(), self.second.poles()])
 
 
-def _order(io: IOModel) -> int:
-    """The order of a model's pencil: the rank of a reduced model, else n."""
+def _is_full(io) -> bool:
+    return isinstance(io, IOModel) and isinstance(io.model, SecondOrderSystem)
+
+
+def _order(io) -> int:
+    """The order of a model's pencil: the rank of a reduced model, half a dense model's
+    states, else n."""
+    if isinstance(io, LTIModel):
+        return io.order // 2
     return io.model.rank if isinstance(io.model, ReducedModel) else io.model.size
+
+
+def _first_order_of(io):
+    """(A, B, C) of G with E = I: a dense model's, or an IOModel's in its modal coordinates."""
+    if isinstance(io, LTIModel):
+        return tuple(jnp.asarray(x) for x in io.standard())
+    return _modal_first_order(_coordinates(io))
+
+
+@eqx.filter_jit
+def _modal_first_order(coordinates):
+    system, b, cx, cv = coordinates
+    a, modes = _first_order(system)
+    r = modes.shape[1]
+    return (a, jnp.concatenate([jnp.zeros((r, b.shape[1])), modes.T @ b]),
+            jnp.concatenate([cx @ modes, cv @ modes], axis=1))
+
+
+def _realization(io, what: str):
+    """(A, B, C) numpy with E = I for the H-infinity norm: an ``LTIModel``'s, or an IOModel's
+    modal one. A mode damped below what a dense eigenvalue solve resolves (C_ll / 2 at most
+    2 n eps max omega: the Hamiltonian's rounding) is left out where its resonance peak
+    |U^T B| |C_x U / omega + C_v U| / C_ll (the decoupled oscillator's) is at most eps of the
+    others' largest; where it is larger the norm is refused (it is that mode's peak, damped
+    below rounding: the mode's shape zero to rounding at the dampers)."""
+    if isinstance(io, LTIModel):
+        io._check_stable(what)
+        return io.standard()
+    system, b, cx, cv = _coordinates(io)
+    check_dense_memory(2 * system.size, 4, what)
+    pencil = modal_pencil(system)
+    omega, modes = np.asarray(pencil.omega), np.asarray(pencil.modes)
+    n = omega.shape[0]
+    c = np.asarray(pencil.damping_modal(jnp.eye(n, dtype=jnp.complex128)).real)
+    bm, cxm, cvm = modes.T @ np.asarray(b), np.asarray(cx) @ modes, np.asarray(cv) @ modes
+    eps = np.finfo(float).eps
+    cll = np.diag(c)
+    unresolved = cll / 2 <= 2 * n * eps * np.max(omega)
+    reach = np.linalg.norm(bm, axis=1) * np.linalg.norm(cxm / omega + cvm, axis=0)
+    with np.errstate(divide="ignore"):
+        peak = np.where(reach > 0, reach / np.maximum(cll, 0.0), 0.0)
+    others = np.max(np.where(unresolved, 0.0, peak), initial=0.0)
+    refused = unresolved & (peak > eps * others)
+    if np.any(refused):
+        mode = int(np.flatnonzero(refused)[np.argmax(peak[refused])]) + 1
+        raise ValueError(MARK + f"{what}: mode {mode} is damped below rounding (its shape is zero "
+                         f"to rounding at the dampers) yet excited and seen: its resonance peak "
+                         f"~{np.max(peak):.3g} is the norm and float64 cannot resolve it; move "
+                         "the damper or leave that output out.")
+    keep = np.flatnonzero(~unresolved)
+    k = keep.size
+    a = np.block([[np.zeros((k, k)), np.eye(k)],
+                  [-np.diag(omega[keep] ** 2), -c[np.ix_(keep, keep)]]])
+    return (a, np.vstack([np.zeros((k, bm.shape[1])), bm[keep]]),
+            np.hstack([cxm[:, keep], cvm[:, keep]]))
 
 
 def _coordinates(io: IOModel):
@@ -226,36 +317,20 @@ def _complex_mv(mv):
     return lambda v: jax.lax.complex(mv(v.real), mv(v.imag))
 
 
-@jax.custom_jvp
-def _schur(a):
-    return jax.scipy.linalg.schur(a, output="complex")
-
-
-@_schur.defjvp
-def _schur_jvp(primals, tangents):
-    raise ValueError(MARK + "ErrorModel.h2_norm is differentiable in the larger model only (the "
-                     "smaller one's Schur form has no derivative); keep the smaller model fixed.")
-
-
 @eqx.filter_jit
 def _inner(large, small):
     """Re <G_large, G_small>_H2 = Re tr(C_1 X C_2^T), A_1 X + E_1 X A_2^T + B_1 B_2^T = 0, by
     Bartels-Stewart on the small side (module docstring). The large side is E_1 z' = A_1 z +
     B_1 u in its own coordinates z = (x, x'): E_1 = diag(I, M), A_1 = [[0, I], [-K, -D]], B_1 =
-    (0, B), C_1 = (C_x, C_v); the small side in its modal coordinates. Each side is given as
-    ``_coordinates`` gives it: a reduced model's stats (static) never enter, so models of one
-    shape share one compiled program."""
+    (0, B), C_1 = (C_x, C_v), as ``_coordinates`` gives it; the small side (A_2, B_2, C_2) with
+    E_2 = I (``_first_order_of``). A reduced model's stats (static) never enter, so models of
+    one shape share one compiled program."""
     system, b1, cx1, cv1 = large
     n = system.size
     damping = system.damping_operator()
     damp = (lambda v: jnp.zeros_like(v)) if damping is None else _complex_mv(damping.mv)
     mass = _complex_mv(system.mass.mv)
-    small_system, b2_physical, cx2, cv2 = small
-    a2, modes2 = _first_order(small_system)
-    r = modes2.shape[1]
-    b2 = jnp.concatenate([jnp.zeros((r, b1.shape[1])), modes2.T @ b2_physical]
-                         ).astype(jnp.complex128)
-    c2 = jnp.concatenate([cx2 @ modes2, cv2 @ modes2], axis=1).astype(jnp.complex128)
+    a2, b2, c2 = (x.astype(jnp.complex128) for x in small)
     t, q = _schur(a2.T.astype(jnp.complex128))  # A_2^T = Q T Q^H, T upper triangular
     # A_1 Y + E_1 Y T = R with Y = X Q, R = -B_1 B_2^T Q: only its velocity half is nonzero
     rhs_velocity = -(b1.astype(jnp.complex128) @ (b2.T @ q))  # (n, 2r)
@@ -273,6 +348,7 @@ def _inner(large, small):
         y1 = -solve(r2 + damp(r1) + sigma * mass(r1))
         return y.at[:, j].set(jnp.concatenate([y1, r1 + sigma * y1])), None
 
-    y, _ = jax.lax.scan(column, jnp.zeros((2 * n, 2 * r), jnp.complex128), jnp.arange(2 * r))
+    y, _ = jax.lax.scan(column, jnp.zeros((2 * n, a2.shape[0]), jnp.complex128),
+                        jnp.arange(a2.shape[0]))
     c1 = jnp.concatenate([cx1, cv1], axis=1).astype(jnp.complex128)
     return jnp.real(jnp.trace(c1 @ y @ (q.conj().T @ c2.T)))

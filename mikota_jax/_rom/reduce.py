@@ -20,7 +20,7 @@ import numpy as np
 
 from .._errors import MARK
 from .._model.reduced import ReducedModel, ReductionStats, _project, check_basis
-from .base import AbstractReduction, problem_system
+from .base import AbstractIOReduction, AbstractReduction, problem_system
 from .classic import (
     _KRYLOV_DEPENDENT,
     _check,
@@ -33,23 +33,33 @@ from .classic import (
     modal_static_basis,
 )
 from .io_model import IOModel
+from .lti import LTIModel
 
 
-def reduce(problem, strategy: AbstractReduction) -> ReducedModel | IOModel:
+def reduce(problem, strategy: AbstractReduction | AbstractIOReduction
+           ) -> ReducedModel | IOModel | LTIModel:
     """The reduced model of ``problem`` by ``strategy``: Phi^T M Phi q'' + Phi^T D Phi q' +
     Phi^T K Phi q = Phi^T f (eq. 3.4) on the strategy's (n, r) orthonormal basis Phi, x ~ Phi q
     (eq. 3.2).
 
     ``problem``: a ``SecondOrderSystem`` or a ``Scene``, or an ``IOModel`` of a full system (then
     the result is the ``IOModel`` of the reduced model, with the same inputs and outputs);
-    ``strategy``: an ``AbstractReduction`` (``Modal(10)``, ``POD(energy=0.9999)``, ...). The
+    ``strategy``: an ``AbstractReduction`` (``Modal(10)``, ``POD(energy=0.9999)``, ...), or for
+    an ``IOModel`` an ``AbstractIOReduction`` (``H2Optimal(10)``), whose result is an
+    ``LTIModel`` built from the inputs and outputs. The
     result's ``stats`` says what the reduction did. Structural strategies whose basis is pure
     JAX (``Modal``, ``Projection``) pass ``jax.jit``, ``jax.vmap`` and ``jax.grad`` with respect
     to the system's values.
     """
+    if isinstance(strategy, AbstractIOReduction):
+        if not isinstance(problem, IOModel) or isinstance(problem.model, ReducedModel):
+            raise ValueError(MARK + f"problem: {type(strategy).__name__} reduces an input-output "
+                             "map: pass the IOModel of a full system, got "
+                             f"{type(problem).__name__}.")
+        return strategy.reduce_io(problem)
     if not isinstance(strategy, AbstractReduction):
-        raise ValueError(MARK + f"strategy must be an AbstractReduction (Modal, POD, ...), got "
-                         f"{type(strategy).__name__}.")
+        raise ValueError(MARK + f"strategy must be an AbstractReduction (Modal, POD, ...) or an "
+                         f"AbstractIOReduction (H2Optimal), got {type(strategy).__name__}.")
     if isinstance(problem, IOModel):
         if isinstance(problem.model, ReducedModel):
             raise ValueError(MARK + "problem: this IOModel is reduced already; reduce the "
