@@ -43,6 +43,7 @@ _MODULES = {
     "_placement.optimise": ("AbstractDesignStrategy Coefficients CoordinateDescent DamperDesign "
                             "DesignResult Grid ScreenAndCertify Solution optimise"),
     "_placement.viscosity": "AbstractBoxMinimiser ProjectedBFGS SpectralProjectedGradient",
+    "_rom.balanced": "SOBT TwoSided",
     "_rom.base": "POD AbstractIOReduction AbstractReduction",
     "_rom.h2_optimal": "H2Optimal",
     "_rom.io_model": "IOModel ErrorModel",
@@ -133,6 +134,8 @@ if _TYPE_CHECKING:  # the same names for static tools (type checkers, the API re
     from ._placement.viscosity import AbstractBoxMinimiser as AbstractBoxMinimiser
     from ._placement.viscosity import ProjectedBFGS as ProjectedBFGS
     from ._placement.viscosity import SpectralProjectedGradient as SpectralProjectedGradient
+    from ._rom.balanced import SOBT as SOBT
+    from ._rom.balanced import TwoSided as TwoSided
     from ._rom.base import POD as POD
     from ._rom.base import AbstractIOReduction as AbstractIOReduction
     from ._rom.base import AbstractReduction as AbstractReduction

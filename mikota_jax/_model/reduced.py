@@ -39,6 +39,8 @@ class ReductionStats(eqx.Module):
       relative change per iteration.
     - ``optimality``: ``H2Optimal``'s largest relative mismatch of the first-order H2
       conditions (interpolation at the mirrored poles of the reduced model).
+    - ``dropped``: ``SOBT``'s H2 norm of the modes damped below rounding that it left out,
+      relative to the full norm (a floor under its error).
     - ``certified``, ``bounds``, ``history``, ``full_solves``: ``Greedy``'s certificate,
       final relative bounds at the training designs, (rank, largest bound, design) per
       iteration, and the full solves taken.
@@ -62,6 +64,7 @@ class ReductionStats(eqx.Module):
     history: tuple[tuple[int, float, int], ...] | None = eqx.field(static=True, default=None)
     full_solves: int | None = eqx.field(static=True, default=None)
     optimality: float | None = eqx.field(static=True, default=None)
+    dropped: float | None = eqx.field(static=True, default=None)
     parts: tuple["ReductionStats", ...] | None = None
 
     @property

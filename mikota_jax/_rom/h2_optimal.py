@@ -172,6 +172,22 @@ def _optimality(modal: _Modal, model, lam, right, left) -> float:
     return worst
 
 
+def irka(project, shifts, right, left, tolerance: float, iterations: int):
+    """IRKA's sweeps (module docstring) with ``project(shifts, right, left) -> (E, A, B, C)``:
+    (the model at the final shifts, those shifts, the relative change per sweep)."""
+    changes = []
+    for _ in range(iterations):
+        lam, right_all, left_all = _poles_and_directions(*project(shifts, right, left))
+        keep = lam.imag >= 0
+        new = _upper(lam)
+        changes.append(_settled(new, shifts))
+        shifts, right, left = new, right_all[:, keep], left_all[:, keep]
+        if changes[-1] < tolerance:
+            break
+    # the model at the settled shifts (its own poles are the shifts' mirror to tolerance)
+    return project(shifts, right, left), shifts, changes
+
+
 class H2Optimal(AbstractIOReduction):
     """IRKA (module docstring): a reduced model of 2 ``rank`` states meeting the first-order
     H2-optimality conditions, as an ``LTIModel``. ``tolerance``: the shifts' relative change
@@ -214,18 +230,8 @@ class H2Optimal(AbstractIOReduction):
                 raise ValueError(MARK + "H2Optimal: shifts must be finite with Re > 0.")
         right = np.ones((m, shifts.size), complex) / np.sqrt(m)
         left = np.ones((q, shifts.size), complex) / np.sqrt(q)
-        changes = []
-        for _ in range(self.iterations):
-            model = _project(modal, shifts, right, left)
-            lam, right_all, left_all = _poles_and_directions(*model)
-            keep = lam.imag >= 0
-            new = _upper(lam)
-            changes.append(_settled(new, shifts))
-            shifts, right, left = new, right_all[:, keep], left_all[:, keep]
-            if changes[-1] < self.tolerance:
-                break
-        # the model at the settled shifts (its own poles are the shifts' mirror to tolerance)
-        model = _project(modal, shifts, right, left)
+        model, shifts, changes = irka(lambda *data: _project(modal, *data), shifts, right, left,
+                                      self.tolerance, self.iterations)
         lam, right_all, left_all = _poles_and_directions(*model)
         stats = ReductionStats(
             "H2Optimal", self.rank, shifts=tuple(complex(z) for z in shifts),

@@ -153,6 +153,43 @@ class LTIModel(eqx.Module):
         self._check_stable("hinf_norm")
         return jnp.asarray(_hinf_norm(*self.standard())[0])
 
+    def oscillators(self) -> tuple[np.ndarray, ...]:
+        """The same G(s) as r decoupled oscillators, (M, D, K, B, C_x, C_v) with M = I, D and K
+        diagonal (``second_order`` takes them back): each conjugate pair of poles lambda with
+        residue R gives (2 Re R s - 2 Re(R conj(lambda))) / (s^2 - 2 Re(lambda) s + |lambda|^2),
+        two real poles lambda_1, lambda_2 the same with D = -(lambda_1 + lambda_2), K =
+        lambda_1 lambda_2. So an ``H2Optimal`` model of a single-input map is a second-order
+        model of r DOFs too. For one input (m = 1) and an even number of real poles; a
+        defective pencil (a double pole with one eigenvector) is refused."""
+        a, b, c = self.standard()
+        if b.shape[1] != 1:
+            raise ValueError(MARK + f"oscillators: only a single-input model (m = 1) has this "
+                             f"form in general, got m = {b.shape[1]}.")
+        lam, vectors = np.linalg.eig(a)
+        if np.linalg.cond(vectors) > 1e12:
+            raise ValueError(MARK + "oscillators: the poles are (nearly) defective; their "
+                             "eigenvectors are not a basis.")
+        residues = (c @ vectors) * np.linalg.solve(vectors, b)[:, 0]  # (q, N)
+        pairs = [(j, None) for j in np.flatnonzero(lam.imag > 0)]
+        real = np.flatnonzero(lam.imag == 0)
+        if real.size % 2:
+            raise ValueError(MARK + "oscillators: an odd number of real poles cannot pair up.")
+        real = real[np.argsort(lam[real].real)]
+        pairs += list(zip(real[::2], real[1::2]))
+        r = len(pairs)
+        damping, stiffness = np.zeros(r), np.zeros(r)
+        cx, cv = np.zeros((c.shape[0], r)), np.zeros((c.shape[0], r))
+        for i, (j, k) in enumerate(pairs):
+            if k is None:
+                damping[i], stiffness[i] = -2 * lam[j].real, abs(lam[j]) ** 2
+                cv[:, i] = 2 * residues[:, j].real
+                cx[:, i] = -2 * (residues[:, j] * lam[j].conj()).real
+            else:
+                damping[i], stiffness[i] = -(lam[j] + lam[k]).real, (lam[j] * lam[k]).real
+                cv[:, i] = (residues[:, j] + residues[:, k]).real
+                cx[:, i] = -(residues[:, j] * lam[k] + residues[:, k] * lam[j]).real
+        return np.eye(r), np.diag(damping), np.diag(stiffness), np.ones((r, 1)), cx, cv
+
     def __sub__(self, other):
         """The error system ``self - other`` (``ErrorModel``)."""
         from .io_model import ErrorModel, IOModel
@@ -181,22 +218,29 @@ def _schur_jvp(primals, tangents):
 
 
 @jax.jit
-def sylvester_inner(first, second) -> Float[Array, ""]:
-    """Re tr(C_1 X C_2^T) with A_1 X + X A_2^T + B_1 B_2^T = 0 for two dense models (a, b, c)
-    with E = I, every pole of each stable: the H2 inner product <G_1, G_2>. Bartels-Stewart on
-    both complex Schur forms, a triangular solve per column, O(N_1^3 + N_2^3 + N_1 N_2^2)."""
-    a1, b1, c1 = first
-    a2, b2, c2 = second
+def sylvester(a1, a2, rhs):
+    """X with A_1 X + X A_2^T = rhs (no eigenvalue of A_1 the negative of one of A_2): Bartels-
+    Stewart on both complex Schur forms, one triangular solve per column; complex128."""
     t1, q1 = _schur(a1)  # A_1 = Q_1 T_1 Q_1^H
     t2, q2 = _schur(a2.T)  # A_2^T = Q_2 T_2 Q_2^H
-    rhs = -(q1.conj().T @ b1.astype(jnp.complex128)) @ (b2.T.astype(jnp.complex128) @ q2)
+    f = q1.conj().T @ rhs.astype(jnp.complex128) @ q2
     eye = jnp.eye(t1.shape[0], dtype=jnp.complex128)
 
     def column(y, j):  # (T_1 + t_jj I) y_j = F_j - sum_{i<j} y_i t_ij, Y = Q_1^H X Q_2
-        right = rhs[:, j] - y @ t2[:, j]
+        right = f[:, j] - y @ t2[:, j]
         y_j = jax.scipy.linalg.solve_triangular(t1 + t2[j, j] * eye, right, lower=False)
         return y.at[:, j].set(y_j), None
 
-    y, _ = jax.lax.scan(column, jnp.zeros_like(rhs), jnp.arange(t2.shape[0]))
-    x = q1 @ y @ q2.conj().T
+    y, _ = jax.lax.scan(column, jnp.zeros_like(f), jnp.arange(t2.shape[0]))
+    return q1 @ y @ q2.conj().T
+
+
+@jax.jit
+def sylvester_inner(first, second) -> Float[Array, ""]:
+    """Re tr(C_1 X C_2^T) with A_1 X + X A_2^T + B_1 B_2^T = 0 for two dense models (a, b, c)
+    with E = I, every pole of each stable: the H2 inner product <G_1, G_2> (``sylvester``),
+    O(N_1^3 + N_2^3 + N_1 N_2^2)."""
+    a1, b1, c1 = first
+    a2, b2, c2 = second
+    x = sylvester(a1, a2, -b1 @ b2.T)
     return jnp.real(jnp.trace(c1.astype(jnp.complex128) @ x @ c2.T.astype(jnp.complex128)))
