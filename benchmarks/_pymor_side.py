@@ -1,8 +1,8 @@
-"""pyMOR's side of the reduction comparison, and the one evaluation both sides go through.
+"""pyMOR's side of the reduction comparison (``pymor_comparison.py``, which scores every model of
+both libraries with one evaluation code: ``mj.LTIModel`` and its error system).
 
 ``pymor_reductions`` runs pyMOR's reductors on a second-order system given as dense numpy
-matrices; ``evaluate`` scores any reduced model (pyMOR's or ours) with numpy/scipy alone. No jax
-and no mikota_jax here, except in ``main``, which builds the Section 5 system with mikota_jax.
+matrices. No jax and no mikota_jax here.
 
 Conventions: M x'' + D x' + K x = b u, y = cx x (pyMOR calls the damping ``E``); r is the number
 of second-order DOFs of a reduced model, first-order reductors get order 2r, so every reduced
@@ -11,8 +11,6 @@ C), G(s) = C (sE - A)^-1 B; for a second-order one pyMOR's ``to_lti`` form: E = 
 A = [[0, I], [-K_r, -D_r]], B = [0; B_r], C = [Cp_r, Cv_r]. Offline times are wall seconds of the
 reductor's construction + ``reduce`` on a freshly built model (pyMOR caches Gramians per model
 object, so no row reuses another row's Gramians).
-
-Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/_pymor_side.py`` (needs the ``bench`` extra).
 """
 
 import os
@@ -131,117 +129,3 @@ def pymor_reductions(m, d, k, b, cx, ranks, *, seed=0) -> list[dict]:
                 row["error"] = f"{type(error).__name__}: {' '.join(str(error).split())}"
             rows.append(row)
     return rows
-
-
-def transfer(e, a, b, c, points) -> np.ndarray:
-    """(len(points), p, m) G(s) = C (sE - A)^-1 B at complex ``points``: E^-1 A balanced by a
-    diagonal similarity (powers of 2, exact), one complex Schur form Z T Z^H of it, then a
-    triangular solve per point. Without the balancing (K's omega^2 ~ 1e5 beside the identity
-    block) the H2 errors below lose ~3 digits near the lightly damped poles."""
-    a, (scale, _) = sl.matrix_balance(np.linalg.solve(e, a), permute=False, separate=True)
-    b, c = np.linalg.solve(e, b) / scale[:, None], c * scale
-    t, z = sl.schur(a, output="complex")
-    zb, cz, poles = z.conj().T @ b, c @ z, np.diag(t).copy()
-    shifted, diagonal, out = -t, np.diag_indices(t.shape[0]), []
-    for s in points:  # sI - T, its diagonal overwritten in place (no n^2 copy per point)
-        shifted[diagonal] = s - poles
-        out.append(cz @ sl.solve_triangular(shifted, zb, check_finite=False))
-    return np.stack(out)
-
-
-def frequency_response(e, a, b, c, omegas) -> np.ndarray:
-    """(len(omegas), p, m) G(i omega)."""
-    return transfer(e, a, b, c, 1j * np.asarray(omegas))
-
-
-def evaluate(e, a, b, c, full, omegas) -> dict:
-    """{stable, h2_error, hinf_sampled, max_real_pole, eigenvector_cond} of the reduced model
-    (e, a, b, c) against ``full``.
-
-    ``full``: the full model's {"e", "a", "b", "c"}, its exact H2 norm "h2" (it has undamped
-    modes: no Lyapunov solve for it here) and optionally "response", its ``frequency_response``
-    at ``omegas`` (computed here if absent). ``hinf_sampled``: max |G - G_r| / max |G| over
-    ``omegas`` (blind to resonances narrower than the grid). ``h2_error`` (stable models only):
-    sqrt(h2^2 + h2_r^2 - 2 tr(C X C_r^T)) / h2, with A_r P_r + P_r A_r^T + B_r B_r^T = 0 and
-    A X + X A_r^T + B B_r^T = 0 (E's multiplied out) solved exactly in the reduced model's
-    eigenbasis A_r = V diag(mu) V^-1, rows b_j of V^-1 B_r, columns c_j of C_r V:
-    h2_r^2 = -sum_ij (b_i . b_j)(c_i . c_j) / (mu_i + mu_j) and
-    tr(C X C_r^T) = sum_j c_j^T G(-mu_j) b_j.
-
-    Not scipy's ``solve_continuous_lyapunov`` / ``solve_sylvester``: their error grows like
-    eps ||A|| / |Re mu|, and reduced models of this chain have poles at Re ~ -1e-10; on Section
-    5 they gave 0 (a negative square) for an r = 80 model whose error is 4.07e-3, and 0.2647 for
-    one at 0.2658 (checked by a double modal sum over both models and a quadrature of
-    |G - G_r|^2). This sum agrees with those and with mikota_jax's error norm to ~1e-8 of h2^2
-    (a floor of ~1e-4 in the relative error) while V is well conditioned (``eigenvector_cond``:
-    1e2-1e3 here)."""
-    nothing = {"stable": False, "h2_error": None, "hinf_sampled": None, "max_real_pole": None,
-               "eigenvector_cond": None}
-    if not all(np.all(np.isfinite(x)) for x in (e, a, b, c)):
-        return nothing
-    mu, v = sl.eig(a, e)
-    g = full.get("response")
-    if g is None:
-        g = frequency_response(full["e"], full["a"], full["b"], full["c"], omegas)
-    gain = lambda x: np.linalg.norm(x, ord=2, axis=(-2, -1))
-    scores = nothing | {
-        "stable": bool(np.all(mu.real < 0)), "max_real_pole": float(np.max(mu.real)),
-        "eigenvector_cond": float(np.linalg.cond(v)),
-        "hinf_sampled": float(np.max(gain(g - frequency_response(e, a, b, c, omegas)))
-                              / np.max(gain(g)))}
-    if not scores["stable"]:
-        return scores
-    bm, cm = np.linalg.solve(v, np.linalg.solve(e, b)), c @ v  # modal B_r (r, m), C_r (p, r)
-    h2r_squared = np.trace(cm @ (-(bm @ bm.T) / (mu[:, None] + mu[None, :])) @ cm.T).real
-    at_mirrors = transfer(full["e"], full["a"], full["b"], full["c"], -mu)  # G(-mu_j)
-    cross = np.einsum("pj,jpm,jm->", cm, at_mirrors, bm).real
-    squared = full["h2"] ** 2 + h2r_squared - 2 * cross
-    return scores | {"h2_error": float(np.sqrt(max(squared, 0.0))) / full["h2"]}
-
-
-def main() -> list[dict]:
-    """The Section 5 IO system (force at DOF 3, displacement of DOF 150, n = 300): every pyMOR
-    reduction at r = 10, 20, 40, 80, scored by ``evaluate`` on 4000 frequencies in [0.01, 400]."""
-    from _common import print_table
-
-    import mikota_jax as mj
-
-    start = time.perf_counter()
-    n, omegas = 300, np.logspace(-2, np.log10(400.0), 4000)
-    system = mj.mikota_chain(n, dampers=[mj.GroundedDamper(7.0, 1.0)])
-    m, d, k = (np.asarray(x) for x in system.dense())
-    b, cx = np.zeros((n, 1)), np.zeros((1, n))
-    b[2, 0], cx[0, 149] = 1.0, 1.0  # DOF 3 and DOF 150 (1-based)
-    h2 = float(mj.IOModel(system, mj.unit_vector(n, 3), cx=mj.unit_vector(n, 150)).h2_norm())
-    eye, zero = np.eye(n), np.zeros((n, n))
-    full = {"e": np.block([[eye, zero], [zero, m]]), "a": np.block([[zero, eye], [-k, -d]]),
-            "b": np.vstack([np.zeros_like(b), b]), "c": np.hstack([cx, np.zeros_like(cx)]),
-            "h2": h2}
-    full["response"] = frequency_response(full["e"], full["a"], full["b"], full["c"], omegas)
-    rows = []
-    for r in (10, 20, 40, 80):  # one rank at a time, to print progress
-        for row in pymor_reductions(m, d, k, b, cx, (r,)):
-            if "error" not in row:
-                row.update(evaluate(row["e"], row["a"], row["b"], row["c"], full, omegas))
-            print(f"{row['method']:>13} r = {r:2d}: " + (row.get("error") or (
-                f"H2 error {row['h2_error']}, offline {row['offline_s']:.2f} s")), flush=True)
-            rows.append(row)
-    print_table(rows, [("method", "method", ""), ("r", "r", "d"), ("stable", "stable", ""),
-                       ("max_real_pole", "max Re pole", ".1e"), ("h2_error", "H2 error", ".3e"),
-                       ("hinf_sampled", "Hinf sampled", ".3e"),
-                       ("eigenvector_cond", "cond V", ".0e"), ("offline_s", "offline s", ".2f"),
-                       ("iterations", "iterations", "d"), ("converged", "converged", "")])
-    for r in sorted({row["r"] for row in rows}):
-        scored = [row for row in rows if row["r"] == r and row.get("h2_error") is not None]
-        if scored:
-            best = min(scored, key=lambda row: row["h2_error"])
-            print(f"r = {r}: best stable {best['method']}, H2 error {best['h2_error']:.3e}")
-    for row in rows:
-        if "error" in row:
-            print(f"failed: {row['method']} r = {row['r']}: {row['error']}")
-    print(f"full H2 norm {h2:.6f}; total {time.perf_counter() - start:.1f} s")
-    return rows
-
-
-if __name__ == "__main__":
-    main()
