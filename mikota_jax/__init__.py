@@ -45,7 +45,7 @@ _MODULES = {
     "_placement.viscosity": "AbstractBoxMinimiser ProjectedBFGS SpectralProjectedGradient",
     "_rom.balanced": "SOBT TwoSided",
     "_rom.base": "POD AbstractIOReduction AbstractReduction",
-    "_rom.h2_optimal": "H2Optimal",
+    "_rom.h2_optimal": "H2Optimal StructuredH2",
     "_rom.io_model": "IOModel ErrorModel",
     "_rom.lti": "LTIModel",
     "_rom.reduce": ("CraigBampton IRKA Krylov Modal ModalStatic Projection RationalKrylov Union "
@@ -140,6 +140,7 @@ if _TYPE_CHECKING:  # the same names for static tools (type checkers, the API re
     from ._rom.base import AbstractIOReduction as AbstractIOReduction
     from ._rom.base import AbstractReduction as AbstractReduction
     from ._rom.h2_optimal import H2Optimal as H2Optimal
+    from ._rom.h2_optimal import StructuredH2 as StructuredH2
     from ._rom.io_model import ErrorModel as ErrorModel
     from ._rom.io_model import IOModel as IOModel
     from ._rom.lti import LTIModel as LTIModel

@@ -24,6 +24,7 @@ dampers' coefficients, then the relative dampers', each in the order the system 
 import abc
 import dataclasses
 import enum
+import time
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -209,16 +210,38 @@ class Coefficients(AbstractDesignStrategy):
     ``gradient`` ((g + p,) dJ/dc at the optimum), ``relative_gradient``, ``status``; ``history``:
     (value, relative gradient) per iteration. The design's ``positions`` and ``pairs`` must be
     None (``CoordinateDescent`` moves dampers).
+
+    ``through``: a Galerkin reduction (``StructuredH2(r)`` for an ``H2Norm``; ``RationalKrylov``,
+    ``Modal``, ... for an ``H2Norm`` or ``OutputEnergy``) to search on a reduced model first.
+    Its basis Phi is made once, at the start design; the search runs on the Galerkin model of
+    each trial design on Phi (the dampers' coefficients enter its projected damping linearly,
+    so it is exact in c and differentiable). The same search at full order then starts from
+    its optimum, with the reduced search's last inverse-Hessian approximation, and certifies
+    it: ``value``, ``gradient`` and ``relative_gradient`` are the full model's, and the result
+    is converged only where the full relative gradient is below ``tolerance``. Extra stats:
+    ``rank``, ``basis``, ``seconds_offline`` (the reduction), ``reduced_coefficients``,
+    ``reduced_value``, ``reduced_iterations``, ``reduced_evaluations``, ``reduced_seconds``,
+    ``reduced_status``, ``rom_error`` (the reduced model's relative error of the objective at
+    its optimum); ``full_solves`` counts the full evaluations, and ``iterations`` and
+    ``history`` are the full-order search's.
     """
 
     minimiser: AbstractBoxMinimiser = ProjectedBFGS()
     tolerance: float = eqx.field(static=True, default=1e-6)
     max_iterations: int = eqx.field(static=True, default=200)
     progress: bool = eqx.field(static=True, default=False)
+    through: object = None
 
     def __check_init__(self):
+        from .._rom.base import AbstractIOReduction, AbstractReduction
+
         check_search(self.minimiser, self.tolerance)
         _check_count("max_iterations", self.max_iterations, 0)
+        if self.through is not None and not isinstance(self.through, AbstractReduction
+                                                       | AbstractIOReduction):
+            raise ValueError(MARK + "through must be None or a Galerkin reduction "
+                             "(StructuredH2, RationalKrylov, Modal, Projection, ...), got "
+                             f"{type(self.through).__name__}.")
 
     def run(self, design: DamperDesign) -> Solution:
         """The optimal coefficients of ``design``."""
@@ -228,6 +251,8 @@ class Coefficients(AbstractDesignStrategy):
             raise ValueError(MARK + "positions/pairs must be None for Coefficients (it keeps "
                              "every damper in place); CoordinateDescent moves them.")
         objective = checked_objective(design.system, design.objective)
+        if self.through is not None:
+            return self._run_through(design, objective)
         run = search_coefficients(design.system, objective, free=design.free,
                                   lower=design.lower, upper=design.upper,
                                   tolerance=self.tolerance, max_iterations=self.max_iterations,
@@ -237,6 +262,57 @@ class Coefficients(AbstractDesignStrategy):
                      relative_gradient=run.relative_gradient, status=run.status)
         result = (DesignResult.converged if run.converged
                   else _code(run.status, "max_iterations"))
+        return _solution(_with_coefficients(design.system, run.coefficients), run.value, result,
+                         stats, run.history)
+
+    def _run_through(self, design: DamperDesign, objective) -> Solution:
+        """The search on the Galerkin model on ``through``'s basis (made at the start design),
+        then the full-order search from its optimum (module docstring of ``Coefficients``)."""
+        from .._objective.family import H2Norm
+        from .._rom.base import AbstractIOReduction
+        from .._rom.io_model import IOModel
+        from .._rom.reduce import reduce
+        from .viscosity import THROUGH_REDUCED, search_coefficients
+
+        if not isinstance(objective, THROUGH_REDUCED):
+            raise ValueError(MARK + "through: a search through a reduced model takes an H2Norm "
+                             f"or OutputEnergy objective, got {type(objective).__name__}.")
+        by_map = isinstance(self.through, AbstractIOReduction)
+        if by_map and not isinstance(objective, H2Norm):
+            raise ValueError(MARK + f"through: {type(self.through).__name__} reduces an input-"
+                             "output map: it takes an H2Norm objective (its inputs and outputs), "
+                             f"got {type(objective).__name__}.")
+        start = time.perf_counter()
+        if by_map:
+            reduced = reduce(IOModel(design.system, objective.inputs, objective.cx,
+                                     objective.cv), self.through)
+            if not isinstance(reduced, IOModel):
+                raise ValueError(MARK + f"through: {type(self.through).__name__} gives a dense "
+                                 "model, whose matrices do not keep the dampers; use a Galerkin "
+                                 "reduction (StructuredH2, RationalKrylov, Modal, ...).")
+            basis = reduced.model.basis
+        else:
+            basis = reduce(design.system, self.through).basis
+        offline = time.perf_counter() - start
+        options = dict(free=design.free, lower=design.lower, upper=design.upper,
+                       tolerance=self.tolerance, minimiser=self.minimiser,
+                       max_iterations=self.max_iterations, progress=self.progress)
+        rom = search_coefficients(design.system, objective, basis=basis, **options)
+        if self.progress:
+            print(f"  reduced model ({basis.shape[1]} DOFs): optimum {rom.value:.12g}; the "
+                  "full-order search from there:", flush=True)
+        run = search_coefficients(_with_coefficients(design.system, rom.coefficients),
+                                  objective, state=rom.state, **options)
+        stats = dict(iterations=run.iterations, evaluations=run.evaluations,
+                     full_solves=run.evaluations, seconds=time.perf_counter() - start,
+                     seconds_offline=offline, gradient=run.gradient,
+                     relative_gradient=run.relative_gradient, status=run.status,
+                     rank=int(basis.shape[1]), basis=basis,
+                     reduced_coefficients=rom.coefficients, reduced_value=rom.value,
+                     reduced_iterations=rom.iterations, reduced_evaluations=rom.evaluations,
+                     reduced_seconds=rom.seconds, reduced_status=rom.status,
+                     rom_error=abs(rom.value - run.history[0][0]) / abs(run.history[0][0]))
+        result = DesignResult.converged if run.converged else _code(run.status, "max_iterations")
         return _solution(_with_coefficients(design.system, run.coefficients), run.value, result,
                          stats, run.history)
 

@@ -60,10 +60,17 @@ import numpy as np
 from .._errors import MARK, check_lowest, check_x64, integer_indices
 from .._model.dampers import Dampers
 from .._model.parameters import with_parameters
+from .._model.reduced import galerkin
 from .._model.system import SecondOrderSystem
 from .._objective.family import AverageEnergy, Energy, H2Norm, OutputEnergy, Peak
 from .._objective.functions import smooth_peak
-from .._objective.outputs import output_arguments, output_horizon, output_states, state_matrix
+from .._objective.outputs import (
+    _reduced_output_energy,
+    output_arguments,
+    output_horizon,
+    output_states,
+    state_matrix,
+)
 from .._solver.ode import initial_vector
 from .._solver.spectral.energy import (
     spectral_energy_with_result,
@@ -101,6 +108,7 @@ class CoefficientRun:
     seconds: float
     history: list
     status: str
+    state: object = None  # the minimiser's last state (a warm start for another search)
 
 
 # the objectives the full-order searches evaluate on the spectral path, and what each needs
@@ -132,16 +140,37 @@ def criterion_value(system, objective):
     return jnp.where(ok, value, jnp.inf)
 
 
+# the objectives a search through a Galerkin model evaluates (its dense reduced Gramian)
+THROUGH_REDUCED = (H2Norm, OutputEnergy)
+
+
+def reduced_criterion_value(model, objective):
+    """An ``H2Norm`` or ``OutputEnergy`` (a ``checked_objective``) of the Galerkin model
+    ``model`` (a ``ReducedModel``; inputs and outputs in full coordinates), +inf where it does
+    not hold (a reduced mode undamped and seen), as ``criterion_value``."""
+    o = objective
+    if isinstance(o, H2Norm):
+        value, ok = _reduced_output_energy(model, None, None, o.inputs, o.cx, o.cv, None, None)
+        value = jnp.sqrt(value)
+    else:  # OutputEnergy
+        value, ok = _reduced_output_energy(model, o.x0, o.v0, None, o.cx, o.cv, o.horizon,
+                                           o.lowest)
+    return jnp.where(ok, value, jnp.inf)
+
+
 @eqx.filter_jit
-def _value_and_gradient(d, system, criterion):
+def _value_and_gradient(d, system, criterion, basis=None):
     """(f, df/dd) for the (g + p,) coefficient vector d: one compile per system structure and
-    criterion (the system's values are traced)."""
+    criterion (the system's values are traced); with a ``basis`` (n, r), of the Galerkin model
+    on it (the dampers' coefficients enter its projected damping linearly)."""
     grounded = system.damping.coefficients.shape[0]
 
     def value(d):
         designed = with_parameters(system, dict(coefficients=d[:grounded],
                                                 relative_coefficients=d[grounded:]))
-        return criterion_value(designed, criterion)
+        if basis is None:
+            return criterion_value(designed, criterion)
+        return reduced_criterion_value(galerkin(designed, basis), criterion)
 
     return jax.value_and_grad(value)(d)
 
@@ -289,9 +318,12 @@ def check_search(minimiser, tolerance) -> None:
 
 def search_coefficients(system: SecondOrderSystem, objective, *, free=None, lower=0.0,
                         upper=None, tolerance: float = 1e-6, max_iterations: int = 200,
-                        minimiser=None, progress: bool = False) -> CoefficientRun:
+                        minimiser=None, progress: bool = False, basis=None,
+                        state=None) -> CoefficientRun:
     """Optimal damper coefficients of ``system`` at full order (positions fixed): the algorithm
-    of ``Coefficients``.
+    of ``Coefficients``; with a ``basis`` (n, r), of its Galerkin model on that basis.
+    ``state``: the minimiser's state to start from (another run's ``state``: its inverse-Hessian
+    approximation or step length in u), else its own start.
 
     ``objective``: a ``checked_objective``; ``free``: None or 0-based indices into the (g + p,)
     coefficient vector (grounded dampers first, then relative ones) that move; ``lower``,
@@ -327,7 +359,7 @@ def search_coefficients(system: SecondOrderSystem, objective, *, free=None, lowe
         u_lo, u_hi = np.log(lo[mask]), np.log(hi[mask])
 
     evaluate_jit = lambda point: _value_and_gradient(  # noqa: E731
-        jnp.asarray(point, dtype=jnp.float64), system, args)
+        jnp.asarray(point, dtype=jnp.float64), system, args, basis)
     evaluations = 0
     last = {}
 
@@ -366,14 +398,14 @@ def search_coefficients(system: SecondOrderSystem, objective, *, free=None, lowe
     # own scale takes over)
     first = _FIRST_STEP / max(np.linalg.norm(g), 1e-300)
     box = _Box(evaluate, held, u_lo, u_hi)
-    u, f, _, history, iterations, status = _minimise(
-        minimiser, box, stationarity, u, f, g, first, tolerance, max_iterations, report)
+    u, f, _, history, iterations, status, state = _minimise(
+        minimiser, box, stationarity, u, f, g, first, tolerance, max_iterations, report, state)
     d, g = design(u), last[u.tobytes()]
     converged = history[-1][1] < tolerance
     if converged:
         status = "converged" if mask.any() else "nothing to move: every free coefficient is pinned"
     return CoefficientRun(d, f, g, history[-1][1], converged, iterations, evaluations,
-                           time.perf_counter() - start, history, status)
+                           time.perf_counter() - start, history, status, state)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -485,11 +517,12 @@ class SpectralProjectedGradient(AbstractBoxMinimiser):
         return trial, f_trial, g_trial, alpha
 
 
-def _minimise(minimiser, box, stationarity, u, f, g, first, tolerance, max_iterations, report):
+def _minimise(minimiser, box, stationarity, u, f, g, first, tolerance, max_iterations, report,
+              state=None):
     """``minimiser``'s steps from u until stationary (every free, non-held relative gradient
     below ``tolerance``), stalled (f unchanged to 1e-14), its line search fails, or
     ``max_iterations``: (u, f, g, history, iterations, status)."""
-    state = minimiser.init(u.shape[0], first)
+    state = minimiser.init(u.shape[0], first) if state is None else state
     history = [(f, stationarity(u, f, g))]
     status, iterations = "max_iterations reached", 0
     for iterations in range(1, max_iterations + 1):
@@ -509,4 +542,4 @@ def _minimise(minimiser, box, stationarity, u, f, g, first, tolerance, max_itera
         if stalled:
             status = "stalled (f unchanged to 1e-14)"
             break
-    return u, f, g, history, iterations, status
+    return u, f, g, history, iterations, status, state

@@ -214,12 +214,18 @@ class H2Optimal(AbstractIOReduction):
 
     def reduce_io(self, io) -> LTIModel:
         """The IRKA model of the IOModel ``io`` of a full system."""
+        _, model, stats = self._irka(io)
+        return LTIModel(*model[1:], model[0], stats)
+
+    def _irka(self, io):
+        """(the modal data, the model (E, A, B, C) at the settled shifts, its stats)."""
         if not isinstance(io.model, SecondOrderSystem):
-            raise ValueError(MARK + "H2Optimal: the IOModel must be that of a full system.")
+            raise ValueError(MARK + f"{type(self).__name__}: the IOModel must be that of a full "
+                             "system.")
         n = io.size
         if self.rank > n:
-            raise ValueError(MARK + f"H2Optimal: rank = {self.rank} is out of reach: the "
-                             f"system has n = {n} DOFs; choose rank <= {n}.")
+            raise ValueError(MARK + f"{type(self).__name__}: rank = {self.rank} is out of "
+                             f"reach: the system has n = {n} DOFs; choose rank <= {n}.")
         modal = _modal(io)
         q, m = io.shape
         if self.shifts is None:
@@ -227,7 +233,8 @@ class H2Optimal(AbstractIOReduction):
         else:
             shifts = np.asarray(self.shifts, dtype=complex)
             if np.any(shifts.real <= 0) or np.any(~np.isfinite(shifts)):
-                raise ValueError(MARK + "H2Optimal: shifts must be finite with Re > 0.")
+                raise ValueError(MARK + f"{type(self).__name__}: shifts must be finite with "
+                                 "Re > 0.")
         right = np.ones((m, shifts.size), complex) / np.sqrt(m)
         left = np.ones((q, shifts.size), complex) / np.sqrt(q)
         model, shifts, changes = irka(lambda *data: _project(modal, *data), shifts, right, left,
@@ -238,8 +245,73 @@ class H2Optimal(AbstractIOReduction):
             iterations=len(changes), converged=bool(changes[-1] < self.tolerance),
             changes=tuple(changes),
             optimality=float(_optimality(modal, model, lam, right_all, left_all)))
-        e, a, b, c = model
-        if e.shape[0] != 2 * self.rank:
-            raise ValueError(MARK + f"H2Optimal: rank = {self.rank} is out of reach: the "
-                             f"shifts gave {e.shape[0]} states, not {2 * self.rank}.")
-        return LTIModel(a, b, c, e, stats)
+        if model[0].shape[0] != 2 * self.rank:
+            raise ValueError(MARK + f"{type(self).__name__}: rank = {self.rank} is out of "
+                             f"reach: the shifts gave {model[0].shape[0]} states, not "
+                             f"{2 * self.rank}.")
+        return modal, model, stats
+
+
+class StructuredH2(H2Optimal):
+    """Structure-preserving interpolation at the H2-optimal shifts: ``H2Optimal(rank)``'s IRKA
+    (same arguments) gives the shifts sigma_j and tangential directions (b_j, c_j) of a
+    first-order H2-optimal model; the reduced model is then the Galerkin (one-sided) model of
+    M, D, K on the span of Re and Im of the right and left responses X_j = (sigma_j^2 M +
+    sigma_j D + K)^-1 B b_j and Y_j = (sigma_j^2 M + sigma_j D + K)^-1 (C_x + sigma_j C_v)^T c_j,
+    orthonormalised. M, D and K are symmetric, so V = W and the model interpolates G
+    bitangentially, with its derivative, at every shift (Beattie & Gugercin, "Interpolatory
+    projection methods for structure-preserving model reduction", Systems & Control Letters 58
+    (2009) 225-232, where the shifts come from IRKA on the first-order form, as here).
+
+    What it keeps that ``H2Optimal`` does not: the result is an ``IOModel`` of a second-order
+    Galerkin ``ReducedModel`` (symmetric M_r, D_r, K_r; D_r >= 0, so no pole in Re s > 0 for
+    any coefficients), and its dampers stay dampers: ``galerkin`` of any other design on its
+    basis is that design's reduced model, which is how ``Coefficients(through=...)`` searches
+    coefficients on it. What it costs: up to 4 ``rank`` DOFs (two per side per complex shift;
+    the columns that are independent, ``stats.rank``) for the interpolation of ``rank``
+    shifts. Stats: the IRKA's ``shifts``, ``iterations``, ``converged``, ``changes``, and
+    ``optimality``: the largest relative mismatch of that interpolation (G b_j, c_j^T G,
+    c_j^T G' b_j at the shifts) of the returned model."""
+
+    def reduce_io(self, io):
+        """The IOModel of the Galerkin model of ``io``'s full system (class docstring)."""
+        from .._model.pencil import modal_pencil
+        from .._model.reduced import galerkin
+        from .io_model import IOModel, _first_order_of
+
+        modal, model, stats = self._irka(io)
+        lam, right_all, left_all = _poles_and_directions(*model)
+        columns = []
+        for j in np.flatnonzero(lam.imag >= 0):
+            sigma = -lam[j]  # the mirrored pole, with the directions of lambda_j's residue
+            x = modal.solve(sigma, modal.inputs @ right_all[:, j])
+            y = modal.solve(sigma, (modal.cx + sigma * modal.cv).T @ left_all[:, j])
+            columns += [x.real, x.imag, y.real, y.imag] if sigma.imag else [x.real, y.real]
+        modes = np.asarray(modal_pencil(io.model).modes)
+        basis = _orthonormal(modes @ np.stack(columns, axis=1))
+        reduced = galerkin(io.model, basis)
+        out = IOModel(reduced, io.inputs, *io.outputs())
+        first = _first_order_of(out)
+        e = np.eye(first[0].shape[0])
+        stats = ReductionStats(
+            "StructuredH2", int(basis.shape[1]), shifts=stats.shifts,
+            iterations=stats.iterations, converged=stats.converged, changes=stats.changes,
+            optimality=float(_optimality(modal, (e, *(np.asarray(x) for x in first)), lam,
+                                         right_all, left_all)))
+        return IOModel(eqx.tree_at(lambda r: r.stats, reduced, stats,
+                                   is_leaf=lambda x: x is None), io.inputs, *io.outputs())
+
+
+def _orthonormal(columns) -> np.ndarray:
+    """The columns orthonormalised in order (Gram-Schmidt twice), each one's part outside the
+    span so far kept where it is above 1e-10 of the longest column (as ``RationalKrylov``'s
+    basis; a shift near a lightly damped pole adds about one direction per side)."""
+    scale = float(np.max(np.linalg.norm(columns, axis=0)))
+    basis = np.zeros((columns.shape[0], 0))
+    for column in columns.T:
+        part = column - basis @ (basis.T @ column)
+        part = part - basis @ (basis.T @ part)
+        size = np.linalg.norm(part)
+        if size > 1e-10 * scale:
+            basis = np.column_stack([basis, part / size])
+    return basis
