@@ -7,7 +7,8 @@ truncations (SOBTp, SOBTv, SOBTpv, SOBTvp, SOBTfv, SOBT), SOR-IRKA, SOBHI, and o
 form BT, IRKA, IRKA and TSIA started from BT, and modal truncation (``_pymor_side.py``); ours:
 ``H2Optimal`` (IRKA in the modal coordinates), ``SOBT`` in its four variants (the modes damped
 below what a dense Gramian resolves left out: their share, the models' floor, is 9e-7 here),
-``Modal`` and ``ModalStatic``. Each reduced
+``Modal``, ``ModalStatic``, and ``StructuredH2`` (the Galerkin second-order model at r // 4
+H2-optimal shifts: at most r DOFs, ``dofs`` in its rows). Each reduced
 model, as its dense first-order matrices, becomes an ``mj.LTIModel`` (ours are one or an
 ``IOModel``) and is scored by the same code: whether every pole has Re < 0, the relative H2
 error ``(full - reduced).h2_norm() / full.h2_norm()`` (exact full norm from the damped modes, the
@@ -44,7 +45,9 @@ NAME = "pymor_comparison"
 FREQUENCIES = np.logspace(-2, np.log10(400.0), 4000)
 OURS = {"H2Optimal": mj.H2Optimal, **{f"SOBT{v}": (lambda r, v=v: mj.SOBT(r, v))
                                      for v in ("p", "v", "pv", "vp")},
-        "Modal": mj.Modal, "ModalStatic": mj.ModalStatic}
+        "Modal": mj.Modal, "ModalStatic": mj.ModalStatic,
+        # up to 4 DOFs per shift: r // 4 shifts stay within r DOFs (``dofs`` says how many)
+        "StructuredH2": lambda r: mj.StructuredH2(max(1, r // 4))}
 
 
 def io_model(n: int, velocity: bool = False) -> mj.IOModel:
@@ -84,8 +87,10 @@ def main(argv=None) -> dict:
                 t0 = time.perf_counter()
                 model = mj.reduce(io, strategy(r))
                 offline = elapsed(t0)
-            rows.append(dict(library="mikota_jax", method=name, r=r, offline_s=offline,
-                             warned=bool(caught), **score(io, model, norm, response)))
+            dofs = model.model.rank if isinstance(model, mj.IOModel) else model.order // 2
+            rows.append(dict(library="mikota_jax", method=name, r=r, dofs=int(dofs),
+                             offline_s=offline, warned=bool(caught),
+                             **score(io, model, norm, response)))
             print(f"mikota_jax {name:>12} r = {r:3d}: {rows[-1]}", flush=True)
     m, d, k = (np.asarray(x) for x in io.model.dense())
     found = pymor_reductions(m, d, k, np.asarray(io.inputs), np.asarray(io.cx), ranks)
