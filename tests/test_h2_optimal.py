@@ -28,7 +28,7 @@ def dense_first_order(io):
     n = m.shape[0]
     inverse = np.linalg.inv(m)
     return (np.block([[np.zeros((n, n)), np.eye(n)], [-inverse @ k, -inverse @ d]]),
-            np.vstack([np.zeros((n, 1)), inverse @ np.asarray(io.inputs)]),
+            np.vstack([np.zeros((n, io.inputs.shape[1])), inverse @ np.asarray(io.inputs)]),
             np.hstack([np.asarray(io.cx), np.asarray(io.cv)]))
 
 
@@ -101,6 +101,34 @@ def test_h2_optimal_settles_and_interpolates_at_its_mirrored_poles(rank):
     error = float((io - reduced).h2_norm())
     for strategy in (mj.Modal(rank), mj.ModalStatic(rank)):
         assert error < float((io - mj.reduce(io, strategy)).h2_norm())
+
+
+def test_h2_optimal_meets_the_tangential_conditions_of_a_two_by_two_map():
+    # MIMO: G(-lambda) b = G_r(-lambda) b, c^T G(-lambda) = c^T G_r(-lambda) and c^T G' b =
+    # c^T G_r' b along each pole's residue directions (b, c), G from dense complex solves
+    system = mj.mikota_chain(N, dampers=[mj.GroundedDamper(7.3, 0.8)],
+                             internal_damping=mj.Rayleigh(0.0, 1e-4))
+    inputs = np.stack([mj.unit_vector(N, 3), mj.unit_vector(N, 30)], axis=1)
+    io = mj.IOModel(system, inputs, cx=np.stack([mj.unit_vector(N, 20), mj.unit_vector(N, 10)]))
+    reduced = mj.reduce(io, mj.H2Optimal(6))
+    assert reduced.stats.converged and reduced.stats.optimality < 1e-6
+    a, b, c = dense_first_order(io)
+    ar, br, cr = reduced.standard()
+    lam, vectors = np.linalg.eig(ar)
+    rights, lefts = np.linalg.solve(vectors, br), cr @ vectors
+    for j in np.flatnonzero(lam.imag >= 0):
+        sigma, right, left = -lam[j], rights[j], lefts[:, j]
+
+        def g(x, bb, cc, z=sigma):
+            resolvent = np.linalg.solve(z * np.eye(x.shape[0]) - x, bb)
+            return cc @ resolvent, -(cc @ np.linalg.solve(z * np.eye(x.shape[0]) - x, resolvent))
+
+        (value, slope), (value_r, slope_r) = g(a, b, c), g(ar, br, cr)
+        scale = np.linalg.norm(value) * np.linalg.norm(right) * np.linalg.norm(left)
+        assert np.linalg.norm((value - value_r) @ right) < 1e-6 * scale
+        assert np.linalg.norm(left @ (value - value_r)) < 1e-6 * scale
+        assert abs(left @ (slope - slope_r) @ right) < 1e-6 * (
+            np.linalg.norm(slope) * np.linalg.norm(right) * np.linalg.norm(left))
 
 
 def test_the_optimal_errors_gradient_is_the_error_with_the_reduced_model_held():

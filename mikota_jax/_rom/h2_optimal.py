@@ -181,7 +181,9 @@ def irka(project, shifts, right, left, tolerance: float, iterations: int):
         keep = lam.imag >= 0
         new = _upper(lam)
         changes.append(_settled(new, shifts))
-        shifts, right, left = new, right_all[:, keep], left_all[:, keep]
+        # sigma = -conj(lambda) in the upper half-plane interpolates along the conjugate
+        # directions (the conditions at -lambda along (b, c), conjugated)
+        shifts, right, left = new, right_all[:, keep].conj(), left_all[:, keep].conj()
         if changes[-1] < tolerance:
             break
     # the model at the settled shifts (its own poles are the shifts' mirror to tolerance)
