@@ -106,6 +106,8 @@ def result_section(path: Path) -> list[str]:
     if isinstance(summary, dict) and flat(summary):
         lines += ["Summary:", ""] + table([{"quantity": k, "value": v}
                                            for k, v in flat(summary).items()]) + [""]
+    elif isinstance(summary, list) and summary and all(isinstance(r, dict) for r in summary):
+        lines += ["Summary:", ""] + table(summary) + [""]
     rows = data.get("rows")
     if isinstance(rows, list) and rows and all(isinstance(r, dict) for r in rows):
         more = f" (the first {MAX_ROWS} of {len(rows)})" if len(rows) > MAX_ROWS else ""

@@ -17,7 +17,8 @@ NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
 # the file each notebook writes into MIKOTA_NOTEBOOK_OUT when it has run to the end
 OUTPUTS = {"paper_reproduction.ipynb": "reproduce.json", "damper_placement.ipynb": "placement.json",
            "sensitivity_study.ipynb": "sensitivity.json",
-           "custom_systems.ipynb": "custom_systems.json", "multi_damper.ipynb": "multi_damper.json"}
+           "custom_systems.ipynb": "custom_systems.json", "multi_damper.ipynb": "multi_damper.json",
+           "reduced_damper_design.ipynb": "reduced_damper_design.json"}
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
@@ -58,8 +59,9 @@ def test_notebook_cells_have_ids(path):
 # test_viscosity.py) and sensitivity_study (sensitivities, grid, sweep: tests/test_sensitivity.py,
 # test_sweep.py, and docs/sensitivities.md's blocks under -m slow).
 ONE_SIZE = {"paper_reproduction.ipynb"}
+# reduced_damper_design (70 s small) likewise: tests/test_structured_h2.py runs what it calls
 SLOW_SMALL = ONE_SIZE | {"damper_placement.ipynb", "custom_systems.ipynb", "multi_damper.ipynb",
-                         "sensitivity_study.ipynb"}
+                         "sensitivity_study.ipynb", "reduced_damper_design.ipynb"}
 RUNS = [pytest.param(path, "small", id=f"{path.name}-small",
                      marks=[pytest.mark.slow] if path.name in SLOW_SMALL else [])
         for path in NOTEBOOKS] + [pytest.param(path, "full", id=f"{path.name}-full",
