@@ -45,6 +45,7 @@ class _Modal(eqx.Module):
     inputs: np.ndarray
     cx: np.ndarray
     cv: np.ndarray
+    modes: np.ndarray  # U (n, n), M-orthonormal: x = U eta
 
     def damp(self, z):
         """C z for modal vectors z (n,) or (n, p)."""
@@ -82,7 +83,8 @@ def _modal(io) -> _Modal:
     dense = None if pencil.dense is None else np.asarray(pencil.dense)
     return _Modal(np.asarray(pencil.omega), np.asarray(pencil.diagonal),
                   np.asarray(pencil.factor), np.asarray(pencil.weights), dense,
-                  modes.T @ np.asarray(b), np.asarray(cx) @ modes, np.asarray(cv) @ modes)
+                  modes.T @ np.asarray(b), np.asarray(cx) @ modes, np.asarray(cv) @ modes,
+                  modes)
 
 
 def _real_columns(columns, shifts):
@@ -277,8 +279,7 @@ class StructuredH2(H2Optimal):
 
     def reduce_io(self, io):
         """The IOModel of the Galerkin model of ``io``'s full system (class docstring)."""
-        from .._model.pencil import modal_pencil
-        from .._model.reduced import galerkin
+        from .._model.reduced import ReducedModel, galerkin
         from .io_model import IOModel, _first_order_of
 
         modal, model, stats = self._irka(io)
@@ -289,8 +290,7 @@ class StructuredH2(H2Optimal):
             x = modal.solve(sigma, modal.inputs @ right_all[:, j])
             y = modal.solve(sigma, (modal.cx + sigma * modal.cv).T @ left_all[:, j])
             columns += [x.real, x.imag, y.real, y.imag] if sigma.imag else [x.real, y.real]
-        modes = np.asarray(modal_pencil(io.model).modes)
-        basis = _orthonormal(modes @ np.stack(columns, axis=1))
+        basis = _orthonormal(modal.modes @ np.stack(columns, axis=1))
         reduced = galerkin(io.model, basis)
         out = IOModel(reduced, io.inputs, *io.outputs())
         first = _first_order_of(out)
@@ -300,8 +300,8 @@ class StructuredH2(H2Optimal):
             iterations=stats.iterations, converged=stats.converged, changes=stats.changes,
             optimality=float(_optimality(modal, (e, *(np.asarray(x) for x in first)), lam,
                                          right_all, left_all)))
-        return IOModel(eqx.tree_at(lambda r: r.stats, reduced, stats,
-                                   is_leaf=lambda x: x is None), io.inputs, *io.outputs())
+        return IOModel(ReducedModel(reduced.system, reduced.basis, stats), io.inputs,
+                       *io.outputs())
 
 
 def _orthonormal(columns) -> np.ndarray:

@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._custom_types import Array, Complex, Float
-from .._errors import MARK, as_float, check_x64
+from .._errors import MARK, as_float, check_x64, is_traced
 from .._model.reduced import ReductionStats
 from .hinf import hinf_norm as _hinf_norm
 
@@ -147,7 +147,7 @@ class LTIModel(eqx.Module):
         d tr(C P C^T) = 2 tr(C P dC^T) + 2 tr(Q dA P) + 2 tr(Q dB B^T) with the observability
         Gramian A^T Q + Q A + C^T C = 0 (the adjoint of the Lyapunov equation; Wilson, "Optimum
         solution of model-reduction problem", Proc. IEE 117 (1970) 1161-1165)."""
-        if not isinstance(self.a, jax.core.Tracer):  # the one-line refusal names the pole
+        if not is_traced(self.a):  # eagerly, the one-line refusal names the pole
             self._check_stable("h2_norm")
         a, b = jnp.linalg.solve(self.e, self.a), jnp.linalg.solve(self.e, self.b)
         rightmost = jnp.max(jnp.real(jnp.linalg.eigvals(jax.lax.stop_gradient(a))))
