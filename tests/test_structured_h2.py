@@ -141,3 +141,12 @@ def test_a_search_through_a_reduced_model_refuses_what_it_cannot_do():
         mj.optimise(mj.DamperDesign(system, energy), mj.Coefficients(through=mj.Modal(10)))
     with pytest.raises(ValueError, match="through must be None or a Galerkin reduction"):
         mj.Coefficients(through="modal")
+
+
+def test_irka_that_does_not_settle_warns_and_says_so_in_its_stats():
+    io = mj.IOModel(chain(0.8, 7.3), mj.unit_vector(N, 3), cx=mj.unit_vector(N, N // 2))
+    for strategy in (mj.H2Optimal(4, iterations=1), mj.StructuredH2(4, iterations=1)):
+        with pytest.warns(UserWarning, match="the shifts did not settle to 1e-08 in 1 sweeps"):
+            reduced = mj.reduce(io, strategy)
+        stats = reduced.stats if isinstance(reduced, mj.LTIModel) else reduced.model.stats
+        assert not stats.converged and stats.iterations == 1

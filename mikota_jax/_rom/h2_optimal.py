@@ -22,6 +22,8 @@ optimum for a lightly damped chain. A reduced model whose pole crosses into Re s
 back (sigma = |Re lambda| + i Im lambda), and the result says whether it is stable.
 """
 
+import warnings
+
 import equinox as eqx
 import numpy as np
 
@@ -195,7 +197,8 @@ def irka(project, shifts, right, left, tolerance: float, iterations: int):
 class H2Optimal(AbstractIOReduction):
     """IRKA (module docstring): a reduced model of 2 ``rank`` states meeting the first-order
     H2-optimality conditions, as an ``LTIModel``. ``tolerance``: the shifts' relative change
-    at which it stops; ``iterations``: the most sweeps; ``shifts``: a start of your own (one
+    at which it stops; ``iterations``: the most sweeps (a run that does not settle within
+    them warns, and its model is the last sweep's); ``shifts``: a start of your own (one
     of each conjugate pair, Re > 0; default the dominant modes). Stats: ``shifts``,
     ``iterations``, ``converged``, ``changes``, and ``optimality``: the largest relative
     mismatch of the interpolation conditions at the mirrored poles."""
@@ -249,6 +252,12 @@ class H2Optimal(AbstractIOReduction):
             iterations=len(changes), converged=bool(changes[-1] < self.tolerance),
             changes=tuple(changes),
             optimality=float(_optimality(modal, model, lam, right_all, left_all)))
+        if not stats.converged:
+            warnings.warn(f"{type(self).__name__}: the shifts did not settle to {self.tolerance:g} "
+                          f"in {len(changes)} sweeps (last change {changes[-1]:.1e}); the model "
+                          "is the last sweep's and misses the H2 optimality conditions by "
+                          f"{stats.optimality:.1e} (stats.optimality). Try another rank or a "
+                          "start of your own (shifts=...).", stacklevel=6)
         if model[0].shape[0] != 2 * self.rank:
             raise ValueError(MARK + f"{type(self).__name__}: rank = {self.rank} is out of "
                              f"reach: the shifts gave {model[0].shape[0]} states, not "
