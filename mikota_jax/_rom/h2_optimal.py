@@ -252,16 +252,16 @@ class H2Optimal(AbstractIOReduction):
             iterations=len(changes), converged=bool(changes[-1] < self.tolerance),
             changes=tuple(changes),
             optimality=float(_optimality(modal, model, lam, right_all, left_all)))
+        if model[0].shape[0] != 2 * self.rank:
+            raise ValueError(MARK + f"{type(self).__name__}: rank = {self.rank} is out of "
+                             f"reach: the shifts gave {model[0].shape[0]} states, not "
+                             f"{2 * self.rank}.")
         if not stats.converged:
             warnings.warn(f"{type(self).__name__}: the shifts did not settle to {self.tolerance:g} "
                           f"in {len(changes)} sweeps (last change {changes[-1]:.1e}); the model "
                           "is the last sweep's and misses the H2 optimality conditions by "
                           f"{stats.optimality:.1e} (stats.optimality). Try another rank or a "
                           "start of your own (shifts=...).", stacklevel=6)
-        if model[0].shape[0] != 2 * self.rank:
-            raise ValueError(MARK + f"{type(self).__name__}: rank = {self.rank} is out of "
-                             f"reach: the shifts gave {model[0].shape[0]} states, not "
-                             f"{2 * self.rank}.")
         return modal, model, stats
 
 
@@ -289,6 +289,7 @@ class StructuredH2(H2Optimal):
     def reduce_io(self, io):
         """The IOModel of the Galerkin model of ``io``'s full system (class docstring)."""
         from .._model.reduced import ReducedModel, galerkin
+        from .interpolatory import kept_directions
         from .io_model import IOModel, _first_order_of
 
         modal, model, stats = self._irka(io)
@@ -299,7 +300,9 @@ class StructuredH2(H2Optimal):
             x = modal.solve(sigma, modal.inputs @ right_all[:, j])
             y = modal.solve(sigma, (modal.cx + sigma * modal.cv).T @ left_all[:, j])
             columns += [x.real, x.imag, y.real, y.imag] if sigma.imag else [x.real, y.real]
-        basis = _orthonormal(modal.modes @ np.stack(columns, axis=1))
+        columns = modal.modes @ np.stack(columns, axis=1)
+        basis = kept_directions(np.zeros((columns.shape[0], 0)), columns,
+                                float(np.max(np.linalg.norm(columns, axis=0))))
         reduced = galerkin(io.model, basis)
         out = IOModel(reduced, io.inputs, *io.outputs())
         first = _first_order_of(out)
@@ -312,17 +315,3 @@ class StructuredH2(H2Optimal):
         return IOModel(ReducedModel(reduced.system, reduced.basis, stats), io.inputs,
                        *io.outputs())
 
-
-def _orthonormal(columns) -> np.ndarray:
-    """The columns orthonormalised in order (Gram-Schmidt twice), each one's part outside the
-    span so far kept where it is above 1e-10 of the longest column (as ``RationalKrylov``'s
-    basis; a shift near a lightly damped pole adds about one direction per side)."""
-    scale = float(np.max(np.linalg.norm(columns, axis=0)))
-    basis = np.zeros((columns.shape[0], 0))
-    for column in columns.T:
-        part = column - basis @ (basis.T @ column)
-        part = part - basis @ (basis.T @ part)
-        size = np.linalg.norm(part)
-        if size > 1e-10 * scale:
-            basis = np.column_stack([basis, part / size])
-    return basis

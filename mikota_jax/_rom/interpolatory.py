@@ -134,16 +134,25 @@ def _filled(pencil, shifts, forces, rank: int, n: int):
     scale = float(np.max(np.linalg.norm(columns, axis=0)))
     kept, used = np.zeros((n, 0)), 0
     for j in range(shifts.size):
-        for column in columns[:, j * per_shift:(j + 1) * per_shift].T:
-            for _ in range(2):
-                column = column - kept @ (kept.T @ column)
-            norm = np.linalg.norm(column)
-            if norm > 1e-10 * scale and kept.shape[1] < rank:
-                kept = np.concatenate([kept, (column / norm)[:, None]], axis=1)
+        kept = kept_directions(kept, columns[:, j * per_shift:(j + 1) * per_shift], scale, rank)
         used = j + 1
         if kept.shape[1] == rank:
             break
     return kept, shifts[:used]
+
+
+def kept_directions(kept, columns, scale: float, rank: int | None = None) -> np.ndarray:
+    """``kept`` (n, k), orthonormal, followed by each column's part outside the span so far
+    (Gram-Schmidt twice, in order), normalised, where it is above 1e-10 ``scale`` (the longest
+    response), up to ``rank`` columns in all: a shift near a lightly damped pole adds about one
+    direction (its Re and Im parts are nearly parallel)."""
+    for column in columns.T:
+        for _ in range(2):
+            column = column - kept @ (kept.T @ column)
+        norm = np.linalg.norm(column)
+        if norm > 1e-10 * scale and (rank is None or kept.shape[1] < rank):
+            kept = np.concatenate([kept, (column / norm)[:, None]], axis=1)
+    return kept
 
 
 def _initial_shifts(pencil, forces, count: int) -> np.ndarray:
