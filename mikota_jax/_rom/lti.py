@@ -147,13 +147,16 @@ class LTIModel(eqx.Module):
         d tr(C P C^T) = 2 tr(C P dC^T) + 2 tr(Q dA P) + 2 tr(Q dB B^T) with the observability
         Gramian A^T Q + Q A + C^T C = 0 (the adjoint of the Lyapunov equation; Wilson, "Optimum
         solution of model-reduction problem", Proc. IEE 117 (1970) 1161-1165)."""
-        if not is_traced(self.a):  # eagerly, the one-line refusal names the pole
+        traced = is_traced(self.a)
+        if not traced:  # eagerly, the one-line refusal names the pole
             self._check_stable("h2_norm")
         a, b = jnp.linalg.solve(self.e, self.a), jnp.linalg.solve(self.e, self.b)
-        rightmost = jnp.max(jnp.real(jnp.linalg.eigvals(jax.lax.stop_gradient(a))))
-        squared = eqx.error_if(_h2_squared(a, b, self.c), ~(rightmost < 0),
-                               MARK + "h2_norm: the model has a pole in Re s >= 0, so its "
-                               "norm is infinite; only a stable model has one.")
+        squared = _h2_squared(a, b, self.c)
+        if traced:  # under jit or grad: the same refusal, without the pole's value
+            rightmost = jnp.max(jnp.real(jnp.linalg.eigvals(jax.lax.stop_gradient(a))))
+            squared = eqx.error_if(squared, ~(rightmost < 0),
+                                   MARK + "h2_norm: the model has a pole in Re s >= 0, so its "
+                                   "norm is infinite; only a stable model has one.")
         return jnp.sqrt(jnp.maximum(squared, 0.0))
 
     def feedback(self, gain, inputs, outputs) -> "LTIModel":
