@@ -24,8 +24,10 @@ x_3(0) = 1, v(0) = 0. Every comparison of a row runs in this one process, compil
   (atol 1e-12), first call and one warm call each (full runs only), the Dopri8 history's
   error relative to max |x|.
 * **Batched designs**: ``jax.jit(jax.vmap(jax.value_and_grad(J)))`` over B designs (p in [5,
-  2n/3], c in [0.5, 3]), n = 300: time per design against one design alone, and XLA's temporary
-  memory per design (``memory_analysis``).
+  2n/3], c in [0.5, 3]), n = 300: time per design against one design alone (p = 7, c = 1) and
+  against the mean of the same designs run one by one (their root iterations differ: 3 sweeps
+  at p = 7, up to 14 for a damper inside the chain), and XLA's temporary memory per design
+  (``memory_analysis``).
 
 Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/engine.py [--quick] [--replot]``
 (``--quick``: n = 60 for every row, the history without scipy, B = 4). Writes
@@ -36,6 +38,7 @@ Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/engine.py [--quick] [--replot]``
 from _common import (Compiled, elapsed, figure, legend, ode, parse_args,  # noqa: I001
                      print_table, read_json, save_figure, subtitle, timed, write_json)
 
+import statistics
 import time
 
 import jax
@@ -171,8 +174,11 @@ def batch_row(n: int, batch: int, repeats: int) -> dict:
     many = Compiled(jax.vmap(g), ps, cs)
     (values, _), many_s, _ = timed(many, ps, cs, repeats=repeats)
     singles = [float(one(p, c)[0]) for p, c in zip(ps[:2], cs[:2])]
+    # the same designs one by one: their Aberth sweeps differ (3 at p = 7, up to 14 inside)
+    alone_s = statistics.mean(timed(one, p, c, repeats=repeats)[1] for p, c in zip(ps, cs))
     return dict(n=n, batch=batch, one_s=one_s, batch_s=many_s, per_design_s=many_s / batch,
-                per_design_ratio=many_s / batch / one_s,
+                per_design_ratio=many_s / batch / one_s, alone_s=alone_s,
+                per_design_ratio_alone=many_s / batch / alone_s,
                 one_temp_mb=one.executable.memory_analysis().temp_size_in_bytes / 1e6,
                 temp_mb_per_design=many.executable.memory_analysis().temp_size_in_bytes
                 / 1e6 / batch, compile_s=many.compile_s,
@@ -210,6 +216,8 @@ def main(argv=None) -> dict:
                           ("one_s", "one design s", ".4f"),
                           ("per_design_s", "per design in batch s", ".4f"),
                           ("per_design_ratio", "ratio", ".2f"),
+                          ("alone_s", "same designs alone s", ".4f"),
+                          ("per_design_ratio_alone", "ratio", ".2f"),
                           ("temp_mb_per_design", "MB per design", ".1f")])
     data = dict(summary=summarise(gradients, histories, long, batch), rows=histories,
                 gradients=gradients, histories=histories, long_chain=long, batch=batch,
@@ -239,6 +247,9 @@ def summarise(gradients, histories, long, batch) -> dict:
             long["dopri8_ratio"])
     out[f"{batch['batch']} designs n={batch['n']}: time per design / one alone"] = (
         batch["per_design_ratio"])
+    if "per_design_ratio_alone" in batch:
+        out[f"{batch['batch']} designs n={batch['n']}: time per design / the same designs "
+            "alone"] = batch["per_design_ratio_alone"]
     out[f"{batch['batch']} designs n={batch['n']}: MB per design"] = batch["temp_mb_per_design"]
     return out
 
