@@ -349,6 +349,7 @@ def _reanchor(poles, active, anchor, offset, block=None, axis=None):
 
 
 _ANCHOR_CANDIDATES = 4
+_ANCHOR_SETTLED = 1e-13  # |phi_J| / (its terms) at which no further anchor is tried
 
 
 def _best_anchors(poles, gamma, factor, weights, active, anchor, offset, block=None,
@@ -383,18 +384,33 @@ def _best_anchors(poles, gamma, factor, weights, active, anchor, offset, block=N
 
     nearest = by_rows(rows, block, anchor, offset).T  # (candidates, 2n)
 
-    def residual(trial):  # one candidate anchor per root; a ``lax.map``: one copy of _secular
-        trial_offset = offset + (poles[anchor] - poles[trial])  # in the compiled program
+    def residual(trial):  # one candidate anchor per root; in a loop: one copy of _secular in
+        trial_offset = offset + (poles[anchor] - poles[trial])  # the compiled program
         phi, _, _, _, scale = _secular(poles, gamma, factor, weights, active, trial,
                                        trial_offset, block)
         return jnp.where(scale > 0, jnp.abs(phi) / scale, jnp.inf), trial_offset
 
-    residuals, offsets = jax.lax.map(residual, nearest)
-    pick = jnp.argmin(residuals, axis=0)
-    rows = jnp.arange(2 * n)
+    # the candidates in order, each root keeping the first smallest residual (the argmin's
+    # pick); stopped once every damped root's is at rounding level, where a further candidate
+    # could only re-anchor the same root (usually after the nearest pole: 1 pass, not 4)
     root_active = jnp.concatenate([active, active])
-    new_anchor = jnp.where(root_active, nearest[pick, rows], anchor)
-    new_offset = jnp.where(root_active, offsets[pick, rows], offset)
+
+    def trial(carry):
+        t, best, best_anchor, best_offset = carry
+        candidate = nearest[t]
+        value, trial_offset = residual(candidate)
+        better = jnp.where(jnp.isnan(best), False, jnp.isnan(value) | (value < best))
+        return (t + 1, jnp.where(better, value, best), jnp.where(better, candidate, best_anchor),
+                jnp.where(better, trial_offset, best_offset))
+
+    def unsettled(carry):
+        t, best, _, _ = carry
+        return (t < nearest.shape[0]) & jnp.any(root_active & ~(best <= _ANCHOR_SETTLED))
+
+    init = (jnp.array(0), jnp.full(2 * n, jnp.inf), nearest[0], offset)
+    _, _, best_anchor, best_offset = jax.lax.while_loop(unsettled, trial, init)
+    new_anchor = jnp.where(root_active, best_anchor, anchor)
+    new_offset = jnp.where(root_active, best_offset, offset)
     return new_anchor, new_offset
 
 
