@@ -25,6 +25,8 @@ is one. Each returns whether it holds (every root converged, every nearly coinci
 cluster).
 """
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -80,8 +82,8 @@ def modal_gram(modes: DampedModes, y) -> Array:
                      axis=1)
     # a mask, not a scatter: one fused pass over the (2n, 2n) entries (a scatter, batched
     # under vmap, cost 2x)
-    own = (jnp.arange(lam.shape[0])[None, :] == partner[:, None]) & active[:, None]
-    gram = jnp.where(own, direct[:, None], gram)
+    at_partner = (jnp.arange(lam.shape[0])[None, :] == partner[:, None]) & active[:, None]
+    gram = jnp.where(at_partner, direct[:, None], gram)
     own = omega[modes.modes] ** 2
     unit = own[:, None] + lam[:, None] * lam[None, :]
     gram = jnp.where(active[:, None] | active[None, :], gram, unit)
@@ -218,8 +220,10 @@ def _dampers_energy(modes: DampedModes, q0, p0, horizon, block):
         # the conjugate partner: summed directly (lambda_j + lambda_k below rounding)
         partner = conjugate_partners(modes, j, act[:, None] & active[None, :])
         lam_partner = poles[anchor[partner]] + offset[partner]
-        direct = jnp.sum((omega2[None, :] + (lam * lam_partner)[:, None]) * y
-                         * modes.vector_rows(partner), axis=1)
+        # all roots at once: the partner's row is among y (a gather, not a second pass)
+        y_partner = y[partner] if block is None else modes.vector_rows(partner)
+        direct = jnp.sum((omega2[None, :] + (lam * lam_partner)[:, None]) * y * y_partner,
+                         axis=1)
         return coefficient, partner, direct
 
     a, partner, direct = by_rows(first, block, jnp.arange(2 * n))
@@ -295,20 +299,15 @@ def _cauchy_sum(base, offset, u, weights, horizon, allowed, partner, block):
     A custom JVP: the derivative is sum_j S_j du_j + u_j S'_j dlambda_j (+ the weights' and
     T's terms, ``_cauchy_sums``), from sums taken in the same pass as the value, so reverse
     mode transposes O(n k) vectors instead of the (2n, 2n) kernel's elementwise derivative
-    (which cost more than the value: J + gradient 1.21 -> 0.88 s at n = 1000)."""
+    (which cost more than the value; the ``engine`` benchmark)."""
     fn = _cauchy_sum_function(block, horizon is None)
     return fn(base, offset, u, weights, jnp.zeros(()) if horizon is None else horizon,
               allowed, partner)
 
 
-_CAUCHY_SUMS = {}
-
-
+@functools.cache
 def _cauchy_sum_function(block, infinite: bool):
-    key = (block, infinite)
-    if key in _CAUCHY_SUMS:
-        return _CAUCHY_SUMS[key]
-
+    """``_cauchy_sum``'s custom-JVP function for a static ``block`` and horizon kind."""
     @jax.custom_jvp
     @complex_arithmetic  # both traced where JAX differentiates, outside the caller's promotion
     def fn(base, offset, u, weights, horizon, allowed, partner):
@@ -331,7 +330,6 @@ def _cauchy_sum_function(block, infinite: bool):
             tangent = tangent + d_horizon * jnp.einsum("i,jim,jim->m", weights, u, total_t) / 2
         return value, tangent
 
-    _CAUCHY_SUMS[key] = fn
     return fn
 
 

@@ -384,8 +384,8 @@ def _best_anchors(poles, gamma, factor, weights, active, anchor, offset, block=N
 
     nearest = by_rows(rows, block, anchor, offset).T  # (candidates, 2n)
 
-    def residual(trial):  # one candidate anchor per root; in a loop: one copy of _secular in
-        trial_offset = offset + (poles[anchor] - poles[trial])  # the compiled program
+    def residual(trial):  # one candidate anchor per root (in a loop: one copy of _secular)
+        trial_offset = offset + (poles[anchor] - poles[trial])
         phi, _, _, _, scale = _secular(poles, gamma, factor, weights, active, trial,
                                        trial_offset, block)
         return jnp.where(scale > 0, jnp.abs(phi) / scale, jnp.inf), trial_offset
@@ -407,7 +407,10 @@ def _best_anchors(poles, gamma, factor, weights, active, anchor, offset, block=N
         t, best, _, _ = carry
         return (t < nearest.shape[0]) & jnp.any(root_active & ~(best <= _ANCHOR_SETTLED))
 
-    init = (jnp.array(0), jnp.full(2 * n, jnp.inf), nearest[0], offset)
+    # the nearest pole's offset from the start, so that anchor and offset always match (a
+    # root whose every residual is inf keeps the first candidate, as the argmin did)
+    init = (jnp.array(0), jnp.full(2 * n, jnp.inf), nearest[0],
+            offset + (poles[anchor] - poles[nearest[0]]))
     _, _, best_anchor, best_offset = jax.lax.while_loop(unsettled, trial, init)
     new_anchor = jnp.where(root_active, best_anchor, anchor)
     new_offset = jnp.where(root_active, best_offset, offset)
