@@ -257,7 +257,8 @@ def _partner(anchor, n):
 
 def _secular(poles, gamma, factor, weights, active, anchor, offset, block=None):
     """Per root: (phi, phi', sum of the other poles' log-derivative + tr H^-1 H', c = H^-1 f_J,
-    the size of phi's terms); ``block`` roots at a time (``by_rows``)."""
+    the size of phi's terms, dc/dlambda = -H^-1 H' c); ``block`` roots at a time
+    (``by_rows``)."""
     return by_rows(lambda a, o: _secular_rows(poles, gamma, factor, weights, active, a, o),
                    block, anchor, offset)
 
@@ -289,7 +290,7 @@ def _secular_rows(poles, gamma, factor, weights, active, anchor, offset):
     phi_prime = 2 * lam + gamma[mode] + quad + lam * quad_prime
     scale = jnp.abs(pole) + jnp.abs(lam * quad)
     others = jnp.sum(jnp.where(mask, rate * r, 0.0), axis=1) + trace
-    return phi, phi_prime, others, c, scale
+    return phi, phi_prime, others, c, scale, -jnp.einsum("jab,jb->ja", h_inv_h_prime, c)
 
 
 def _axis_order(poles, candidates):
@@ -386,7 +387,7 @@ def _best_anchors(poles, gamma, factor, weights, active, anchor, offset, block=N
 
     def residual(trial):  # one candidate anchor per root (in a loop: one copy of _secular)
         trial_offset = offset + (poles[anchor] - poles[trial])
-        phi, _, _, _, scale = _secular(poles, gamma, factor, weights, active, trial,
+        phi, _, _, _, scale, _ = _secular(poles, gamma, factor, weights, active, trial,
                                        trial_offset, block)
         return jnp.where(scale > 0, jnp.abs(phi) / scale, jnp.inf), trial_offset
 
@@ -461,7 +462,7 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
 
     def sweep(carry):
         anchor, offset, it, _ = carry
-        phi, phi_prime, others, _, _ = _secular(poles, gamma, factor, weights, active, anchor,
+        phi, phi_prime, others, _, _, _ = _secular(poles, gamma, factor, weights, active, anchor,
                                                 offset, block)
         repel = repulsion(poles, anchor, offset, root_active, block)
         denominator = phi * (others - repel) + phi_prime
@@ -493,7 +494,7 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
         one copy of _secular to compile for the steps and the checks together."""
         def body(i, carry):
             offset, _ = carry
-            phi, phi_prime, _, c, scale = _secular(poles, gamma, factor, weights, active,
+            phi, phi_prime, _, c, scale, _ = _secular(poles, gamma, factor, weights, active,
                                                    anchor, offset, block)
             step = jnp.where(moving & (phi_prime != 0) & (i < steps),
                              phi / jnp.where(phi_prime != 0, phi_prime, 1.0), 0.0)
@@ -501,7 +502,7 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
 
         shapes = jax.eval_shape(lambda o: _secular(poles, gamma, factor, weights, active,
                                                    anchor, o, block), offset)
-        empty = tuple(jnp.zeros(x.shape, x.dtype) for i, x in enumerate(shapes) if i != 2)
+        empty = tuple(jnp.zeros(x.shape, x.dtype) for i, x in enumerate(shapes) if i in (0, 1, 3, 4))
         return jax.lax.fori_loop(0, steps + 1, body, (offset, empty))
 
     trace = jnp.sum(jnp.where(active, coupling**2 + gamma, 0.0))
@@ -582,16 +583,21 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
 def differentiable_roots(modes: DampedModes, block: int | None = None) -> DampedModes:
     """The same roots with the derivative of one Newton step on phi_J at them (implicit
     differentiation: dlambda = -dphi / phi'); the iteration itself carries no derivative.
-    ``block``: as ``modal_damped_modes``."""
+    ``block``: as ``modal_damped_modes``.
+
+    One evaluation of the secular terms gives both derivatives: c = H^-1 f_J moves with the
+    system at fixed lambda (c's own tangent) and with lambda, by dc/dlambda = -H^-1 H' c taken
+    beside it, so dc = (dc at fixed lambda) + dc/dlambda dlambda, exact to first order."""
     block = row_block(modes.omega.shape[0], block)
     frozen = jax.lax.stop_gradient(modes)
     poles = _poles(modes.omega, modes.gamma)
-    phi, phi_prime, *_ = _secular(poles, modes.gamma, modes.factor, modes.weights,
-                                  frozen.active, frozen.anchor, frozen.offset, block)
+    phi, phi_prime, _, c, _, c_prime = _secular(poles, modes.gamma, modes.factor, modes.weights,
+                                                frozen.active, frozen.anchor, frozen.offset,
+                                                block)
     active = frozen.simple  # a root in a cluster carries no derivative of its own (1 / 0 there)
     step = jnp.where(active, phi / jnp.where(active, phi_prime, 1.0), 0.0)
-    offset = frozen.offset - (step - jax.lax.stop_gradient(step))
-    _, _, _, c, _ = _secular(poles, modes.gamma, modes.factor, modes.weights, frozen.active,
-                             frozen.anchor, offset, block)
+    moved = -(step - jax.lax.stop_gradient(step))  # zero, with the tangent dlambda
+    offset = frozen.offset + moved
+    c = c + jnp.where(active[:, None], jax.lax.stop_gradient(c_prime), 0.0) * moved[:, None]
     return eqx.tree_at(lambda m: (m.omega, m.gamma, m.factor, m.weights, m.offset, m.null),
                        frozen, (modes.omega, modes.gamma, modes.factor, modes.weights, offset, c))
