@@ -239,17 +239,6 @@ def _resolvent(poles, anchor, offset, active):
     return jnp.where(mask, 1 / jnp.where(mask, product, 1.0), 0.0), mask
 
 
-def only_where(predicate, fn, state):
-    """``fn(state)`` where ``predicate``, else ``state``: a ``while_loop`` of at most one trip.
-    Under ``vmap`` it runs only if some design needs it, and keeps the others' state (a
-    ``lax.cond`` becomes a ``select`` there and runs ``fn`` for every design: 12 extra Newton
-    passes in each). Forward mode only: for the frozen iteration, not for the derivatives."""
-    _, state = jax.lax.while_loop(lambda carry: carry[0],
-                                  lambda carry: (jnp.array(False), fn(carry[1])),
-                                  (predicate, state))
-    return state
-
-
 def _partner(anchor, n):
     """The other pole of the same mode."""
     return (anchor + n) % (2 * n)
@@ -353,18 +342,10 @@ _ANCHOR_CANDIDATES = 4
 _ANCHOR_SETTLED = 1e-13  # |phi_J| / (its terms) at which no further anchor is tried
 
 
-def _best_anchors(poles, gamma, factor, weights, active, anchor, offset, block=None,
-                  axis=None):
-    """Re-anchor each root (same lambda) at the one of its nearest poles where phi_J vanishes.
-
-    phi_J is zero at a root only if H_J = H - lambda r_J f_J f_J^T W stays regular there. Where
-    modes lie closer together than the dampers' coupling (two nearly decoupled chains), a root's
-    nearest pole may belong to a weakly coupled mode whose removal leaves H_J as singular as H:
-    phi_J is then O(1) at the (correct) root and Newton on it jumps to another root. So the
-    ``_ANCHOR_CANDIDATES`` nearest poles of damped modes are tried, and each root keeps the one
-    with the smallest relative residual |phi_J| / (its terms). ``axis``: as ``_reanchor``.
-    """
-    n = gamma.shape[0]
+def _nearest_anchors(poles, active, anchor, offset, block=None, axis=None):
+    """(candidates, 2n): each root's ``_ANCHOR_CANDIDATES`` nearest poles of damped modes, the
+    nearest first. ``axis``: as ``_reanchor``."""
+    n = poles.shape[0] // 2
     candidates = jnp.concatenate([active, active])
     columns = jnp.arange(2 * n)[None, :]
 
@@ -383,39 +364,120 @@ def _best_anchors(poles, gamma, factor, weights, active, anchor, offset, block=N
             distance = jnp.where(columns == pick[:, None], jnp.inf, distance)
         return jnp.stack(nearest, axis=1)
 
-    nearest = by_rows(rows, block, anchor, offset).T  # (candidates, 2n)
+    return by_rows(rows, block, anchor, offset).T
 
-    def residual(trial):  # one candidate anchor per root (in a loop: one copy of _secular)
-        trial_offset = offset + (poles[anchor] - poles[trial])
-        phi, _, _, _, scale, _ = _secular(poles, gamma, factor, weights, active, trial,
-                                       trial_offset, block)
-        return jnp.where(scale > 0, jnp.abs(phi) / scale, jnp.inf), trial_offset
 
-    # the candidates in order, each root keeping the first smallest residual (the argmin's
-    # pick); stopped once every damped root's is at rounding level, where a further candidate
-    # could only re-anchor the same root (usually after the nearest pole: 1 pass, not 4)
+def _finish(poles, gamma, factor, weights, active, anchor, offset, coupling, block=None,
+            axis=None):
+    """After the sweeps: each root's anchor, a Newton polish, and a restart of a missing root, in
+    one loop of secular passes (one copy of ``_secular`` to compile, not three). Returns
+    (anchor, offset, lambda, c, per-root residual ok).
+
+    1. **Anchors.** Each root is re-anchored (same lambda) at the one of its nearest poles where
+       phi_J vanishes. phi_J is zero at a root only if H_J = H - lambda r_J f_J f_J^T W stays
+       regular there. Where modes lie closer together than the dampers' coupling (two nearly
+       decoupled chains), a root's nearest pole may belong to a weakly coupled mode whose
+       removal leaves H_J as singular as H: phi_J is then O(1) at the (correct) root and Newton
+       on it jumps to another root. So the ``_ANCHOR_CANDIDATES`` nearest poles of damped modes
+       are tried in order, each root keeping the first smallest relative residual |phi_J| /
+       (its terms) (the argmin's pick), until every damped root's is at rounding level
+       (usually after the nearest pole: one pass, not four).
+    2. **Polish.** ``_POLISH_STEPS`` Newton steps on phi_J; the last pass only evaluates, for
+       the checks.
+    3. **Restart.** Where exactly one root fails its residual and the roots' sum misses the
+       trace, that root is restarted from the trace (minus the sum of the others) and gets
+       ``_RESTART_STEPS`` Newton steps. On the triple chain (d_3 = 229 at DOF 101) Aberth
+       parked a second copy beside a real root, -27.9 + 7e-5 i, while a far real root went
+       missing: 21 of the multi-damper notebook's 441 landscape points.
+    """
+    n = gamma.shape[0]
     root_active = jnp.concatenate([active, active])
+    nearest = _nearest_anchors(poles, active, anchor, offset, block, axis)
+    count = nearest.shape[0]
+    trace = jnp.sum(jnp.where(active, coupling**2 + gamma, 0.0))
 
-    def trial(carry):
-        t, best, best_anchor, best_offset = carry
-        candidate = nearest[t]
-        value, trial_offset = residual(candidate)
-        better = jnp.where(jnp.isnan(best), False, jnp.isnan(value) | (value < best))
-        return (t + 1, jnp.where(better, value, best), jnp.where(better, candidate, best_anchor),
-                jnp.where(better, trial_offset, best_offset))
+    def assess(anchor, offset, phi, phi_prime, scale):
+        """(lambda, per-root residual ok, trace ok). A root holds where phi_J is small against
+        its terms, or where Newton cannot move it any more (a step at rounding level) with phi_J
+        small against a looser bar: phi_J's terms do not show the cancellation inside H^-1 f_J,
+        which on the triple chain of the multi-damper notebook (n = 151, d_1 ~ 10 at DOF 1) left
+        a converged real root at |phi| / terms = 1e-7 while Newton's steps alternated in the
+        last bit."""
+        lam = poles[anchor] + offset
+        newton_step = jnp.abs(phi) / jnp.where(phi_prime != 0, jnp.abs(phi_prime), jnp.inf)
+        settled = (newton_step <= _SETTLED_STEP * jnp.abs(lam)) & (
+            jnp.abs(phi) <= _SETTLED_RESIDUAL * scale)
+        root_ok = ~root_active | (jnp.abs(phi) <= _RESIDUAL_TOL * scale) | settled
+        trace_ok = (jnp.abs(jnp.sum(jnp.where(root_active, lam, 0.0)) + trace)
+                    <= _TRACE_TOL * jnp.sum(jnp.where(root_active, jnp.abs(lam), 0.0)))
+        return lam, root_ok, trace_ok
 
-    def unsettled(carry):
-        t, best, _, _ = carry
-        return (t < nearest.shape[0]) & jnp.any(root_active & ~(best <= _ANCHOR_SETTLED))
+    def restart_point(lam, root_ok):
+        """The failing roots' (anchor, offset) restarted from the trace: minus the sum of the
+        others. Its anchor: the mode with the largest eigenvector entry y_l = r_l f_l^T diag(d)
+        c, c the null vector of det(I + lambda F^T R F diag(d)) there (the nearest poles can all
+        be weakly coupled modes whose phi_J does not vanish at a far root)."""
+        missing = -trace - jnp.sum(jnp.where(root_active & root_ok, lam, 0.0))
+        r = 1 / ((missing - poles[:n]) * (missing - poles[n:]))
+        h = jnp.eye(factor.shape[1]) + missing * (factor.T @ (r[:, None] * factor)) * (
+            weights[None, :])
+        null = jnp.conj(jnp.linalg.svd(h)[2][-1])
+        y = jnp.where(active, jnp.abs(r * (factor @ (weights * null))), -1.0)
+        mode = jnp.argmax(y)
+        own = jnp.where(jnp.abs(missing - poles[mode]) <= jnp.abs(missing - poles[n + mode]),
+                        mode, n + mode)
+        return own, missing - poles[own]
 
+    def body(carry):
+        trying, t, anchor, offset, best, best_anchor, best_offset, moving, steps, restarted = (
+            carry[:10])
+        candidate = nearest[jnp.minimum(t, count - 1)]
+        trial_offset = offset + (poles[anchor] - poles[candidate])
+        at_anchor = jnp.where(trying, candidate, anchor)
+        at_offset = jnp.where(trying, trial_offset, offset)
+        phi, phi_prime, _, c, scale, _ = _secular(poles, gamma, factor, weights, active,
+                                                  at_anchor, at_offset, block)
+        # 1. anchors: keep the first smallest residual (NaN as argmin treats it)
+        value = jnp.where(scale > 0, jnp.abs(phi) / scale, jnp.inf)
+        better = trying & jnp.where(jnp.isnan(best), False, jnp.isnan(value) | (value < best))
+        best = jnp.where(better, value, best)
+        best_anchor = jnp.where(better, candidate, best_anchor)
+        best_offset = jnp.where(better, trial_offset, best_offset)
+        tried = trying & ((t + 1 >= count)
+                          | ~jnp.any(root_active & ~(best <= _ANCHOR_SETTLED)))
+        # 2. Newton on the moving roots; the pass at t = steps only evaluates
+        stepping = ~trying & (t < steps) & moving & (phi_prime != 0)
+        offset = offset - jnp.where(stepping, phi / jnp.where(phi_prime != 0, phi_prime, 1.0),
+                                    0.0)
+        # 3. after the last pass: a restart, once, where one root is missing
+        finished = ~trying & (t >= steps)
+        lam, root_ok, trace_ok = assess(anchor, offset, phi, phi_prime, scale)
+        again = finished & ~restarted & (jnp.sum(~root_ok) == 1) & ~trace_ok
+        own, restart_offset = restart_point(lam, root_ok)
+        bad = again & ~root_ok
+        anchor = jnp.where(tried, jnp.where(root_active, best_anchor, anchor),
+                           jnp.where(bad, own, anchor))
+        offset = jnp.where(tried, jnp.where(root_active, best_offset, offset),
+                           jnp.where(bad, restart_offset, offset))
+        moving = jnp.where(tried, root_active, jnp.where(again, ~root_ok, moving))
+        steps = jnp.where(again, _RESTART_STEPS, steps)
+        t = jnp.where(tried | again, 0, t + 1)
+        return (trying & ~tried, t, anchor, offset, best, best_anchor, best_offset, moving,
+                steps, restarted | again, finished & ~again, phi, phi_prime, c, scale)
+
+    shapes = jax.eval_shape(lambda o: _secular(poles, gamma, factor, weights, active, anchor, o,
+                                               block), offset)
+    empty = tuple(jnp.zeros(shapes[i].shape, shapes[i].dtype) for i in (0, 1, 3, 4))
     # the nearest pole's offset from the start, so that anchor and offset always match (a
     # root whose every residual is inf keeps the first candidate, as the argmin did)
-    init = (jnp.array(0), jnp.full(2 * n, jnp.inf), nearest[0],
-            offset + (poles[anchor] - poles[nearest[0]]))
-    _, _, best_anchor, best_offset = jax.lax.while_loop(unsettled, trial, init)
-    new_anchor = jnp.where(root_active, best_anchor, anchor)
-    new_offset = jnp.where(root_active, best_offset, offset)
-    return new_anchor, new_offset
+    init = (jnp.array(True), jnp.array(0), anchor, offset, jnp.full(2 * n, jnp.inf), nearest[0],
+            offset + (poles[anchor] - poles[nearest[0]]), root_active,
+            jnp.array(_POLISH_STEPS), jnp.array(False), jnp.array(False)) + empty
+    final = jax.lax.while_loop(lambda carry: ~carry[10], body, init)
+    anchor, offset = final[2], final[3]
+    phi, phi_prime, c, scale = final[11:]
+    lam, root_ok, _ = assess(anchor, offset, phi, phi_prime, scale)
+    return anchor, offset, lam, c, root_ok
 
 
 @eqx.filter_jit
@@ -470,7 +532,7 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
                          phi / jnp.where(denominator != 0, denominator, 1.0), 0.0)
         # a root parked at its place but anchored to a mode the dampers barely reach (a node)
         # leaves H_J singular there, its step 0 / 0: it stays, the others go on (a NaN would
-        # reach every root through the repulsion); ``_best_anchors`` re-anchors it afterwards
+        # reach every root through the repulsion); ``_finish`` re-anchors it afterwards
         step = jnp.where(jnp.isfinite(step), step, 0.0)
         offset = offset - step
         lam = poles[anchor] + offset
@@ -486,70 +548,9 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
     init = (anchor, offset, jnp.array(0), jnp.array(jnp.inf))
     anchor, offset, iterations, _ = jax.lax.while_loop(not_done, sweep, init)
     anchor = jnp.where(root_active, anchor, jnp.arange(2 * n))
-    anchor, offset = _best_anchors(poles, gamma, factor, weights, active, anchor, offset, block,
-                                   axis)
-    def settle(anchor, offset, moving, steps):
-        """``steps`` Newton steps on the roots ``moving``, then the secular terms at the result:
-        (offset, (phi, phi', c, scale)). A loop, not unrolled, whose last pass only evaluates:
-        one copy of _secular to compile for the steps and the checks together."""
-        def body(i, carry):
-            offset, _ = carry
-            phi, phi_prime, _, c, scale, _ = _secular(poles, gamma, factor, weights, active,
-                                                   anchor, offset, block)
-            step = jnp.where(moving & (phi_prime != 0) & (i < steps),
-                             phi / jnp.where(phi_prime != 0, phi_prime, 1.0), 0.0)
-            return offset - step, (phi, phi_prime, c, scale)
-
-        shapes = jax.eval_shape(lambda o: _secular(poles, gamma, factor, weights, active,
-                                                   anchor, o, block), offset)
-        empty = tuple(jnp.zeros(x.shape, x.dtype) for i, x in enumerate(shapes) if i in (0, 1, 3, 4))
-        return jax.lax.fori_loop(0, steps + 1, body, (offset, empty))
-
     trace = jnp.sum(jnp.where(active, coupling**2 + gamma, 0.0))
-
-    def assess(anchor, offset, secular):
-        """(anchor, offset, lambda, c, per-root residual ok, trace ok)."""
-        phi, phi_prime, c, scale = secular
-        lam = poles[anchor] + offset
-        # a root holds where phi_J is small against its terms, or where Newton cannot move it
-        # any more (a step at rounding level) with phi_J small against a looser bar: phi_J's
-        # terms do not show the cancellation inside H^-1 f_J, which on the triple chain of the
-        # multi-damper notebook (n = 151, d_1 ~ 10 at DOF 1) left a converged real root at
-        # |phi| / terms = 1e-7 while Newton's steps alternated in the last bit
-        newton_step = jnp.abs(phi) / jnp.where(phi_prime != 0, jnp.abs(phi_prime), jnp.inf)
-        settled = (newton_step <= _SETTLED_STEP * jnp.abs(lam)) & (
-            jnp.abs(phi) <= _SETTLED_RESIDUAL * scale)
-        root_ok = ~root_active | (jnp.abs(phi) <= _RESIDUAL_TOL * scale) | settled
-        trace_ok = (jnp.abs(jnp.sum(jnp.where(root_active, lam, 0.0)) + trace)
-                    <= _TRACE_TOL * jnp.sum(jnp.where(root_active, jnp.abs(lam), 0.0)))
-        return anchor, offset, lam, c, root_ok, trace_ok
-
-    def restart(state):
-        # the trace fixes the roots' sum: one missing root is minus the sum of the others
-        # (on the triple chain, d_3 = 229 at DOF 101, Aberth parked a second copy beside a real
-        # root, -27.9 + 7e-5 i, while a far real root went missing; 21 of the notebook's 441
-        # landscape points); Newton from there, then the usual checks
-        anchor, offset, lam, _, root_ok, _ = state
-        bad = ~root_ok
-        missing = -trace - jnp.sum(jnp.where(root_active & ~bad, lam, 0.0))
-        # its anchor: the mode with the largest eigenvector entry y_l = r_l f_l^T diag(d) c,
-        # c the null vector of det(I + lambda F^T R F diag(d)) there (the nearest poles can all
-        # be weakly coupled modes whose phi_J does not vanish at a far root)
-        r = 1 / ((missing - poles[:n]) * (missing - poles[n:]))
-        h = jnp.eye(factor.shape[1]) + missing * (factor.T @ (r[:, None] * factor)) * (
-            weights[None, :])
-        null = jnp.conj(jnp.linalg.svd(h)[2][-1])
-        y = jnp.where(active, jnp.abs(r * (factor @ (weights * null))), -1.0)
-        mode = jnp.argmax(y)
-        own = jnp.where(jnp.abs(missing - poles[mode]) <= jnp.abs(missing - poles[n + mode]),
-                        mode, n + mode)
-        anchor = jnp.where(bad, own, anchor)
-        offset = jnp.where(bad, missing - poles[own], offset)
-        return assess(anchor, *settle(anchor, offset, bad, _RESTART_STEPS))
-
-    state = assess(anchor, *settle(anchor, offset, root_active, _POLISH_STEPS))
-    state = only_where((jnp.sum(~state[4]) == 1) & ~state[5], restart, state)
-    anchor, offset, lam, c, root_ok, _ = state
+    anchor, offset, lam, c, root_ok = _finish(poles, gamma, factor, weights, active, anchor,
+                                              offset, coupling, block, axis)
     separation = smallest_separation(poles, anchor, offset, root_active, n, block)
     # a pair summed by contour: its two roots need not pass one by one (at a double root they
     # are only sqrt(eps)-accurate and Newton's residual stays at rounding), but the circle must
