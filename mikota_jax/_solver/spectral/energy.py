@@ -243,27 +243,30 @@ def _dampers_energy(modes: DampedModes, q0, p0, horizon, block):
 
 def _phi(s, mask, horizon, derivatives: bool):
     """Phi(s) = (e^{s T} - 1) / s^2 (``growth`` / s; -1 / s^2 for T = inf) on ``mask``, and
-    with ``derivatives`` its s- and T-derivatives too, from the same exponential."""
-    s_g = jnp.where(mask, s, -1.0)
+    with ``derivatives`` its s- and T-derivatives too, from the same exponential and one
+    reciprocal of s (a complex division costs several products)."""
     s_d = jnp.where(mask & (s != 0), s, 1.0)
+    inverse = 1 / s_d
     if horizon is None:
-        g = -1 / jnp.where(s_g != 0, s_g, -1.0)
+        g = jnp.where(mask & (s != 0), -inverse, 1.0)
         g_s, g_t = g * g, None
     else:
+        s_g = jnp.where(mask, s, -1.0)
         x = s_g * horizon
         small = jnp.abs(x) < 1e-3  # as ``growth``
-        s_large = jnp.where(small, 1.0, s_g)
-        e1 = jnp.expm1(s_large * horizon)
-        g = jnp.where(small, horizon * (1 + x / 2 + x**2 / 6 + x**3 / 24), e1 / s_large)
+        # 1 / s where not small (s_g = s there, or -1 off the mask, where any finite value does)
+        inverse_large = jnp.where(small | ~mask, 1.0, inverse)
+        e1 = jnp.expm1(jnp.where(small, 1.0, s_g) * horizon)
+        g = jnp.where(small, horizon * (1 + x / 2 + x**2 / 6 + x**3 / 24), e1 * inverse_large)
         if derivatives:
             g_s = jnp.where(small, horizon**2 * (1 / 2 + x / 3 + x**2 / 8 + x**3 / 30),
-                            (horizon * (e1 + 1) - g) / s_large)
+                            (horizon * (e1 + 1) - g) * inverse_large)
             g_t = jnp.where(small, 1 + x + x**2 / 2 + x**3 / 6, e1 + 1)
-    phi = g / s_d
+    phi = g * inverse
     if not derivatives:
         return phi
-    phi_s = (g_s - jnp.where(s != 0, phi, 0.0)) / s_d
-    return phi, phi_s, (None if g_t is None else g_t / s_d)
+    phi_s = (g_s - jnp.where(s != 0, phi, 0.0)) * inverse
+    return phi, phi_s, (None if g_t is None else g_t * inverse)
 
 
 def _cauchy_sums(base, offset, u, horizon, allowed, partner, block, derivatives: bool):
@@ -272,7 +275,7 @@ def _cauchy_sums(base, offset, u, horizon, allowed, partner, block, derivatives:
     double sum, so that Q = sum_j u_j S_j / 2 and dQ / du_j = S_j (W is symmetric where p is an
     involution, as for conjugate pairs; this stays right where it is not). With
     ``derivatives`` also (W Phi') u and (W dPhi/dT) u (None for T = inf). Each (2n, k, batch);
-    ``block`` roots at a time (``by_rows``), one matrix product per block."""
+    ``block`` roots at a time (``by_rows``), one matrix product per kernel and block."""
     index = jnp.arange(base.shape[0])
     flat = u.reshape(u.shape[0], -1)
 
@@ -283,8 +286,10 @@ def _cauchy_sums(base, offset, u, horizon, allowed, partner, block, derivatives:
                   + (both & (partner[None, :] != j[:, None])).astype(float))
         if not derivatives:
             return ((weight * _phi(s, weight > 0, horizon, False)) @ flat,)
-        kernels = [weight * x for x in _phi(s, weight > 0, horizon, True) if x is not None]
-        return tuple(jnp.stack(kernels) @ flat)
+        # one product per kernel: stacked into one array first, the copy cost more than the
+        # products
+        return tuple((weight * x) @ flat for x in _phi(s, weight > 0, horizon, True)
+                     if x is not None)
 
     sums = by_rows(rows, block, index)
     sums = tuple(x.reshape(u.shape) for x in sums)
