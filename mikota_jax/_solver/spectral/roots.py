@@ -230,6 +230,19 @@ def _gaps(poles, anchor, offset):
         (base[:, None] - poles[None, n:]) + offset[:, None])
 
 
+@jax.custom_jvp
+def _reciprocal(x):
+    """1 / x, whose tangent -dx r^2 reuses r = 1 / x (JAX's own rule divides once more: a
+    complex division per entry of the resolvent's derivative)."""
+    return 1 / x
+
+
+@_reciprocal.defjvp
+def _reciprocal_jvp(primals, tangents):
+    r = 1 / primals[0]
+    return r, -tangents[0] * r * r
+
+
 def _resolvent(poles, anchor, offset, active):
     """r_jl = 1 / (lambda_j^2 + gamma_l lambda_j + omega_l^2) over damped l != J_j (0
     elsewhere), and the mask."""
@@ -237,7 +250,7 @@ def _resolvent(poles, anchor, offset, active):
     n = poles.shape[0] // 2
     mask = active[None, :] & (jnp.arange(n)[None, :] != (anchor % n)[:, None])
     product = upper * lower
-    return jnp.where(mask, 1 / jnp.where(mask, product, 1.0), 0.0), mask
+    return jnp.where(mask, _reciprocal(jnp.where(mask, product, 1.0)), 0.0), mask
 
 
 def _partner(anchor, n):
