@@ -381,11 +381,12 @@ def _nearest_anchors(poles, active, anchor, offset, block=None, axis=None):
     return by_rows(rows, block, anchor, offset).T
 
 
-def _finish(poles, gamma, factor, weights, active, anchor, offset, coupling, block=None,
+def _finish(poles, gamma, factor, weights, active, anchor, offset, trace, block=None,
             axis=None):
     """After the sweeps: each root's anchor, a Newton polish, and a restart of a missing root, in
     one loop of secular passes (one copy of ``_secular`` to compile, not three). Returns
-    (anchor, offset, lambda, c, per-root residual ok).
+    (anchor, offset, lambda, c, per-root residual ok); ``trace``: tr D_m + sum gamma over the
+    damped modes, minus the sum of the damped roots.
 
     1. **Anchors.** Each root is re-anchored (same lambda) at the one of its nearest poles where
        phi_J vanishes. phi_J is zero at a root only if H_J = H - lambda r_J f_J f_J^T W stays
@@ -400,7 +401,8 @@ def _finish(poles, gamma, factor, weights, active, anchor, offset, coupling, blo
        (the roots sit at their fixed point to rounding: this pass's values are the last, the
        step is not taken) or ``_POLISH_STEPS`` were taken (the last pass only evaluates). After
        the sweeps the first step is usually at rounding level already (below 5e-15 |lambda|
-       on the chains of the tests and notebooks): one pass, not four.
+       on seven chains checked, the multi-damper notebook's triple chain among them): one
+       pass, not four.
     3. **Restart.** Where exactly one root fails its residual and the roots' sum misses the
        trace, that root is restarted from the trace (minus the sum of the others) and gets up to
        ``_RESTART_STEPS`` Newton steps. On the triple chain (d_3 = 229 at DOF 101) Aberth
@@ -411,7 +413,6 @@ def _finish(poles, gamma, factor, weights, active, anchor, offset, coupling, blo
     root_active = jnp.concatenate([active, active])
     nearest = _nearest_anchors(poles, active, anchor, offset, block, axis)
     count = nearest.shape[0]
-    trace = jnp.sum(jnp.where(active, coupling**2 + gamma, 0.0))
 
     def assess(anchor, offset, phi, phi_prime, scale):
         """(lambda, per-root residual ok, trace ok). A root holds where phi_J is small against
@@ -570,7 +571,7 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
     anchor = jnp.where(root_active, anchor, jnp.arange(2 * n))
     trace = jnp.sum(jnp.where(active, coupling**2 + gamma, 0.0))
     anchor, offset, lam, c, root_ok = _finish(poles, gamma, factor, weights, active, anchor,
-                                              offset, coupling, block, axis)
+                                              offset, trace, block, axis)
     separation = smallest_separation(poles, anchor, offset, root_active, n, block)
     # a pair summed by contour: its two roots need not pass one by one (at a double root they
     # are only sqrt(eps)-accurate and Newton's residual stays at rounding), but the circle must
