@@ -26,6 +26,7 @@ cluster).
 """
 
 import functools
+import math
 
 import equinox as eqx
 import jax
@@ -101,16 +102,23 @@ def conjugate_partners(modes: DampedModes, roots, pair):
     return jnp.argmin(jnp.where(pair, jnp.real(gap) ** 2 + jnp.imag(gap) ** 2, jnp.inf), axis=1)
 
 
+_SERIES = tuple(1 / math.factorial(m + 1) for m in range(15))  # (e^x - 1) / x = sum x^m / (m+1)!
+
+
 def growth(s, horizon):
-    """(e^{s T} - 1) / s, also for tiny |s T| (series) and T = inf (-1 / s, Re s < 0)."""
+    """(e^{s T} - 1) / s, also for small |s T| (series) and T = inf (-1 / s, Re s < 0).
+
+    The series holds for |s T| < 1/2 (its first omitted term below 2e-18), so that its
+    derivative in s, which ``jax.grad`` takes through either side, is exact to rounding on both
+    sides of the switch: the closed form's derivative T e^x / s - (e^x - 1) / s^2 cancels to
+    about eps / |s T|, 1e-13 if the switch sat at |s T| = 1e-3."""
     if horizon is None:
         return -1 / jnp.where(s != 0, s, -1.0)
-    small = jnp.abs(s * horizon) < 1e-3
+    x = s * horizon
+    small = jnp.abs(x) < 0.5
     s_large = jnp.where(small, 1.0, s)  # no 0 / 0 in the branch not taken (its gradient)
-    return jnp.where(small,
-                     horizon * (1 + s * horizon / 2 + (s * horizon) ** 2 / 6
-                                + (s * horizon) ** 3 / 24),
-                     jnp.expm1(s_large * horizon) / s_large)
+    series = functools.reduce(lambda total, c: c + x * total, _SERIES[::-1])
+    return jnp.where(small, horizon * series, jnp.expm1(s_large * horizon) / s_large)
 
 
 
@@ -241,32 +249,72 @@ def _dampers_energy(modes: DampedModes, q0, p0, horizon, block):
     return value + _idle_energy(modes, q0, p0, horizon)
 
 
-def _phi(s, mask, horizon, derivatives: bool):
+def _phi(s, mask, horizon, derivatives: bool, rows=None, columns=None):
     """Phi(s) = (e^{s T} - 1) / s^2 (``growth`` / s; -1 / s^2 for T = inf) on ``mask``, and
-    with ``derivatives`` its s- and T-derivatives too, from the same exponential and one
-    reciprocal of s (a complex division costs several products)."""
+    with ``derivatives`` its s- and T-derivatives too, from one reciprocal of s (a complex
+    division costs several products).
+
+    s = lambda_j + lambda_k, and for finite T the exponential comes from the roots' own:
+    ``rows`` (E_j, P_j) as columns and ``columns`` (E_k, P_k) as rows, with E = e^{lambda T} - 1
+    and P = e^{lambda T} per root. Then e^{s T} - 1 = E_j + E_k + E_j E_k and e^{s T} = P_j P_k:
+    complex products per entry instead of a complex ``expm1``, which cost more than the rest of
+    the double sum. The first's rounding error, a few eps (|E_j| + |E_k|) with |E| <=
+    min(|lambda T|, 2), is that of s itself: lambda_j + lambda_k carries eps |lambda| from the
+    frequencies' own rounding, which ``expm1`` of s T magnifies alike; the second is relative,
+    so the derivatives keep their digits where e^{s T} has decayed. |s T| < 1e-3 takes the
+    series, as ``growth``."""
     s_d = jnp.where(mask & (s != 0), s, 1.0)
     inverse = 1 / s_d
     if horizon is None:
         g = jnp.where(mask & (s != 0), -inverse, 1.0)
         g_s, g_t = g * g, None
     else:
-        s_g = jnp.where(mask, s, -1.0)
-        x = s_g * horizon
+        (grown_j, power_j), (grown_k, power_k) = rows, columns
+        x = jnp.where(mask, s, -1.0) * horizon
         small = jnp.abs(x) < 1e-3  # as ``growth``
-        # 1 / s where not small (s_g = s there, or -1 off the mask, where any finite value does)
+        # 1 / s where not small (and on the mask; off it any finite value does)
         inverse_large = jnp.where(small | ~mask, 1.0, inverse)
-        e1 = jnp.expm1(jnp.where(small, 1.0, s_g) * horizon)
-        g = jnp.where(small, horizon * (1 + x / 2 + x**2 / 6 + x**3 / 24), e1 * inverse_large)
+        e1 = grown_j + grown_k + grown_j * grown_k
+        g = jnp.where(small, horizon * (1 + x / 2 + x**2 / 6 + x**3 / 24 + x**4 / 120),
+                      e1 * inverse_large)
         if derivatives:
-            g_s = jnp.where(small, horizon**2 * (1 / 2 + x / 3 + x**2 / 8 + x**3 / 30),
-                            (horizon * (e1 + 1) - g) * inverse_large)
-            g_t = jnp.where(small, 1 + x + x**2 / 2 + x**3 / 6, e1 + 1)
+            g_t = power_j * power_k  # e^{s T}
+            g_s = jnp.where(small,
+                            horizon**2 * (1 / 2 + x / 3 + x**2 / 8 + x**3 / 30 + x**4 / 144),
+                            (horizon * g_t - g) * inverse_large)
     phi = g * inverse
     if not derivatives:
         return phi
     phi_s = (g_s - jnp.where(s != 0, phi, 0.0)) * inverse
     return phi, phi_s, (None if g_t is None else g_t * inverse)
+
+
+def _split(a):
+    """a = high + low with high holding a's leading 26 bits (Veltkamp's splitting)."""
+    scaled = 134217729.0 * a  # 2^27 + 1
+    high = scaled - (scaled - a)
+    return high, a - high
+
+
+def _product_error(a, b, product):
+    """a b - product exactly (Dekker's two-product: product = fl(a b))."""
+    a_high, a_low = _split(a)
+    b_high, b_low = _split(b)
+    return ((a_high * b_high - product) + a_high * b_low + a_low * b_high) + a_low * b_low
+
+
+def _root_exponentials(base, offset, horizon):
+    """(e^{lambda T} - 1, e^{lambda T}) per root, lambda = ``base`` + ``offset`` with base a pole
+    +-i omega: the phase omega T is carried to twice the working precision (``_product_error``),
+    so each exponential is exact to rounding for the given root, as e^{s T} of the pole-offset
+    sum s = lambda_j + lambda_k is; a plain fl(lambda T) would cost eps |lambda| T in the phase
+    (1e-12 at omega T = 6000)."""
+    phase = base.imag * horizon
+    rest = (1j * _product_error(base.imag, horizon, phase) + base.real * horizon
+            + offset * horizon)
+    turn = jnp.exp(1j * phase)
+    rest_grown = jnp.expm1(rest)
+    return jnp.expm1(1j * phase) + turn * rest_grown, turn * (1 + rest_grown)
 
 
 def _cauchy_sums(base, offset, u, horizon, allowed, partner, block, derivatives: bool):
@@ -278,17 +326,22 @@ def _cauchy_sums(base, offset, u, horizon, allowed, partner, block, derivatives:
     ``block`` roots at a time (``by_rows``), one matrix product per kernel and block."""
     index = jnp.arange(base.shape[0])
     flat = u.reshape(u.shape[0], -1)
+    if horizon is not None:  # e^{lambda T} - 1 and e^{lambda T} per root (``_phi``)
+        grown, power = _root_exponentials(jnp.where(allowed, base, 0.0),
+                                          jnp.where(allowed, offset, 0.0), horizon)
 
     def rows(j):
         s = (base[j][:, None] + base[None, :]) + (offset[j][:, None] + offset[None, :])
         both = allowed[j][:, None] & allowed[None, :]
         weight = ((both & (index[None, :] != partner[j][:, None])).astype(float)
                   + (both & (partner[None, :] != j[:, None])).astype(float))
+        factors = (None, None) if horizon is None else (
+            (grown[j][:, None], power[j][:, None]), (grown[None, :], power[None, :]))
         if not derivatives:
-            return ((weight * _phi(s, weight > 0, horizon, False)) @ flat,)
+            return ((weight * _phi(s, weight > 0, horizon, False, *factors)) @ flat,)
         # one product per kernel: stacked into one array first, the copy cost more than the
         # products
-        return tuple((weight * x) @ flat for x in _phi(s, weight > 0, horizon, True)
+        return tuple((weight * x) @ flat for x in _phi(s, weight > 0, horizon, True, *factors)
                      if x is not None)
 
     sums = by_rows(rows, block, index)
