@@ -225,24 +225,25 @@ def _dampers_energy(modes: DampedModes, q0, p0, horizon, block):
         norm = modes.safe_normalisers(j, modes.normaliser_rows(j, y))
         coefficient = (y @ p0 - (y @ (omega2[:, None] * q0)) / lam[:, None]) / norm[:, None]
         coefficient = jnp.where(modes.clusters.member[j][:, None], 0.0, coefficient)
-        # the conjugate partner: summed directly (lambda_j + lambda_k below rounding)
         partner = conjugate_partners(modes, j, act[:, None] & active[None, :])
-        lam_partner = poles[anchor[partner]] + offset[partner]
-        # all roots at once: the partner's row is among y (a gather, not a second pass)
-        y_partner = y[partner] if block is None else modes.vector_rows(partner)
-        direct = jnp.sum((omega2[None, :] + (lam * lam_partner)[:, None]) * y * y_partner,
-                         axis=1)
-        return coefficient, partner, direct
+        # the conjugate partner's Gram entry, from the root's own row: a real system's
+        # partner has a_p w_p = conj(a_j w_j) (w = (Omega y, lambda y)), so a_j a_p G_jp =
+        # |a_j|^2 |w_j|^2, a sum of positive terms (a real root is its own partner)
+        size = jnp.sum((omega2[None, :] + (lam.real**2 + lam.imag**2)[:, None])
+                       * (y.real**2 + y.imag**2), axis=1)
+        return coefficient, partner, size
 
-    a, partner, direct = by_rows(first, block, jnp.arange(2 * n))
+    a, partner, size = by_rows(first, block, jnp.arange(2 * n))
     # G_jk = -2 c_j^T diag(d) c_k / s_jk off the partners: -sum_i d_i u_i^T Phi u_i, u = a c
     u = modes.null[:, :, None] * a[:, None, :]  # (2n, k, batch)
     value = -jnp.real(_cauchy_sum(poles[anchor], offset, u, modes.weights, horizon, allowed,
                                   partner, block))
-    s_partner = (poles[anchor] + poles[anchor[partner]]) + (offset + offset[partner])
+    # the pair's own term, summed directly (lambda_j + lambda_p below rounding): s = 2 Re
+    # lambda_j, exact in the pole-offset form
+    s_partner = 2 * (jnp.real(poles[anchor]) + jnp.real(offset))
     own = allowed & allowed[partner]
-    kernel = jnp.where(own, direct * growth(jnp.where(own, s_partner, -1.0), horizon), 0.0)
-    value = value + jnp.real(jnp.sum(a * kernel[:, None] * a[partner], axis=0)) / 2
+    kernel = jnp.where(own, size * growth(jnp.where(own, s_partner, -1.0), horizon), 0.0)
+    value = value + jnp.sum((a.real**2 + a.imag**2) * kernel[:, None], axis=0) / 2
     value = value + cluster_energy(modes, q0, p0, horizon, a, block)
     value = value.reshape(batch)
     q0, p0 = q0.reshape((n,) + batch), p0.reshape((n,) + batch)
