@@ -87,26 +87,37 @@ def no_clusters(size: int) -> Clusters:
                     jnp.array(True))
 
 
-def find_clusters(poles, anchor, offset, active, condition, block=None) -> Clusters:
-    """The pairs of damped roots to sum by contour, from the frozen roots (no derivative: the
-    circles are fixed, the integrands carry the derivatives); ``condition`` (2n,) each root's
-    2 |lambda| |y|^2 / |N|."""
+def find_clusters(poles, anchor, offset, active, condition, block=None):
+    """(the pairs of damped roots to sum by contour, the roots' smallest separation), from the
+    frozen roots (no derivative: the circles are fixed, the integrands carry the derivatives);
+    ``condition`` (2n,) each root's 2 |lambda| |y|^2 / |N|.
+
+    The separation is min |lambda_j - lambda_k| / |lambda_j| over roots that interact: two
+    damped ones, or the two poles of one undamped-by-dampers mode (critical internal damping
+    makes that pair defective); taken in the same pass over the pairs as the clusters."""
     poles, anchor, offset, active, condition = jax.lax.stop_gradient(
         (poles, anchor, offset, active, condition))
     size = anchor.shape[0]
+    n = size // 2
     root_active = jnp.concatenate([active, active])
     index = jnp.arange(size)
+    mode = anchor % n
     lam = poles[anchor] + offset
 
-    def rows(a, o, j):  # nearest other root, its distance, the distance of the next one
+    def rows(a, o, act, j):
+        """Nearest other root, its distance, the distance of the next one; the separation."""
         distance = jnp.abs(roots_difference(poles, anchor, offset, a, o))
         distance = jnp.where(index[None, :] == j[:, None], jnp.inf, distance)
         nearest = jnp.argmin(distance, axis=1)
         first = jnp.take_along_axis(distance, nearest[:, None], axis=1)[:, 0]
         rest = jnp.where(index[None, :] == nearest[:, None], jnp.inf, distance)
-        return nearest, first, jnp.min(rest, axis=1)
+        same_mode = (a % n)[:, None] == mode[None, :]
+        interacting = (act[:, None] & root_active[None, :]) | (same_mode & ~act[:, None])
+        closest = jnp.min(jnp.where(interacting, distance, jnp.inf), axis=1)
+        return nearest, first, jnp.min(rest, axis=1), closest / jnp.abs(poles[a] + o)
 
-    nearest, first, second = by_rows(rows, block, anchor, offset, index)
+    nearest, first, second, separation = by_rows(rows, block, anchor, offset, root_active,
+                                                 index)
     mutual = nearest[nearest] == index
     candidate = root_active & root_active[nearest] & mutual & (index < nearest)
     half = first / 2
@@ -138,7 +149,7 @@ def find_clusters(poles, anchor, offset, active, condition, block=None) -> Clust
                              * jnp.abs(poles[:n]))
     ill = root_active & ~member & ~(condition <= CONDITION_LIMIT)
     ok = ~jnp.any(ill) & ~jnp.any(double_pole)
-    return Clusters(c, radius, valid, member, mate, ok)
+    return Clusters(c, radius, valid, member, mate, ok), jnp.min(separation)
 
 
 def resolvent_at(modes, s):

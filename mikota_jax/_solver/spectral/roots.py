@@ -40,7 +40,7 @@ import jax.numpy as jnp
 
 from ..._custom_types import Array, Float
 from .clusters import Clusters, cluster_roots, find_clusters, no_clusters
-from .rows import by_rows, repulsion, row_block, small_solve, smallest_separation
+from .rows import by_rows, repulsion, row_block, small_solve
 from .starts import arc_starts, far_starts
 
 
@@ -572,13 +572,12 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
     trace = jnp.sum(jnp.where(active, coupling**2 + gamma, 0.0))
     anchor, offset, lam, c, root_ok = _finish(poles, gamma, factor, weights, active, anchor,
                                               offset, trace, block, axis)
-    separation = smallest_separation(poles, anchor, offset, root_active, n, block)
     # a pair summed by contour: its two roots need not pass one by one (at a double root they
     # are only sqrt(eps)-accurate and Newton's residual stays at rounding), but the circle must
     # hold exactly two, and their sum (by contour) stands for them in the trace check
     provisional = DampedModes(omega, gamma, factor, weights, active, anchor, offset, c,
-                              jnp.array(True), separation, iterations, no_clusters(2 * n),
-                              internal)
+                              jnp.array(True), jnp.array(jnp.inf), iterations,
+                              no_clusters(2 * n), internal)
 
     def conditioning(roots):  # 2 |lambda| |y|^2 / |N|: ~1 / separation near a double root
         y = provisional.vector_rows(roots)
@@ -587,7 +586,7 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
         return jnp.where(norm > 0, size / jnp.where(norm > 0, norm, 1.0), jnp.inf)
 
     condition = by_rows(conditioning, block, jnp.arange(2 * n))
-    clusters = find_clusters(poles, anchor, offset, active, condition, block)
+    clusters, separation = find_clusters(poles, anchor, offset, active, condition, block)
     count, inside = cluster_roots(poles, factor, weights, active, clusters)
     paired = jnp.all(~clusters.valid | (jnp.abs(count - 2) < 1e-6))
     residual_ok = jnp.all(root_ok | clusters.member)

@@ -88,24 +88,6 @@ def repulsion(poles, anchor, offset, root_active, block):
     return by_rows(rows, block, anchor, offset, root_active, index)
 
 
-def smallest_separation(poles, anchor, offset, root_active, n, block):
-    """min |lambda_j - lambda_k| / |lambda_j| over roots that interact: two damped ones, or the
-    two poles of one undamped-by-dampers mode (critical internal damping makes that pair
-    defective)."""
-    index = jnp.arange(anchor.shape[0])
-    mode = anchor % n
-
-    def rows(a, o, act, j):
-        same_mode = (a % n)[:, None] == mode[None, :]
-        pair = act[:, None] & root_active[None, :]
-        interacting = (pair | (same_mode & ~act[:, None])) & (j[:, None] != index[None, :])
-        diff = jnp.abs(roots_difference(poles, anchor, offset, a, o)) / jnp.abs(
-            poles[a] + o)[:, None]
-        return jnp.min(jnp.where(interacting, diff, jnp.inf), axis=1)
-
-    return jnp.min(by_rows(rows, block, anchor, offset, root_active, index))
-
-
 def small_solve(a, b):
     """x with a x = b for a batch of small systems: a (..., k, k), b (..., k, m).
 
