@@ -102,7 +102,16 @@ def conjugate_partners(modes: DampedModes, roots, pair):
     return jnp.argmin(jnp.where(pair, jnp.real(gap) ** 2 + jnp.imag(gap) ** 2, jnp.inf), axis=1)
 
 
-_SERIES = tuple(1 / math.factorial(m + 1) for m in range(15))  # (e^x - 1) / x = sum x^m / (m+1)!
+# (e^x - 1) / x = sum_m x^m / (m+1)!, and its derivative sum_m (m+1) x^m / (m+2)!, to |x| < 1/2
+# (the first omitted terms below 2e-18)
+_SERIES = tuple(1 / math.factorial(m + 1) for m in range(15))
+_SERIES_PRIME = tuple((m + 1) / math.factorial(m + 2) for m in range(15))
+_SERIES_BOUND = 0.5
+
+
+def _horner(x, coefficients):
+    """sum_m coefficients[m] x^m."""
+    return functools.reduce(lambda total, c: c + x * total, coefficients[::-1])
 
 
 def growth(s, horizon):
@@ -115,10 +124,10 @@ def growth(s, horizon):
     if horizon is None:
         return -1 / jnp.where(s != 0, s, -1.0)
     x = s * horizon
-    small = jnp.abs(x) < 0.5
+    small = jnp.abs(x) < _SERIES_BOUND
     s_large = jnp.where(small, 1.0, s)  # no 0 / 0 in the branch not taken (its gradient)
-    series = functools.reduce(lambda total, c: c + x * total, _SERIES[::-1])
-    return jnp.where(small, horizon * series, jnp.expm1(s_large * horizon) / s_large)
+    return jnp.where(small, horizon * _horner(x, _SERIES),
+                     jnp.expm1(s_large * horizon) / s_large)
 
 
 
@@ -250,7 +259,7 @@ def _dampers_energy(modes: DampedModes, q0, p0, horizon, block):
     return value + _idle_energy(modes, q0, p0, horizon)
 
 
-def _phi(s, mask, horizon, derivatives: bool, rows=None, columns=None):
+def _phi(s, mask, horizon, derivatives: bool, rows, columns):
     """Phi(s) = (e^{s T} - 1) / s^2 (``growth`` / s; -1 / s^2 for T = inf) on ``mask``, and
     with ``derivatives`` its s- and T-derivatives too, from one reciprocal of s (a complex
     division costs several products).
@@ -262,8 +271,9 @@ def _phi(s, mask, horizon, derivatives: bool, rows=None, columns=None):
     the double sum. The first's rounding error, a few eps (|E_j| + |E_k|) with |E| <=
     min(|lambda T|, 2), is that of s itself: lambda_j + lambda_k carries eps |lambda| from the
     frequencies' own rounding, which ``expm1`` of s T magnifies alike; the second is relative,
-    so the derivatives keep their digits where e^{s T} has decayed. |s T| < 1e-3 takes the
-    series, as ``growth``."""
+    so the derivatives keep their digits where e^{s T} has decayed. |s T| < 1/2 takes the
+    series, as ``growth``: the closed form of the s-derivative, (T e^{s T} - g) / s, cancels to
+    eps / |s T| below it."""
     s_d = jnp.where(mask & (s != 0), s, 1.0)
     inverse = 1 / s_d
     if horizon is None:
@@ -272,16 +282,14 @@ def _phi(s, mask, horizon, derivatives: bool, rows=None, columns=None):
     else:
         (grown_j, power_j), (grown_k, power_k) = rows, columns
         x = jnp.where(mask, s, -1.0) * horizon
-        small = jnp.abs(x) < 1e-3  # as ``growth``
+        small = jnp.abs(x) < _SERIES_BOUND  # as ``growth``
         # 1 / s where not small (and on the mask; off it any finite value does)
         inverse_large = jnp.where(small | ~mask, 1.0, inverse)
         e1 = grown_j + grown_k + grown_j * grown_k
-        g = jnp.where(small, horizon * (1 + x / 2 + x**2 / 6 + x**3 / 24 + x**4 / 120),
-                      e1 * inverse_large)
+        g = jnp.where(small, horizon * _horner(x, _SERIES), e1 * inverse_large)
         if derivatives:
             g_t = power_j * power_k  # e^{s T}
-            g_s = jnp.where(small,
-                            horizon**2 * (1 / 2 + x / 3 + x**2 / 8 + x**3 / 30 + x**4 / 144),
+            g_s = jnp.where(small, horizon**2 * _horner(x, _SERIES_PRIME),
                             (horizon * g_t - g) * inverse_large)
     phi = g * inverse
     if not derivatives:

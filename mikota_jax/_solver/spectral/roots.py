@@ -386,7 +386,7 @@ def _finish(poles, gamma, factor, weights, active, anchor, offset, trace, block=
     """After the sweeps: each root's anchor, a Newton polish, and a restart of a missing root, in
     one loop of secular passes (one copy of ``_secular`` to compile, not three). Returns
     (anchor, offset, lambda, c, per-root residual ok); ``trace``: tr D_m + sum gamma over the
-    damped modes, minus the sum of the damped roots.
+    damped modes, which the damped roots sum to minus.
 
     1. **Anchors.** Each root is re-anchored (same lambda) at the one of its nearest poles where
        phi_J vanishes. phi_J is zero at a root only if H_J = H - lambda r_J f_J f_J^T W stays
