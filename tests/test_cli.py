@@ -240,6 +240,31 @@ def test_the_scene_size_that_picks_the_compile_level_is_read_past_a_byte_order_m
     assert _scene_size(str(scene)) == 6
 
 
+
+@pytest.mark.parametrize("given, expected", [
+    ("", "--xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false"),
+    ("--xla_backend_optimization_level=2",
+     "--xla_backend_optimization_level=2 --xla_cpu_use_fusion_emitters=false"),
+    ("--xla_cpu_use_fusion_emitters=true",
+     "--xla_cpu_use_fusion_emitters=true --xla_backend_optimization_level=0"),
+])
+def test_run_on_a_small_scene_compiles_fast_unless_the_user_chose_the_flags(
+        monkeypatch, given, expected):
+    from types import SimpleNamespace
+
+    from mikota_jax.app import cli
+
+    monkeypatch.setattr(cli, "_knows_emitters_flag", lambda: True)
+    monkeypatch.setenv("XLA_FLAGS", given)
+    cli._compile_level(SimpleNamespace(command="run", scene=SCENE))  # 6 DOFs
+    assert os.environ["XLA_FLAGS"] == expected
+    large = ('[chain]\ntype = "mikota"\nn = 1001\n'
+             + SCENE[SCENE.index("[[damper]]"):].replace("dofs = [2, 5]", "dofs = [2, 500]"))
+    assert cli._scene_size(large) == 1001
+    monkeypatch.setenv("XLA_FLAGS", given)
+    cli._compile_level(SimpleNamespace(command="run", scene=large))
+    assert os.environ["XLA_FLAGS"] == given
+
 FULL_ORDER_SCENE = """
 [chain]
 type = "mikota"

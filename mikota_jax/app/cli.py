@@ -7,8 +7,9 @@ Bad input ends with one line on stderr and exit code 2 (no traceback); a run tha
 partial ``results.json``. Compiled executables are kept in JAX's persistent compilation cache
 (``~/.cache/mikota_jax/xla``, or ``$MIKOTA_JAX_CACHE_DIR``), so a second run skips most of the
 compilation; ``MIKOTA_JAX_CACHE=0`` turns that off. ``run`` compiles without XLA's LLVM
-optimisation passes when the scene has at most 1000 DOFs (a one-shot run compiles more than it
-computes there); an ``XLA_FLAGS`` that sets ``--xla_backend_optimization_level`` is left alone.
+optimisation passes and with its classic fusion emitters when the scene has at most 1000 DOFs (a
+one-shot run compiles more than it computes there); an ``XLA_FLAGS`` that sets either is left
+alone.
 """
 
 import argparse
@@ -143,13 +144,25 @@ def _enable_cache() -> None:
               "folder, or MIKOTA_JAX_CACHE=0 to silence this.", file=sys.stderr)
 
 
-# ``run`` on a scene of at most this many DOFs compiles at XLA's optimisation level 0: the LLVM
-# passes are most of a cold start. Measured (2-core CPU, benchmarks/compile.py): section5_damped
-# (n = 300) cold 19.8 -> 12.1 s, warm 5.1 -> 5.3 s; the price is run time, a spectral solve
-# 0.085 -> 0.23 s at n = 300 and 0.69 -> 1.75 s at n = 1000 (more than the compile it saves
-# beyond that).
+# ``run`` on a scene of at most this many DOFs compiles at XLA's optimisation level 0 and with
+# the classic fusion emitters instead of the MLIR ones: the LLVM passes and the per-kernel MLIR
+# pipeline are most of a cold start. The compiled code computes the same IEEE operations, slower
+# (a spectral solve 0.085 -> 0.23 s at n = 300 and 0.69 -> 1.75 s at n = 1000 at level 0: more
+# than the compile it saves beyond that); cold-start figures in the ``compile`` benchmark.
 FAST_COMPILE_MAX_DOFS = 1000
 _LEVEL = "--xla_backend_optimization_level"
+_EMITTERS = "--xla_cpu_use_fusion_emitters"
+
+
+def _knows_emitters_flag() -> bool:
+    """Whether the installed jaxlib's XLA has ``--xla_cpu_use_fusion_emitters`` (0.6 and later):
+    XLA aborts the process on a flag it does not know."""
+    from importlib.metadata import version
+
+    try:
+        return tuple(int(p) for p in version("jaxlib").split(".")[:2]) >= (0, 6)
+    except (ValueError, ImportError):
+        return False
 
 
 def _scene_size(source: str) -> int | None:
@@ -181,14 +194,19 @@ def _scene_size(source: str) -> int | None:
 
 
 def _compile_level(args) -> None:
-    """XLA's optimisation level 0 for ``run`` on a small scene (see ``FAST_COMPILE_MAX_DOFS``),
-    set before JAX's backend starts; a level the user set in ``XLA_FLAGS`` wins."""
+    """XLA's optimisation level 0 and classic fusion emitters for ``run`` on a small scene (see
+    ``FAST_COMPILE_MAX_DOFS``), set before JAX's backend starts; a flag the user set in
+    ``XLA_FLAGS`` wins."""
     flags = os.environ.get("XLA_FLAGS", "")
-    if args.command != "run" or _LEVEL in flags:
+    if args.command != "run":
         return
     size = _scene_size(args.scene)
-    if size is not None and size <= FAST_COMPILE_MAX_DOFS:
-        os.environ["XLA_FLAGS"] = f"{flags} {_LEVEL}=0".strip()
+    if size is None or size > FAST_COMPILE_MAX_DOFS:
+        return
+    extra = [] if _LEVEL in flags else [f"{_LEVEL}=0"]
+    if _EMITTERS not in flags and _knows_emitters_flag():
+        extra.append(f"{_EMITTERS}=false")
+    os.environ["XLA_FLAGS"] = " ".join(filter(None, [flags, *extra]))
 
 
 def main(argv=None) -> int:
