@@ -490,3 +490,39 @@ def test_the_energy_gradient_of_a_lightly_damped_chain_is_exact(c, close):
 
         truth = float((at(mp.mpf(c) + h) - at(mp.mpf(c) - h)) / (2 * h))
     close(jax.grad(lambda c: spectral_energy(make(c), T, x0, v0))(c), truth, rtol=1e-14)
+
+
+@pytest.mark.parametrize("c, asymmetry", [(0.005, 1e-3), (0.05, 0.1)])
+def test_the_energy_of_a_crowded_spectrum_is_exact(c, asymmetry, close):
+    # Two nearly equal branches on a stiff hub: pairs of close frequencies, so that
+    # s = lambda_j + lambda_k of two different modes (an upper root and the other mode's lower
+    # one) is small: |s T| = 0.03 (the double sum's series) and 0.55 (its closed form, just
+    # past the series bound 1/2). Truth: mpmath's eigen-expansion at 80 digits (truncation
+    # ~1e-24 relative), the gradient by its central differences (h = 1e-12 c).
+    import mpmath as mp
+    from _helpers import mp_truths
+
+    def make(c):
+        return mj.branched_chain([jnp.array([1.0, 1.0]), jnp.array([1.0, 1.0 + asymmetry])],
+                                 [jnp.ones(3), jnp.ones(3)], 1.0, 1e3,
+                                 dampers=[mj.GroundedDamper(1.0, c)])
+
+    modes = damped_modes(make(c))
+    lam, mode = np.asarray(modes.eigenvalues), np.asarray(modes.modes)
+    pair_sums = np.abs(lam[:, None] + lam[None, :]) * T
+    pair_sums[mode[:, None] == mode[None, :]] = np.inf
+    assert np.min(pair_sums) < (0.05 if asymmetry < 0.01 else 0.6)  # the regime is reached
+    x0, v0 = unit(5, 2), np.zeros(5)
+    m, with_one, k = (np.asarray(a) for a in make(1.0).dense())
+    with mp.workdps(80):
+        h = mp.mpf(c) * mp.mpf("1e-12")
+
+        def at(c):
+            return mp_truths((m, c * mp.matrix(with_one.tolist()), k), T, x0, v0, [],
+                             exact=True)[0]
+
+        value = float(at(mp.mpf(c)))
+        slope = float((at(mp.mpf(c) + h) - at(mp.mpf(c) - h)) / (2 * h))
+    ours, grad = jax.value_and_grad(lambda c: spectral_energy(make(c), T, x0, v0))(c)
+    close(ours, value, rtol=1e-14)
+    close(grad, slope, rtol=1e-14)
