@@ -28,9 +28,13 @@ x_3(0) = 1, v(0) = 0. Every comparison of a row runs in this one process, compil
   against the mean of the same designs run one by one (their root iterations differ: 3 sweeps
   at p = 7, up to 14 for a damper inside the chain), and XLA's temporary memory per design
   (``memory_analysis``).
+* **Blocks of roots**: the same gradient with the O(n^2) per-root work done a block of roots at
+  a time (the library's choice, ``row_block``) and all at once (``block=0``), n = 100, 300,
+  1000, 3000: run time and XLA's temporary memory (a block's rows stay in cache).
 
 Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/engine.py [--quick] [--replot]``
-(``--quick``: n = 60 for every row, the history without scipy, B = 4). Writes
+(``--quick``: n = 60 for every row, n = 100 for the blocks, the history without scipy,
+B = 4). Writes
 ``results/engine[_quick].json`` and ``.png``.
 """
 
@@ -48,6 +52,7 @@ import scipy.linalg as sl
 from scipy.integrate import solve_ivp
 
 import mikota_jax as mj
+from mikota_jax.testing import spectral_energy_with_result
 
 NAME = "engine"
 GRADIENT_SIZES, QUICK_GRADIENT_SIZES = (300, 1000), (60,)
@@ -58,6 +63,7 @@ BATCH_N, QUICK_BATCH_N = 300, 60
 HORIZON, TIMES = 20.0, 2001
 RTOL, ATOL = 1e-8, 1e-10
 REPEATS, QUICK_REPEATS = 5, 2
+BLOCK_SIZES, QUICK_BLOCK_SIZES = (100, 300, 1000, 3000), (100,)
 
 
 def chain(n: int, p=7.0, c=1.0) -> mj.SecondOrderSystem:
@@ -186,6 +192,27 @@ def batch_row(n: int, batch: int, repeats: int) -> dict:
                                  / np.abs(singles))))
 
 
+def block_row(n: int, repeats: int) -> dict:
+    """J + gradient with the roots' rows a block at a time (automatic) and all at once."""
+    x0, v0 = mj.unit_vector(n, 3), jnp.zeros(n)
+    row = dict(n=n)
+    values = {}
+    for key, block in (("blocks", None), ("whole", 0)):
+        def energy(p, c, block=block):
+            return spectral_energy_with_result(chain(n, p, c), HORIZON, x0, v0, block=block)[0]
+
+        fn = Compiled(jax.value_and_grad(energy, argnums=(0, 1)), 7.0, 1.0)
+        values[key], run_s, _ = timed(fn, 7.0, 1.0, repeats=repeats)
+        row.update({f"{key}_s": run_s, f"{key}_compile_s": fn.compile_s,
+                    f"{key}_temp_mb": fn.executable.memory_analysis().temp_size_in_bytes / 1e6})
+    (a, ga), (b, gb) = values["blocks"], values["whole"]
+    row["speedup"] = row["whole_s"] / row["blocks_s"]
+    row["difference"] = float(max(abs(float(a) - float(b)) / abs(float(b)),
+                                  *(abs(float(x) - float(y)) / abs(float(y))
+                                    for x, y in zip(ga, gb))))
+    return row
+
+
 def main(argv=None) -> dict:
     args = parse_args(__doc__, argv, replot=True)
     if args.replot:
@@ -219,8 +246,15 @@ def main(argv=None) -> dict:
                           ("alone_s", "same designs alone s", ".4f"),
                           ("per_design_ratio_alone", "ratio", ".2f"),
                           ("temp_mb_per_design", "MB per design", ".1f")])
-    data = dict(summary=summarise(gradients, histories, long, batch), rows=histories,
+    blocks = [block_row(n, repeats) for n in (QUICK_BLOCK_SIZES if args.quick else BLOCK_SIZES)]
+    print_table(blocks, [("n", "n", "d"), ("blocks_s", "blocks s", ".4f"),
+                         ("whole_s", "all at once s", ".4f"), ("speedup", "speed-up", ".2f"),
+                         ("blocks_temp_mb", "blocks MB", ".1f"),
+                         ("whole_temp_mb", "all at once MB", ".1f"),
+                         ("difference", "rel. diff", ".1e")])
+    data = dict(summary=summarise(gradients, histories, long, batch, blocks), rows=histories,
                 gradients=gradients, histories=histories, long_chain=long, batch=batch,
+                blocks=blocks,
                 problem=dict(horizon=HORIZON, times=TIMES, rtol=RTOL, atol=ATOL,
                              damper=dict(position=7.0, coefficient=1.0), x0="e_3"),
                 total_wall_s=elapsed(start))
@@ -229,7 +263,7 @@ def main(argv=None) -> dict:
     return data
 
 
-def summarise(gradients, histories, long, batch) -> dict:
+def summarise(gradients, histories, long, batch, blocks) -> dict:
     """The issue's target rows, one quantity each (the benchmark page shows them)."""
     out = {}
     for row in gradients:
@@ -251,6 +285,8 @@ def summarise(gradients, histories, long, batch) -> dict:
         out[f"{batch['batch']} designs n={batch['n']}: time per design / the same designs "
             "alone"] = batch["per_design_ratio_alone"]
     out[f"{batch['batch']} designs n={batch['n']}: MB per design"] = batch["temp_mb_per_design"]
+    for row in blocks:
+        out[f"gradient n={row['n']}: all at once / blocks of roots"] = row["speedup"]
     return out
 
 

@@ -12,9 +12,10 @@ sides compute the same quantity to rounding; the tests check the two sides again
 CHAIN_MODES_FROM = 256
 
 # Damped modes: above this n the per-root (2n, n) and (2n, 2n) work is done a block of roots at
-# a time (``_spectral_rows``), the same operations in another order: O(n) memory.
-BLOCK_ABOVE = 512
-BLOCK_ENTRIES = 2**18  # entries of one (roots, n) block: 4 MiB complex, about a cache's size
+# a time (``_spectral_rows``), the same operations in another order: O(n) memory, and faster,
+# since a block's rows stay in cache (``benchmarks/engine.py``, blocks rows).
+BLOCK_ABOVE = 64
+BLOCK_ENTRIES = 2**16  # entries of one (roots, n) block: 1 MiB complex, about an L2 cache
 
 # Energy of a chain with dampers alone above this size: without the (n, n) modes U (128 MiB at
 # 4096), from chain mode rows (``_spectral_system.uses_rows``).

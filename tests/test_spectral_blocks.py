@@ -74,8 +74,10 @@ def test_the_large_chain_path_equals_the_whole_one_and_the_dense_energy():
 
 
 def test_the_block_rule():
-    assert row_block(BLOCK_ABOVE) is None  # all at once up to n = 512
-    assert row_block(1000) == 262 and row_block(30000) == 16  # 2^18 / n, at least 16
+    assert row_block(BLOCK_ABOVE) is None  # all at once up to n = 64
+    assert row_block(BLOCK_ABOVE + 1) == BLOCK_ABOVE + 1  # at least two blocks of n roots
+    assert row_block(300) == 218 and row_block(1000) == 65  # 2^16 / n ...
+    assert row_block(30000) == 16  # ... and at least 16
     assert row_block(300, 16) == 16 and row_block(300, 0) is None
     with pytest.raises(ValueError, match="block must be an int >= 0"):
         row_block(300, -1)

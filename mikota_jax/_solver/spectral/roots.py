@@ -25,7 +25,7 @@ H^-1 f_J has y_J = -1 / lambda: no huge entries. Gradients: one Newton step at t
 
 The undamped modes of a fixed-free chain come from ``chain_modes`` (O(n^2), relative accuracy);
 other systems use ``generalized_modes`` (dense, O(n^3)).
-Memory: every step is per root, and above n = 512 the rows are formed a block of roots at a
+Memory: every step is per root, and above n = 64 the rows are formed a block of roots at a
 time (``rows``): O(n) memory (J + gradient at n = 30000 in 1.7 GiB).
 Two roots that nearly coincide (critical damping) are found like any others and then summed
 as a pair by a contour integral of the resolvent, never root by root (``clusters``:
@@ -512,7 +512,7 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
 
     ``omega``: (n,) distinct positive frequencies; ``factor`` F: (n, k); ``weights`` d: (k,)
     >= 0; ``gamma``: (n,) >= 0 modal internal damping rates (default zero); ``block``: roots
-    per block of the O(n^2) work (``row_block``: automatic, O(n) memory above n = 512). See
+    per block of the O(n^2) work (``row_block``: automatic, O(n) memory above n = 64). See
     the module docstring for the method and the returned layout. Not differentiable through
     the iteration: ``spectral_energy`` differentiates by one Newton step at the roots.
     """

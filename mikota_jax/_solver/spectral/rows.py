@@ -3,8 +3,8 @@
 Every step of the Aberth sweep and of the energy is per root: a row of (2n, n) or (2n, 2n)
 complex work (29 GB each at n = 30000). Above n = ``BLOCK_ABOVE`` the rows are formed a block of
 roots at a time (``by_rows``: a ``lax.map`` of checkpointed blocks), O(n) memory in every mode
-and 2.3x / 3.0x faster for J + gradient at n = 1000 / 3000 than all at once (the blocks stay in
-cache; ``docs/notes/spectral_energy_large.md``). Here also the two all-pairs sums over roots:
+and faster than all at once, since the blocks stay in cache (``benchmarks/engine.py``, blocks
+rows; ``docs/notes/spectral_energy_large.md``). Here also the two all-pairs sums over roots:
 Aberth's repulsion and the separation check.
 """
 
@@ -17,15 +17,15 @@ from ..._limits import BLOCK_ABOVE, BLOCK_ENTRIES
 
 def row_block(n: int, block: int | None = None) -> int | None:
     """Roots per block of the O(n^2) work (None: all at once). ``block`` None: automatic, all at
-    once up to n = ``BLOCK_ABOVE``, above it max(16, 2^18 / n) roots (O(n) memory in all).
-    Measured on 2 cores against all at once (J + one jvp, a damper at DOF 7): 0.64 -> 0.37 s
-    at n = 1000, 7.97 -> 3.07 s at n = 3000; the block size barely matters (39 or 160 roots:
-    40.6 / 40.0 s at n = 10^4). ``block`` an int forces it (0: none)."""
+    once up to n = ``BLOCK_ABOVE``, above it max(16, min(n, 2^16 / n)) roots (at least two
+    blocks; O(n) memory in all). A block's (roots, n) rows then stay in cache: J + gradient of
+    the Section 5 energy against all at once in ``benchmarks/engine.py``, blocks rows.
+    ``block`` an int forces it (0: none)."""
     if block is not None:
         if isinstance(block, bool) or not isinstance(block, int) or block < 0:
             raise ValueError(MARK + f"block must be an int >= 0 or None, got {block!r}.")
         return block or None
-    return None if n <= BLOCK_ABOVE else max(16, BLOCK_ENTRIES // n)
+    return None if n <= BLOCK_ABOVE else max(16, min(n, BLOCK_ENTRIES // n))
 
 
 def by_rows(fn, block, *rows):
