@@ -420,12 +420,19 @@ def _finish(poles, gamma, factor, weights, active, anchor, offset, trace, block=
         small against a looser bar: phi_J's terms do not show the cancellation inside H^-1 f_J,
         which on the triple chain of the multi-damper notebook (n = 151, d_1 ~ 10 at DOF 1) left
         a converged real root at |phi| / terms = 1e-7 while Newton's steps alternated in the
-        last bit."""
+        last bit. And a root holds where Newton would move it by less than one rounding of
+        lambda: its residual is what lambda's own last bit makes. phi_J's terms can be far
+        smaller than that: a root on the pole of a mode the dampers barely reach (a near node,
+        coupling 1e-14) has both terms near 1e-26 while the offset's last bit gives |phi| ~
+        1e-14 (Mikota's n = 60 chain with modal damping, a damper at DOF 60). A Newton step
+        that small away from a root needs lambda within rounding of a singularity of phi_J."""
         lam = poles[anchor] + offset
         newton_step = jnp.abs(phi) / jnp.where(phi_prime != 0, jnp.abs(phi_prime), jnp.inf)
         settled = (newton_step <= _SETTLED_STEP * jnp.abs(lam)) & (
             jnp.abs(phi) <= _SETTLED_RESIDUAL * scale)
-        root_ok = ~root_active | (jnp.abs(phi) <= _RESIDUAL_TOL * scale) | settled
+        rounding = newton_step <= jnp.finfo(newton_step.dtype).eps * jnp.abs(lam)
+        root_ok = (~root_active | (jnp.abs(phi) <= _RESIDUAL_TOL * scale) | settled
+                   | rounding)
         trace_ok = (jnp.abs(jnp.sum(jnp.where(root_active, lam, 0.0)) + trace)
                     <= _TRACE_TOL * jnp.sum(jnp.where(root_active, jnp.abs(lam), 0.0)))
         return lam, root_ok, trace_ok
