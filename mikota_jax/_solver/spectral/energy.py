@@ -135,35 +135,33 @@ def growth(s, horizon):
 
 
 @complex_arithmetic
-def cluster_energy(modes: DampedModes, q0, p0, horizon, a, block):
+def cluster_energy(modes: DampedModes, q0, p0, horizon, a, block, projections=None):
     """The terms of J that involve the clusters: twice cluster x simple root, plus cluster x
     cluster; (m,) for q0, p0 (n, m) and the simple roots' coefficients a (2n, m) (zero in the
     clusters). Zero without a cluster (then not computed, except under ``vmap``).
 
     With u(s) = Q(s)^-1 b(s), b(s) = (s I + D_m) q0 + p0, the clusters' part of the modal state
     is sum_p w_p exp(s_p t) (Omega u_p, s_p u_p) (``Clusters.nodes``), so each term is the
-    simple roots' one with (lambda_j, a_j y_j) replaced by (s_p, w_p u_p): O(NODES n (2n + k))
-    per cluster (``block`` roots at a time, as ``_blocked_energy``)."""
+    simple roots' one with (lambda_j, a_j y_j) replaced by (s_p, w_p u_p). The cross terms'
+    Gram entries y_j^T (Omega^2 + s_p lambda_j) u_p take O(NODES n) per root and cluster
+    (``block`` roots at a time, as ``_blocked_energy``); with ``projections`` (dampers alone:
+    each root's y_j^T q0, y_j^T p0 (2n, m) and F^T y_j (2n, k), from the pass that made its
+    coefficient) they take O(NODES k) by the eigen-equations: y_j^T Q(lambda_j) = 0 and Q(s_p)
+    u_p = b(s_p) give y_j^T (Omega^2 + s lambda_j) u = lambda_j (y_j^T b(s) - 2 s y_j^T D_m u)
+    / (s + lambda_j), where y_j^T D_m u = (F^T y_j)^T W F^T u. The circles lie in the left half
+    plane, as the roots do, so s_p + lambda_j stays off zero. Under ``vmap`` the cross terms
+    are computed for every design of a batch, clusters or not: there this is the difference
+    between O(NODES n^2) and O(NODES n k) per design."""
     def terms():
         s, w = modes.clusters.nodes()
         u = solve_at(modes, s, initial_rhs(modes, s, q0, p0))  # (P, n, m)
         omega2 = modes.omega**2
         lam = modes.eigenvalues
         weighted = u * omega2[None, :, None]
-
-        def cross(j, weight):
-            y = modes.vector_rows(j)  # (B, n)
-            gram = jnp.einsum("plm,bl->pmb", weighted, y) + (
-                s[:, None, None] * lam[j][None, None, :]) * jnp.einsum("plm,bl->pmb", u, y)
-            kernel = growth(s[:, None] + lam[j][None, :], horizon)  # (P, B)
-            coefficient = jnp.where((modes.simple[j] & (weight > 0))[:, None], a[j], 0.0)
-            return jnp.real(jnp.einsum("p,pmb,pb,bm->m", w, gram, kernel, coefficient))
-
-        index = jnp.arange(lam.shape[0])
-        if block is None:
-            both = cross(index, jnp.ones(index.shape[0]))
+        if projections is not None:
+            both = _projected_cross(modes, s, w, u, q0, lam, a, horizon, projections)
         else:
-            both = sum_by_rows(cross, block, index)
+            both = _direct_cross(modes, s, w, u, weighted, lam, a, horizon, block)
         gram = jnp.einsum("plm,qlm->pqm", weighted, u) + (
             s[:, None, None] * s[None, :, None]) * jnp.einsum("plm,qlm->pqm", u, u)
         kernel = growth(s[:, None] + s[None, :], horizon)
@@ -172,6 +170,39 @@ def cluster_energy(modes: DampedModes, q0, p0, horizon, a, block):
 
     shape = jax.eval_shape(terms)
     return jax.lax.cond(modes.clusters.any, terms, lambda: jnp.zeros(shape.shape, shape.dtype))
+
+
+def _projected_cross(modes: DampedModes, s, w, u, q0, lam, a, horizon, projections):
+    """``cluster_energy``'s cross terms from the roots' projections, O(NODES k) per root."""
+    yq, yp, yf = projections  # (2n, m), (2n, m), (2n, k)
+    f = jnp.where(modes.active[:, None], modes.factor, 0.0)
+    wf_u = jnp.einsum("la,plm->pam", f, u) * modes.weights[None, :, None]  # W F^T u_p
+    wf_q = (f.T @ q0) * modes.weights[:, None]  # W F^T q0 (k, m)
+    y_dq = yf @ wf_q  # y_j^T D_m q0 (2n, m)
+    y_du = jnp.einsum("ja,pam->pjm", yf, wf_u)  # y_j^T D_m u_p (P, 2n, m)
+    y_b = s[:, None, None] * yq[None] + (y_dq + yp)[None]  # y_j^T b(s_p)
+    plus = s[:, None] + lam[None, :]  # (P, 2n)
+    plus_safe = jnp.where(plus != 0, plus, 1.0)
+    gram = lam[None, :, None] * (y_b - 2 * s[:, None, None] * y_du) / plus_safe[:, :, None]
+    coefficient = jnp.where(modes.simple[:, None], a, 0.0)
+    kernel = growth(plus, horizon)
+    return jnp.real(jnp.einsum("p,pjm,pj,jm->m", w, gram, kernel, coefficient))
+
+
+def _direct_cross(modes: DampedModes, s, w, u, weighted, lam, a, horizon, block):
+    """``cluster_energy``'s cross terms from each root's eigenvector row, O(NODES n) per root."""
+    def cross(j, weight):
+        y = modes.vector_rows(j)  # (B, n)
+        gram = jnp.einsum("plm,bl->pmb", weighted, y) + (
+            s[:, None, None] * lam[j][None, None, :]) * jnp.einsum("plm,bl->pmb", u, y)
+        kernel = growth(s[:, None] + lam[j][None, :], horizon)  # (P, B)
+        coefficient = jnp.where((modes.simple[j] & (weight > 0))[:, None], a[j], 0.0)
+        return jnp.real(jnp.einsum("p,pmb,pb,bm->m", w, gram, kernel, coefficient))
+
+    index = jnp.arange(lam.shape[0])
+    if block is None:
+        return cross(index, jnp.ones(index.shape[0]))
+    return sum_by_rows(cross, block, index)
 
 
 @complex_arithmetic
@@ -226,13 +257,15 @@ def _dampers_energy(modes: DampedModes, q0, p0, horizon, block):
     active = modes.root_active
     allowed = active & ~modes.clusters.member
     omega2 = modes.omega**2
+    f = jnp.where(modes.active[:, None], modes.factor, 0.0)
 
     def first(j):
         lam = poles[anchor[j]] + offset[j]
         act = active[j]
         y = modes.vector_rows(j)
         norm = modes.safe_normalisers(j, modes.normaliser_rows(j, y))
-        coefficient = (y @ p0 - (y @ (omega2[:, None] * q0)) / lam[:, None]) / norm[:, None]
+        yp = y @ p0
+        coefficient = (yp - (y @ (omega2[:, None] * q0)) / lam[:, None]) / norm[:, None]
         coefficient = jnp.where(modes.clusters.member[j][:, None], 0.0, coefficient)
         partner = conjugate_partners(modes, j, act[:, None] & active[None, :])
         # the conjugate partner's Gram entry, from the root's own row: a real system's
@@ -240,9 +273,10 @@ def _dampers_energy(modes: DampedModes, q0, p0, horizon, block):
         # |a_j|^2 |w_j|^2, a sum of positive terms (a real root is its own partner)
         size = jnp.sum((omega2[None, :] + (lam.real**2 + lam.imag**2)[:, None])
                        * (y.real**2 + y.imag**2), axis=1)
-        return coefficient, partner, size
+        # for the clusters' cross terms (``cluster_energy``)
+        return coefficient, partner, size, (y @ q0, yp, y @ f)
 
-    a, partner, size = by_rows(first, block, jnp.arange(2 * n))
+    a, partner, size, projections = by_rows(first, block, jnp.arange(2 * n))
     # G_jk = -2 c_j^T diag(d) c_k / s_jk off the partners: -sum_i d_i u_i^T Phi u_i, u = a c
     u = modes.null[:, :, None] * a[:, None, :]  # (2n, k, batch)
     value = -jnp.real(_cauchy_sum(poles[anchor], offset, u, modes.weights, horizon, allowed,
@@ -253,7 +287,7 @@ def _dampers_energy(modes: DampedModes, q0, p0, horizon, block):
     own = allowed & allowed[partner]
     kernel = jnp.where(own, size * growth(jnp.where(own, s_partner, -1.0), horizon), 0.0)
     value = value + jnp.sum((a.real**2 + a.imag**2) * kernel[:, None], axis=0) / 2
-    value = value + cluster_energy(modes, q0, p0, horizon, a, block)
+    value = value + cluster_energy(modes, q0, p0, horizon, a, block, projections)
     value = value.reshape(batch)
     q0, p0 = q0.reshape((n,) + batch), p0.reshape((n,) + batch)
     return value + _idle_energy(modes, q0, p0, horizon)
