@@ -686,7 +686,7 @@ def plot(rows, repro, quick: bool, meta, cli=None) -> Path:
         ax.invert_yaxis()
         ax.set_xlabel("seconds, process start to exit")
         ax.set_title(f"python -m mikota_jax run {SCENE}\n(median of {cli['repeats']}; the "
-                     "CLI compiles at level 0 up to 1000 DOFs)")
+                     "CLI's flags apply up to 1000 DOFs)")
         legend(ax, "right")
         ax.grid(True, axis="x", alpha=0.3)
     return save_figure(fig, NAME, quick)
