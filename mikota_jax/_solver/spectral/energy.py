@@ -148,10 +148,11 @@ def cluster_energy(modes: DampedModes, q0, p0, horizon, a, block, projections=No
     each root's y_j^T q0, y_j^T p0 (2n, m) and F^T y_j (2n, k), from the pass that made its
     coefficient) they take O(NODES k) by the eigen-equations: y_j^T Q(lambda_j) = 0 and Q(s_p)
     u_p = b(s_p) give y_j^T (Omega^2 + s lambda_j) u = lambda_j (y_j^T b(s) - 2 s y_j^T D_m u)
-    / (s + lambda_j), where y_j^T D_m u = (F^T y_j)^T W F^T u. The circles lie in the left half
-    plane, as the roots do, so s_p + lambda_j stays off zero. Under ``vmap`` the cross terms
-    are computed for every design of a batch, clusters or not: there this is the difference
-    between O(NODES n^2) and O(NODES n k) per design."""
+    / (s + lambda_j), where y_j^T D_m u = (F^T y_j)^T W F^T u. A circle's radius is at most a
+    third of its centre's distance to the imaginary axis (``find_clusters``), so Re s_p <= 2/3
+    Re c < 0 and |s_p + lambda_j| >= 2/3 |Re c| for every root: no division near zero. Under
+    ``vmap`` the cross terms are computed for every design of a batch, clusters or not: there
+    this is the difference between O(NODES n^2) and O(NODES n k) per design."""
     def terms():
         s, w = modes.clusters.nodes()
         u = solve_at(modes, s, initial_rhs(modes, s, q0, p0))  # (P, n, m)
