@@ -34,8 +34,7 @@ x_3(0) = 1, v(0) = 0. Every comparison of a row runs in this one process, compil
 
 Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/engine.py [--quick] [--replot]``
 (``--quick``: n = 60 for every row, n = 100 for the blocks, the history without scipy,
-B = 4). Writes
-``results/engine[_quick].json`` and ``.png``.
+B = 4). Writes ``results/engine[_quick].json`` and ``.png``.
 """
 
 # _common first: it sets OPENBLAS_NUM_THREADS before jax and numpy load.

@@ -1,7 +1,6 @@
 """Test configuration: float64, strict dtype promotion and no implicit rank promotion, so that a
 silent float32 downgrade or an accidental broadcast fails loudly in the tests."""
 
-import importlib.metadata
 import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -12,12 +11,10 @@ os.environ.setdefault("MIKOTA_JAX_CACHE", "0")
 # without its LLVM optimisation passes compiles faster (tests/test_spectral.py: 88 s -> 72 s),
 # and its classic fusion emitters instead of the MLIR ones halve the rest (the critical-damping
 # gradients: backend compile 48 s -> 24 s); the compiled code runs slower but computes the same
-# IEEE operations. XLA aborts on a flag it does not know: the second is given only to jaxlib
-# 0.6 and later, which have it.
-_FLAGS = ["--xla_backend_optimization_level=0"]
-if tuple(int(p) for p in importlib.metadata.version("jaxlib").split(".")[:2]) >= (0, 6):
-    _FLAGS.append("--xla_cpu_use_fusion_emitters=false")
-os.environ["XLA_FLAGS"] = " ".join(filter(None, (os.environ.get("XLA_FLAGS"), *_FLAGS)))
+# IEEE operations. The command line's flags for small scenes (no JAX import: set before JAX).
+from mikota_jax.app.cli import fast_compile_flags  # noqa: E402
+
+os.environ["XLA_FLAGS"] = fast_compile_flags(os.environ.get("XLA_FLAGS", ""))
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402

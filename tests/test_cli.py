@@ -240,7 +240,6 @@ def test_the_scene_size_that_picks_the_compile_level_is_read_past_a_byte_order_m
     assert _scene_size(str(scene)) == 6
 
 
-
 @pytest.mark.parametrize("given, expected", [
     ("", "--xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false"),
     ("--xla_backend_optimization_level=2",
@@ -264,6 +263,7 @@ def test_run_on_a_small_scene_compiles_fast_unless_the_user_chose_the_flags(
     monkeypatch.setenv("XLA_FLAGS", given)
     cli._compile_level(SimpleNamespace(command="run", scene=large))
     assert os.environ["XLA_FLAGS"] == given
+
 
 FULL_ORDER_SCENE = """
 [chain]

@@ -145,13 +145,24 @@ def _enable_cache() -> None:
 
 
 # ``run`` on a scene of at most this many DOFs compiles at XLA's optimisation level 0 and with
-# the classic fusion emitters instead of the MLIR ones: the LLVM passes and the per-kernel MLIR
-# pipeline are most of a cold start. The compiled code computes the same IEEE operations, slower
-# (a spectral solve 0.085 -> 0.23 s at n = 300 and 0.69 -> 1.75 s at n = 1000 at level 0: more
-# than the compile it saves beyond that); cold-start figures in the ``compile`` benchmark.
+# the classic fusion emitters instead of the MLIR ones (``fast_compile_flags``): the LLVM passes
+# and the per-kernel MLIR pipeline are most of a cold start. The compiled code computes the same
+# IEEE operations, slower, which beyond this size costs more than the compile it saves (the
+# ``compile`` benchmark's cold starts).
 FAST_COMPILE_MAX_DOFS = 1000
 _LEVEL = "--xla_backend_optimization_level"
 _EMITTERS = "--xla_cpu_use_fusion_emitters"
+
+
+def fast_compile_flags(flags: str) -> str:
+    """``flags`` (an ``XLA_FLAGS`` value) with XLA's optimisation level 0 and its classic fusion
+    emitters added, each only where ``flags`` does not set it already. For the command line's
+    small scenes and the test suite (compile-bound: most tests build a few small systems once);
+    no JAX import, so that it can run before JAX's backend starts."""
+    extra = [] if _LEVEL in flags else [f"{_LEVEL}=0"]
+    if _EMITTERS not in flags and _knows_emitters_flag():
+        extra.append(f"{_EMITTERS}=false")
+    return " ".join(filter(None, [flags, *extra]))
 
 
 def _knows_emitters_flag() -> bool:
@@ -197,16 +208,11 @@ def _compile_level(args) -> None:
     """XLA's optimisation level 0 and classic fusion emitters for ``run`` on a small scene (see
     ``FAST_COMPILE_MAX_DOFS``), set before JAX's backend starts; a flag the user set in
     ``XLA_FLAGS`` wins."""
-    flags = os.environ.get("XLA_FLAGS", "")
     if args.command != "run":
         return
     size = _scene_size(args.scene)
-    if size is None or size > FAST_COMPILE_MAX_DOFS:
-        return
-    extra = [] if _LEVEL in flags else [f"{_LEVEL}=0"]
-    if _EMITTERS not in flags and _knows_emitters_flag():
-        extra.append(f"{_EMITTERS}=false")
-    os.environ["XLA_FLAGS"] = " ".join(filter(None, [flags, *extra]))
+    if size is not None and size <= FAST_COMPILE_MAX_DOFS:
+        os.environ["XLA_FLAGS"] = fast_compile_flags(os.environ.get("XLA_FLAGS", ""))
 
 
 def main(argv=None) -> int:

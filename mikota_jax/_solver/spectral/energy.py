@@ -183,7 +183,7 @@ def _projected_cross(modes: DampedModes, s, w, u, q0, lam, a, horizon, projectio
     y_du = jnp.einsum("ja,pam->pjm", yf, wf_u)  # y_j^T D_m u_p (P, 2n, m)
     y_b = s[:, None, None] * yq[None] + (y_dq + yp)[None]  # y_j^T b(s_p)
     plus = s[:, None] + lam[None, :]  # (P, 2n)
-    plus_safe = jnp.where(plus != 0, plus, 1.0)
+    plus_safe = jnp.where(plus != 0, plus, 1.0)  # an unused circle's nodes (weights 0) anywhere
     gram = lam[None, :, None] * (y_b - 2 * s[:, None, None] * y_du) / plus_safe[:, :, None]
     coefficient = jnp.where(modes.simple[:, None], a, 0.0)
     kernel = growth(plus, horizon)
