@@ -31,10 +31,11 @@ def lyapunov_trace(system, lowest=None):
     return np.trace(x)
 
 
-def mp_eigen_energy(system, horizon, x0, v0, dps=60):
+def mp_eigen_energy(system, horizon, x0, v0, dps=60, as_float=True):
     """int_0^T of the physical energy, by mpmath's eigen-expansion of the first-order system at
     ``dps`` digits (about dps - 10 digits right for a diagonalisable system whose eigenvector
-    matrix has condition number below 1e10; not for a defective or near-defective one)."""
+    matrix has condition number below 1e10; not for a defective or near-defective one); an
+    mpmath number with ``as_float=False`` (for differences of it)."""
     import mpmath as mp
 
     m, d, k = (np.asarray(a, dtype=float) for a in system.dense())
@@ -62,7 +63,8 @@ def mp_eigen_energy(system, horizon, x0, v0, dps=60):
                 s = mp.conj(lam[i]) + lam[j]
                 integral = horizon if s == 0 else mp.expm1(s * horizon) / s
                 total += mp.conj(y[i]) * gram[i, j] * integral * y[j]
-        return float(mp.re(total) / 2)
+        value = mp.re(total) / 2
+        return float(value) if as_float else value
 
 
 def mp_first_order(m, d, k, dps, scale=1):

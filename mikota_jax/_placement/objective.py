@@ -2,9 +2,10 @@
 
 Reduced (a POD basis held fixed, no derivative through the SVD; the Galerkin model of eq. 3.4) or
 full. Where the reduced objective is exact in modal coordinates (free vibration, or the total
-average energy) the basis is prepared once as a ``_ModalROM``: a design then changes only an
-r x r damping block. Every diffrax solve is differentiated in forward mode inside a custom VJP
-(a design has 2 g parameters, so forward mode is the cheap direction).
+average energy) the basis is prepared once as a ``_ModalROM``: a design then changes only its
+dampers' rows, and the objective comes from the damped modes of r modal coordinates. Every
+diffrax solve is differentiated in forward mode inside a custom VJP (a design has 2 g
+parameters, so forward mode is the cheap direction).
 
 Shapes: ``positions`` (g,), 1-based in [1, n]; ``coefficients`` (g,), >= 0; ``basis`` (n, r).
 """
@@ -15,9 +16,11 @@ import jax.numpy as jnp
 
 from .._errors import MARK, RESULTS
 from .._model.modal import generalized_modes, state_matrix
+from .._model.operators import Diagonal
 from .._model.parameters import check_parameters
 from .._model.reduced import ReducedModel, galerkin
 from .._model.system import SecondOrderSystem
+from .._solver.spectral.modes import live_modal_modes
 from .problem import DamperProblem
 
 
@@ -25,15 +28,22 @@ class _ModalROM(eqx.Module):
     """A reduced model in its modal coordinates, prepared once per basis.
 
     Psi = Phi U with U^T (Phi^T M Phi) U = I and U^T (Phi^T K Phi) U = diag(omega^2): a design
-    only changes the dampers, Psi^T D Psi = B diag(w) B^T (B = rows of Psi), so each evaluation is
-    an r x r damping block and the energy's matrix exponentials -- no eigendecomposition.
+    only changes the dampers, Psi^T D Psi = B diag(w) B^T (B = rows of Psi), a low-rank term on
+    r modes: the spectral path's structure, so each evaluation is the damped modes of that
+    modal system and the objective in closed form from them, O(k r^2) (``live_modal_modes``),
+    no eigendecomposition and no matrix exponential. With internal damping that is not diagonal
+    in these coordinates (modal or a user's matrix, which a projection makes one dense r x r
+    matrix, ``internal``) the state matrix's exponentials instead, O(r^3) per design: chosen
+    from that structure, as the full model chooses between its spectral and dense paths.
     """
 
     omega: jax.Array
     modes: jax.Array  # Psi, n x r
-    z0: jax.Array  # (Omega eta0, eta0')
+    q0: jax.Array  # eta0 = Psi^T M x0
+    p0: jax.Array  # eta0' = Psi^T M v0
     not_definite: jax.Array
-    internal: jax.Array | None = None  # the internal damping (Rayleigh, modal...), r x r modal
+    rates: jax.Array | None = None  # internal damping diagonal in modal coordinates (Rayleigh)
+    internal: jax.Array | None = None  # otherwise: the internal damping, r x r modal
 
 
 def _modal_rom(problem: DamperProblem, basis) -> _ModalROM:
@@ -44,18 +54,27 @@ def _modal_rom(problem: DamperProblem, basis) -> _ModalROM:
     omega = jnp.sqrt(jnp.where(omega2 > 0, omega2, 1.0))
     mass = reduced.mass.as_matrix()
     project = lambda y: modes.T @ (mass @ (basis.T @ y))  # noqa: E731
-    z0 = jnp.concatenate([omega * project(problem.x0), project(problem.v0)])
-    internal = None if reduced.internal is None else (
-        reduced.internal.in_modes(omega2, modes).as_matrix())
-    return _ModalROM(omega, basis @ modes, z0, not_definite, internal)
+    rates = internal = None
+    if reduced.internal is not None:
+        in_modes = reduced.internal.in_modes(omega2, modes)
+        if isinstance(in_modes, Diagonal):
+            rates = in_modes.diagonal
+        else:
+            internal = in_modes.as_matrix()
+    return _ModalROM(omega, basis @ modes, project(problem.x0), project(problem.v0),
+                     not_definite, rates, internal)
 
 
 def _modal_objective(problem: DamperProblem, rom: _ModalROM, positions, coefficients):
-    damping = problem.system(positions, coefficients).damping.project(rom.modes).as_matrix()
-    if rom.internal is not None:
-        damping = damping + rom.internal
-    a = state_matrix(rom.omega, damping)
-    value, undamped = problem.objective.in_modes(problem, rom.omega, rom.z0, a)
+    damping = problem.system(positions, coefficients).damping
+    if rom.internal is None:  # dampers (and diagonal internal damping): the damped modes
+        low_rank = damping.project(rom.modes)
+        modes, ok = live_modal_modes(rom.omega, low_rank.factor, low_rank.weights, rom.rates)
+        value = problem.objective.from_modes(problem, modes, rom.q0, rom.p0)
+        return value, rom.not_definite | ~ok | ~jnp.isfinite(value)
+    a = state_matrix(rom.omega, damping.project(rom.modes).as_matrix() + rom.internal)
+    z0 = jnp.concatenate([rom.omega * rom.q0, rom.p0])
+    value, undamped = problem.objective.in_modes(problem, rom.omega, z0, a)
     return value, rom.not_definite | undamped | ~jnp.isfinite(value)
 
 
@@ -77,7 +96,7 @@ def objective_function(problem: DamperProblem, reduced):
     """(positions, coefficients) -> (value, failed); ``reduced`` from ``reduced_form``, or None
     for the full model.
 
-    Reverse-mode differentiable. A ``_ModalROM`` is exact (matrix exponentials, reverse mode);
+    Reverse-mode differentiable. A ``_ModalROM`` is exact (its damped modes, reverse mode);
     every diffrax solve is differentiated in forward mode, wrapped in a custom VJP (the design
     has only 2 x dampers parameters, so forward mode is the cheap direction). The full model's
     free-vibration "energy" is the spectral closed form (``Energy``). No check inside: the

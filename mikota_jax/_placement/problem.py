@@ -36,13 +36,17 @@ from .._objective.functions import (
     total_average_energy_with_result,
 )
 from .._solver.ode import check_dofs, check_times, initial_vector, simulate_with_result
-from .._solver.spectral.energy import spectral_energy_with_result
+from .._solver.spectral.energy import (
+    energy_from_modes,
+    spectral_energy_with_result,
+    trace_from_modes,
+)
 
 
 class Energy(eqx.Module):
     """int_0^T (x^T K x + x'^T M x') / 2 dt of the problem's excitation, T = ts[-1] - ts[0].
 
-    Exact in a reduced model's modal form for free vibration (matrix exponentials). The full
+    Exact in a reduced model's modal form for free vibration (its damped modes). The full
     model's free vibration in closed form from its damped modes where the spectral path applies
     (``integrated_energy(method="spectral")``: exact, O(k n^2); this is what certifies the
     optimum; a failure of its modes is reported, never replaced); Dopri8 (the energy as one more
@@ -71,6 +75,9 @@ class Energy(eqx.Module):
         value, ok = spectral_energy_with_result(model, horizon, problem.x0, problem.v0)
         return value, RESULTS.where(ok, RESULTS.successful, RESULTS.spectral_failed)
 
+    def from_modes(self, problem, modes, q0, p0):
+        return energy_from_modes(modes, q0, p0, problem.ts[-1] - problem.ts[0])
+
     def in_modes(self, problem, omega, z0, a):
         horizon = problem.ts[-1] - problem.ts[0]
         # a fixed first step T / 2^16 (no cond: reverse mode 25 % cheaper); a damper so strong
@@ -93,6 +100,10 @@ class AverageEnergy(eqx.Module):
 
     def evaluate(self, problem, model):
         return total_average_energy_with_result(model, lowest=self.lowest)
+
+    def from_modes(self, problem, modes, q0, p0):
+        r = modes.omega.shape[0]
+        return trace_from_modes(modes, None if self.lowest is None else min(self.lowest, r))
 
     def in_modes(self, problem, omega, z0, a):
         r = omega.shape[0]
@@ -121,6 +132,9 @@ class Peak(eqx.Module):
             displacement=True, velocity=False, max_steps=problem.max_steps, progress=False,
             adjoint=diffrax.ForwardMode())
         return smooth_peak(trajectory.displacement[:, 0], self.order), result
+
+    def from_modes(self, problem, modes, q0, p0):
+        raise NotImplementedError("the peak is never evaluated in modal form")
 
     def in_modes(self, problem, omega, z0, a):
         raise NotImplementedError("the peak is never evaluated in modal form")

@@ -104,7 +104,7 @@ def live_modes(system, block: int | None = None):
     interacting roots nearly coincide outside a cluster (``_spectral_clusters``). ``block``: as
     ``modal_damped_modes``."""
     omega, modes_u, factor, weights, gamma = modal_data(system)
-    modes, ok = _live(omega, factor, weights, gamma, block)
+    modes, ok = live_modal_modes(omega, factor, weights, gamma, block)
     return modes, modes_u, ok
 
 
@@ -116,11 +116,15 @@ def live_rows(system, vectors, block: int | None = None, dofs=None):
     if why is not None:
         raise ValueError(MARK + f"system: {why}.")
     omega, factor, weights, projected, picked = modal_rows(system, vectors, dofs)
-    modes, ok = _live(omega, factor, weights, None, block)
+    modes, ok = live_modal_modes(omega, factor, weights, None, block)
     return modes, projected, ok, picked
 
 
-def _live(omega, factor, weights, gamma, block=None):
+def live_modal_modes(omega, factor, weights, gamma, block=None):
+    """(differentiable ``DampedModes``, ok) of modal data: frequencies ``omega`` (n,), the
+    dampers' modal factor F (n, k) and weights d (k,), internal rates ``gamma`` (n,) or None;
+    ``ok`` as ``live_modes``'s. Any modal system takes it: a chain's, or a Galerkin model's in
+    its own modal coordinates."""
     frozen = modal_damped_modes(*jax.lax.stop_gradient((omega, factor, weights, gamma)),
                                 block=block)
     live = frozen if gamma is None else eqx.tree_at(lambda m: m.gamma, frozen, gamma)
