@@ -3,10 +3,11 @@
 The objective is the integrated energy on [0, 20] of the free vibration from x_3(0) = 1, one
 grounded damper. The optimiser (``ScreenAndCertify``: reduced-model screening of every DOF,
 L-BFGS on the coefficient of the best few, full-model certification with basis enrichment) is run
-twice: cold (compiling) and warm. The sweep evaluates the full model at every DOF x a log grid of
-coefficients (Dopri8 with the energy as one more state, the evaluator the certification uses,
-and the exact matrix-exponential energy where the damper makes Dopri8 stiff), after compiling
-calls, then refines the coefficient of its 3 best DOFs by golden-section search. Also timed: one
+twice: cold (compiling) and warm; its reduced model is evaluated by the damped modes of the
+Galerkin model's own modal coordinates. The sweep evaluates the full model at every DOF x a log
+grid of coefficients (``Grid``'s ``Auto()`` evaluator: here the closed form from the damped
+modes, the evaluator the certification uses), after compiling calls, then refines the
+coefficient of its 3 best DOFs by golden-section search. Also timed: one
 reduced objective and one gradient step (value and gradient), whose ratio the target bounds by 4.
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/placement.py [--quick] [--coefficients C]
