@@ -30,6 +30,7 @@ SUITE = {
     "gradients": "dJ/d(position, coefficient) through the ROM: modes and adjoints",
     "compile": "compile time of every entry point, cold and cached; time to first result",
     "placement": "damper placement: the certified optimiser against a brute-force sweep",
+    "viscosity": "optimal viscosities at full order: FastOptimalDamping.jl's example, cold",
     "reductions": "seven reductions of the Section 5 scene: error against size and cost",
     "critical_damping": "the exact path across critical damping: values, gradients, memory",
     "io_models": "input-output models: frequency response against scipy, H2 errors of reductions",
