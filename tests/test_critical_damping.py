@@ -11,7 +11,8 @@ from 0 to 1e-2 on both sides and compared with
   it loses ~8 digits to the near-defective pair, keeping ~70), and for the derivatives central
   differences of it with h = 1e-12 c in exact arithmetic (truncation ~1e-24).
 
-c* of the cases we picked (a relative damper, and two dampers of which one sweeps) were found by
+c* of the cases we picked (a relative damper, two dampers of which one sweeps, and a damper with
+Rayleigh internal damping) were found by
 mpmath's findroot on det Q(lambda, c) = d/dlambda det Q(lambda, c) = 0 at 60 digits; a wrong c*
 would only move the probe, not the truth (which is computed at the float c used).
 """
@@ -53,6 +54,10 @@ CASES = {
                                                           mj.GroundedDamper(3.0, 0.5)]),
                     "4.694514930203024326374913585441467183263", np.array([0.0, 1.0, 0.0, 0.0]),
                     np.array([0.5, 0.0, 0.0, -0.5])),
+    "rayleigh": (lambda c: mj.chain(np.ones(3), np.ones(3), [mj.GroundedDamper(3.0, c)],
+                                    internal_damping=mj.Rayleigh(0.05, 0.02)),
+                 "1.316502064663267425137348944804009733692", np.array([1.0, 0.0, 0.0]),
+                 np.array([0.0, 0.5, 0.0])),
 }
 DELTAS = [0.0, -1e-12]
 SLOW_DELTAS = [1e-16, -1e-16, 1e-14, -1e-14, 1e-12, 1e-10, -1e-10, 1e-8, -1e-8, 1e-6, -1e-6,
@@ -144,7 +149,7 @@ def check_gradients(name, delta, close):
     close(grad_trace, d_trace, rtol=1e-10, atol=1e-10 * abs(trace / c), what="dtrace/dc")
 
 
-QUICK = ["two masses"]  # the default run; every case under -m slow
+QUICK = ["two masses", "rayleigh"]  # the default run; every case under -m slow
 
 
 @pytest.mark.parametrize("name", [pytest.param(name, marks=() if name in QUICK else
@@ -171,6 +176,26 @@ def test_the_pair_at_a_critical_point_is_one_cluster(name):
     modes = damped_modes(make(probe(name, 1e-12)))
     assert bool(modes.converged) and bool(modes.clusters.ok)
     assert int(np.sum(np.asarray(modes.clusters.member))) == 2
+
+
+def test_the_trace_of_the_lowest_modes_with_internal_damping_is_exact_at_a_critical_point(close):
+    """Internal damping at a critical point (the "rayleigh" case at c*, one cluster): the trace
+    of the s lowest modes sums the energies of 2s unit modal states, whose cross terms with the
+    pair take the Woodbury form on those s rows. With s = n it is the whole trace: mpmath at 80
+    digits (about 70 right at delta = 0); with s = 1 the dense Lyapunov solution (Smith
+    doubling of Van Loan's integral: rounding of its 64 doublings, ~1e-13 here), values and
+    derivatives in c."""
+    from mikota_jax._objective.functions import total_average_energy
+
+    make, _, _, _ = CASES["rayleigh"]
+    c = probe("rayleigh", 0.0)
+    assert int(np.sum(np.asarray(damped_modes(make(c)).clusters.member))) == 2
+    _, trace, _ = truths("rayleigh", c)
+    close(mj.AverageEnergy(3)(make(c)), trace, rtol=1e-12)
+    spectral = jax.value_and_grad(lambda c: mj.AverageEnergy(1)(make(c)))(c)
+    dense = jax.value_and_grad(lambda c: total_average_energy(make(c), 1, method="dense"))(c)
+    close(spectral[0], dense[0], rtol=1e-12)
+    close(spectral[1], dense[1], rtol=1e-10)
 
 
 def test_the_optimiser_finds_the_one_mass_trace_optimum_at_critical_damping(close):

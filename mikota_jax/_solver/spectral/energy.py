@@ -37,7 +37,7 @@ from ..._model.modal import modal_projection
 from .clusters import initial_rhs, resolvent_at, solve_at
 from .modes import live_modes, live_rows, uses_rows
 from .roots import DampedModes, complex_arithmetic
-from .rows import by_rows, row_block, small_solve, sum_by_rows
+from .rows import by_rows, row_block, small_solve
 
 # --- the energy kernels: Gram matrix of the damped modes, pair sums, time integrals ----------
 
@@ -135,7 +135,8 @@ def growth(s, horizon):
 
 
 @complex_arithmetic
-def cluster_energy(modes: DampedModes, q0, p0, horizon, a, block, projections=None):
+def cluster_energy(modes: DampedModes, q0, p0, horizon, a, block, projections=None,
+                   support=None, y=None):
     """The terms of J that involve the clusters: twice cluster x simple root, plus cluster x
     cluster; (m,) for q0, p0 (n, m) and the simple roots' coefficients a (2n, m) (zero in the
     clusters). Zero without a cluster (then not computed, except under ``vmap``).
@@ -152,7 +153,12 @@ def cluster_energy(modes: DampedModes, q0, p0, horizon, a, block, projections=No
     third of its centre's distance to the imaginary axis (``find_clusters``), so Re s_p <= 2/3
     Re c < 0 and |s_p + lambda_j| >= 2/3 |Re c| for every root: no division near zero. Under
     ``vmap`` the cross terms are computed for every design of a batch, clusters or not: there
-    this is the difference between O(NODES n^2) and O(NODES n k) per design."""
+    this is the difference between O(NODES n^2) and O(NODES n k) per design. With internal
+    damping (no ``projections``; ``y`` the (2n, n) rows) the same identity holds with D_m = Gamma
+    + F W F^T, and Q(s_p) u_p = b(s_p) by Woodbury turns the one O(n)-per-entry product,
+    y_j^T Gamma u_p, into y_j^T Gamma R_p b_p - s_p (y_j^T Gamma R_p F) W F^T u_p: O(NODES n
+    (k + support m)) per root instead of O(NODES n m), where only the first ``support`` rows
+    of q0 and p0 may be nonzero (None: all; the trace's unit states of its s lowest modes: s)."""
     def terms():
         s, w = modes.clusters.nodes()
         u = solve_at(modes, s, initial_rhs(modes, s, q0, p0))  # (P, n, m)
@@ -162,7 +168,7 @@ def cluster_energy(modes: DampedModes, q0, p0, horizon, a, block, projections=No
         if projections is not None:
             both = _projected_cross(modes, s, w, u, q0, lam, a, horizon, projections)
         else:
-            both = _direct_cross(modes, s, w, u, weighted, lam, a, horizon, block)
+            both = _internal_cross(modes, s, w, u, q0, p0, lam, a, horizon, y, support)
         gram = jnp.einsum("plm,qlm->pqm", weighted, u) + (
             s[:, None, None] * s[None, :, None]) * jnp.einsum("plm,qlm->pqm", u, u)
         kernel = growth(s[:, None] + s[None, :], horizon)
@@ -190,20 +196,35 @@ def _projected_cross(modes: DampedModes, s, w, u, q0, lam, a, horizon, projectio
     return jnp.real(jnp.einsum("p,pjm,pj,jm->m", w, gram, kernel, coefficient))
 
 
-def _direct_cross(modes: DampedModes, s, w, u, weighted, lam, a, horizon, block):
-    """``cluster_energy``'s cross terms from each root's eigenvector row, O(NODES n) per root."""
-    def cross(j, weight):
-        y = modes.vector_rows(j)  # (B, n)
-        gram = jnp.einsum("plm,bl->pmb", weighted, y) + (
-            s[:, None, None] * lam[j][None, None, :]) * jnp.einsum("plm,bl->pmb", u, y)
-        kernel = growth(s[:, None] + lam[j][None, :], horizon)  # (P, B)
-        coefficient = jnp.where((modes.simple[j] & (weight > 0))[:, None], a[j], 0.0)
-        return jnp.real(jnp.einsum("p,pmb,pb,bm->m", w, gram, kernel, coefficient))
-
-    index = jnp.arange(lam.shape[0])
-    if block is None:
-        return cross(index, jnp.ones(index.shape[0]))
-    return sum_by_rows(cross, block, index)
+def _internal_cross(modes: DampedModes, s, w, u, q0, p0, lam, a, horizon, y, support):
+    """``cluster_energy``'s cross terms with internal damping, from the rows ``y`` (2n, n): the
+    eigen-equations' identity with D_m = Gamma + F W F^T, and y_j^T Gamma u_p by Woodbury
+    (``cluster_energy``), O(NODES n (k + support m)) per root."""
+    rows = q0.shape[0] if support is None else support
+    f = jnp.where(modes.active[:, None], modes.factor, 0.0)
+    gamma, weights = modes.gamma, modes.weights
+    r, _, _ = resolvent_at(modes, s)  # (P, n)
+    wf_u = jnp.einsum("la,plm->pam", f, u) * weights[None, :, None]  # W F^T u_p
+    wf_q = (f.T @ q0) * weights[:, None]  # W F^T q0 (k, m)
+    yf = y @ f  # F^T y_j (2n, k)
+    head, q_head, p_head = y[:, :rows], q0[:rows], p0[:rows]
+    # y_j^T b(s_p) = s_p y_j^T q0 + y_j^T Gamma q0 + (F^T y_j) W F^T q0 + y_j^T p0
+    y_q = head @ q_head
+    y_b = s[:, None, None] * y_q[None] + (head @ (gamma[:rows, None] * q_head) + yf @ wf_q
+                                          + head @ p_head)[None]
+    # y_j^T Gamma u_p = y_j^T Gamma R_p ((s_p + Gamma) q0 + p0) + (y_j^T Gamma R_p F) W F^T q0
+    #                   - s_p (y_j^T Gamma R_p F) W F^T u_p
+    g_rf = jnp.einsum("jl,pl,la->pja", y * gamma[None, :], r, f)  # (P, 2n, k)
+    rest = r[:, :rows, None] * gamma[None, :rows, None] * (
+        (s[:, None, None] + gamma[None, :rows, None]) * q_head[None] + p_head[None])
+    y_gu = (jnp.einsum("jl,plm->pjm", head, rest) + jnp.einsum("pja,am->pjm", g_rf, wf_q)
+            - s[:, None, None] * jnp.einsum("pja,pam->pjm", g_rf, wf_u))
+    y_du = y_gu + jnp.einsum("ja,pam->pjm", yf, wf_u)  # y_j^T D_m u_p
+    plus = s[:, None] + lam[None, :]  # (P, 2n), |plus| >= 2/3 |Re c| (``cluster_energy``)
+    plus_safe = jnp.where(plus != 0, plus, 1.0)  # an unused circle's nodes (weights 0) anywhere
+    gram = lam[None, :, None] * (y_b - 2 * s[:, None, None] * y_du) / plus_safe[:, :, None]
+    coefficient = jnp.where(modes.simple[:, None], a, 0.0)
+    return jnp.real(jnp.einsum("p,pjm,pj,jm->m", w, gram, growth(plus, horizon), coefficient))
 
 
 @complex_arithmetic
@@ -445,11 +466,14 @@ def _idle_energy(modes: DampedModes, q0, p0, horizon):
 
 
 @complex_arithmetic
-def energy_from_modes(modes: DampedModes, q0, p0, horizon, block: int | None = None):
+def energy_from_modes(modes: DampedModes, q0, p0, horizon, block: int | None = None,
+                      support: int | None = None):
     """J from the modes and the modal initial state (eta0, eta0'), O(n^2 k) (O(n^3) with
     internal damping, see ``modal_gram``); q0, p0 may carry a trailing batch axis (then one J
     per column); ``horizon`` None: T = inf. ``block``: roots at a time for dampers alone
-    (``row_block``: automatic, O(n) memory above n = 512)."""
+    (``row_block``: automatic, O(n) memory above n = 512). ``support``: only the first
+    ``support`` rows of q0 and p0 may be nonzero (None: any; with internal damping the clusters'
+    cross terms then cost O(NODES n support) per root and state, ``cluster_energy``)."""
     block = row_block(modes.omega.shape[0], block)
     if not modes.internal:
         return _dampers_energy(modes, q0, p0, horizon, block)
@@ -464,7 +488,8 @@ def energy_from_modes(modes: DampedModes, q0, p0, horizon, block: int | None = N
     batch = q0.shape[1:]
     n = q0.shape[0]
     value = value + cluster_energy(modes, q0.reshape(n, -1), p0.reshape(n, -1), horizon,
-                                   a.reshape(2 * n, -1), None).reshape(batch)
+                                   a.reshape(2 * n, -1), None, support=support,
+                                   y=y).reshape(batch)
     return value
 
 
@@ -501,7 +526,8 @@ def _unit_states(omega, lowest):
 def trace_from_modes(modes: DampedModes, lowest):
     """trace X, A^T X + X A = -Z, Z = I (``lowest`` None) or the s = ``lowest`` lowest modes."""
     if lowest is not None:
-        value = 2 * jnp.sum(energy_from_modes(modes, *_unit_states(modes.omega, lowest), None))
+        value = 2 * jnp.sum(energy_from_modes(modes, *_unit_states(modes.omega, lowest), None,
+                                              support=lowest))
         return jnp.where(jnp.any(modes.undamped[:lowest]), jnp.inf, value)
     y = modes.vectors().T
     s, pair = pair_sums(modes)
