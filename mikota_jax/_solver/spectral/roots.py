@@ -40,7 +40,7 @@ import jax.numpy as jnp
 
 from ..._custom_types import Array, Float
 from .clusters import Clusters, cluster_roots, find_clusters, no_clusters
-from .rows import by_rows, repulsion, row_block, small_solve
+from .rows import by_rows, by_rows_where, repulsion, row_block, small_solve
 from .starts import arc_starts, far_starts
 
 
@@ -258,12 +258,17 @@ def _partner(anchor, n):
     return (anchor + n) % (2 * n)
 
 
-def _secular(poles, gamma, factor, weights, active, anchor, offset, block=None):
+def _secular(poles, gamma, factor, weights, active, anchor, offset, block=None, moving=None):
     """Per root: (phi, phi', sum of the other poles' log-derivative + tr H^-1 H', c = H^-1 f_J,
     the size of phi's terms, dc/dlambda = -H^-1 H' c); ``block`` roots at a time
-    (``by_rows``)."""
-    return by_rows(lambda a, o: _secular_rows(poles, gamma, factor, weights, active, a, o),
-                   block, anchor, offset)
+    (``by_rows``); with ``moving`` (2n,) only for those roots, zeros for the others
+    (``by_rows_where``)."""
+    def rows(a, o):
+        return _secular_rows(poles, gamma, factor, weights, active, a, o)
+
+    if moving is None:
+        return by_rows(rows, block, anchor, offset)
+    return by_rows_where(rows, block, moving, anchor, offset)
 
 
 def _secular_rows(poles, gamma, factor, weights, active, anchor, offset):
@@ -551,30 +556,36 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
     offset = far_starts(poles, omega, factor, weights, active, offset)
 
     def sweep(carry):
-        anchor, offset, it, _ = carry
+        anchor, offset, it, _, moving = carry
         phi, phi_prime, others, _, _, _ = _secular(poles, gamma, factor, weights, active, anchor,
-                                                offset, block)
-        repel = repulsion(poles, anchor, offset, root_active, block)
+                                                offset, block, moving)
+        repel = repulsion(poles, anchor, offset, root_active, block, moving)
         denominator = phi * (others - repel) + phi_prime
-        step = jnp.where(root_active & (denominator != 0),
+        step = jnp.where(moving & (denominator != 0),
                          phi / jnp.where(denominator != 0, denominator, 1.0), 0.0)
         # a root parked at its place but anchored to a mode the dampers barely reach (a node)
         # leaves H_J singular there, its step 0 / 0: it stays, the others go on (a NaN would
         # reach every root through the repulsion); ``_finish`` re-anchors it afterwards
-        step = jnp.where(jnp.isfinite(step), step, 0.0)
+        finite = jnp.isfinite(step)
+        step = jnp.where(finite, step, 0.0)
         offset = offset - step
         lam = poles[anchor] + offset
-        size = jnp.max(jnp.where(root_active, jnp.abs(step) / jnp.abs(lam), 0.0))
+        relative = jnp.abs(step) / jnp.abs(lam)
+        size = jnp.max(jnp.where(root_active, relative, 0.0))
         anchor, offset = _reanchor(poles, active, anchor, offset, block, axis)
         offset = jnp.where(root_active, offset, 0.0)
-        return anchor, offset, it + 1, size
+        # a root whose step fell to the stopping size sits at its fixed point to rounding: the
+        # next sweeps skip it (its value still repels the others), so that they cost what the
+        # roots still moving cost (blocks of them, ``by_rows_where``)
+        moving = moving & ~(finite & (relative <= _ABERTH_TOL))
+        return anchor, offset, it + 1, size, moving
 
     def not_done(carry):
-        *_, it, size = carry
+        _, _, it, size, _ = carry
         return (it < _MAX_ITERATIONS) & ((size > _ABERTH_TOL) | ~jnp.isfinite(size))
 
-    init = (anchor, offset, jnp.array(0), jnp.array(jnp.inf))
-    anchor, offset, iterations, _ = jax.lax.while_loop(not_done, sweep, init)
+    init = (anchor, offset, jnp.array(0), jnp.array(jnp.inf), root_active)
+    anchor, offset, iterations, _, _ = jax.lax.while_loop(not_done, sweep, init)
     anchor = jnp.where(root_active, anchor, jnp.arange(2 * n))
     trace = jnp.sum(jnp.where(active, coupling**2 + gamma, 0.0))
     anchor, offset, lam, c, root_ok = _finish(poles, gamma, factor, weights, active, anchor,

@@ -46,6 +46,41 @@ def by_rows(fn, block, *rows):
     return jax.tree.map(lambda o: o.reshape((count * block,) + o.shape[2:])[:m], out)
 
 
+def by_rows_where(fn, block, mask, *rows):
+    """``by_rows`` for the rows where ``mask`` (roots,) holds; zeros in the others. The masked
+    rows are gathered first (a stable sort), and a block without one is skipped by a
+    ``lax.cond``, so the cost follows the masked count (outside ``vmap``; under it the
+    condition is per design and every block is computed, as before)."""
+    if block is None:
+        return _zero_where(fn(*rows), mask)
+    m = mask.shape[0]
+    count = -(-m // block)
+    order = jnp.argsort(~mask, stable=True)  # the masked rows first, in their order
+    gathered = tuple(a[order] for a in rows)
+
+    def split(a):
+        pad = jnp.repeat(a[-1:], count * block - m, axis=0)
+        return jnp.concatenate([a, pad]).reshape((count, block) + a.shape[1:])
+
+    shape = jax.eval_shape(fn, *(a[:block] for a in gathered))
+
+    def one(args):
+        live, part = args
+        return jax.lax.cond(jnp.any(live), lambda: fn(*part),
+                            lambda: jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shape))
+
+    out = jax.lax.map(jax.checkpoint(one), (split(mask[order]), tuple(split(a) for a in gathered)))
+    inverse = jnp.argsort(order)
+    out = jax.tree.map(lambda o: o.reshape((count * block,) + o.shape[2:])[:m][inverse], out)
+    return _zero_where(out, mask)
+
+
+def _zero_where(out, mask):
+    """``out``'s rows with zeros where ``mask`` does not hold."""
+    return jax.tree.map(lambda o: jnp.where(mask.reshape(mask.shape + (1,) * (o.ndim - 1)), o,
+                                            jnp.zeros((), o.dtype)), out)
+
+
 def sum_by_rows(fn, block, *rows):
     """sum over the roots of ``fn(*rows, weight)``, ``block`` roots at a time in a ``lax.scan``
     (one accumulator, not one output per block); ``weight`` (block,) is 1 for a root and 0 for
@@ -76,8 +111,9 @@ def roots_difference(poles, anchor, offset, rows_anchor, rows_offset):
                                                                       - offset[None, :])
 
 
-def repulsion(poles, anchor, offset, root_active, block):
-    """sum_(k != j, both damped) 1 / (lambda_j - lambda_k) per root j: Aberth's correction."""
+def repulsion(poles, anchor, offset, root_active, block, moving):
+    """sum_(k != j, both damped) 1 / (lambda_j - lambda_k) per root j: Aberth's correction,
+    for the ``moving`` roots (zero for the others; ``by_rows_where``)."""
     index = jnp.arange(anchor.shape[0])
 
     def rows(a, o, act, j):
@@ -85,7 +121,7 @@ def repulsion(poles, anchor, offset, root_active, block):
         mask = act[:, None] & root_active[None, :] & (j[:, None] != index[None, :])
         return jnp.sum(jnp.where(mask, 1 / jnp.where(mask, diff, 1.0), 0.0), axis=1)
 
-    return by_rows(rows, block, anchor, offset, root_active, index)
+    return by_rows_where(rows, block, moving, anchor, offset, root_active, index)
 
 
 def small_solve(a, b):
