@@ -188,12 +188,18 @@ def _projected_cross(modes: DampedModes, s, w, u, q0, lam, a, horizon, projectio
     y_dq = yf @ wf_q  # y_j^T D_m q0 (2n, m)
     y_du = jnp.einsum("ja,pam->pjm", yf, wf_u)  # y_j^T D_m u_p (P, 2n, m)
     y_b = s[:, None, None] * yq[None] + (y_dq + yp)[None]  # y_j^T b(s_p)
-    plus = s[:, None] + lam[None, :]  # (P, 2n)
+    return _cross_terms(modes, s, w, lam, a, horizon, y_b, y_du)
+
+
+def _cross_terms(modes: DampedModes, s, w, lam, a, horizon, y_b, y_du):
+    """The cross terms from y_j^T b(s_p) and y_j^T D_m u_p, each (P, 2n, m), by the identity
+    y_j^T (Omega^2 + s lambda_j) u = lambda_j (y_j^T b(s) - 2 s y_j^T D_m u) / (s + lambda_j)
+    (``cluster_energy``)."""
+    plus = s[:, None] + lam[None, :]  # (P, 2n), |plus| >= 2/3 |Re c| (``cluster_energy``)
     plus_safe = jnp.where(plus != 0, plus, 1.0)  # an unused circle's nodes (weights 0) anywhere
     gram = lam[None, :, None] * (y_b - 2 * s[:, None, None] * y_du) / plus_safe[:, :, None]
     coefficient = jnp.where(modes.simple[:, None], a, 0.0)
-    kernel = growth(plus, horizon)
-    return jnp.real(jnp.einsum("p,pjm,pj,jm->m", w, gram, kernel, coefficient))
+    return jnp.real(jnp.einsum("p,pjm,pj,jm->m", w, gram, growth(plus, horizon), coefficient))
 
 
 def _internal_cross(modes: DampedModes, s, w, u, q0, p0, lam, a, horizon, y, support):
@@ -220,11 +226,7 @@ def _internal_cross(modes: DampedModes, s, w, u, q0, p0, lam, a, horizon, y, sup
     y_gu = (jnp.einsum("jl,plm->pjm", head, rest) + jnp.einsum("pja,am->pjm", g_rf, wf_q)
             - s[:, None, None] * jnp.einsum("pja,pam->pjm", g_rf, wf_u))
     y_du = y_gu + jnp.einsum("ja,pam->pjm", yf, wf_u)  # y_j^T D_m u_p
-    plus = s[:, None] + lam[None, :]  # (P, 2n), |plus| >= 2/3 |Re c| (``cluster_energy``)
-    plus_safe = jnp.where(plus != 0, plus, 1.0)  # an unused circle's nodes (weights 0) anywhere
-    gram = lam[None, :, None] * (y_b - 2 * s[:, None, None] * y_du) / plus_safe[:, :, None]
-    coefficient = jnp.where(modes.simple[:, None], a, 0.0)
-    return jnp.real(jnp.einsum("p,pjm,pj,jm->m", w, gram, growth(plus, horizon), coefficient))
+    return _cross_terms(modes, s, w, lam, a, horizon, y_b, y_du)
 
 
 @complex_arithmetic

@@ -53,26 +53,16 @@ def by_rows_where(fn, block, mask, *rows):
     condition is per design and every block is computed, as before)."""
     if block is None:
         return _zero_where(fn(*rows), mask)
-    m = mask.shape[0]
-    count = -(-m // block)
     order = jnp.argsort(~mask, stable=True)  # the masked rows first, in their order
-    gathered = tuple(a[order] for a in rows)
 
-    def split(a):
-        pad = jnp.repeat(a[-1:], count * block - m, axis=0)
-        return jnp.concatenate([a, pad]).reshape((count, block) + a.shape[1:])
-
-    shape = jax.eval_shape(fn, *(a[:block] for a in gathered))
-
-    def one(args):
-        live, part = args
+    def one(live, *part):
+        shape = jax.eval_shape(fn, *part)
         return jax.lax.cond(jnp.any(live), lambda: fn(*part),
                             lambda: jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shape))
 
-    out = jax.lax.map(jax.checkpoint(one), (split(mask[order]), tuple(split(a) for a in gathered)))
+    out = by_rows(one, block, mask[order], *(a[order] for a in rows))
     inverse = jnp.argsort(order)
-    out = jax.tree.map(lambda o: o.reshape((count * block,) + o.shape[2:])[:m][inverse], out)
-    return _zero_where(out, mask)
+    return _zero_where(jax.tree.map(lambda o: o[inverse], out), mask)
 
 
 def _zero_where(out, mask):
