@@ -110,6 +110,39 @@ def test_two_grounded_and_one_relative_damper_match_the_refined_dense_eigenvalue
     assert_same_roots(np.asarray(modes.eigenvalues), physical_roots(system), 1e-10)
 
 
+@pytest.mark.parametrize("internal", [None, mj.Rayleigh(0.05, 0.002)])
+def test_the_eigenvectors_products_without_their_rows_equal_the_dense_null_vectors(internal):
+    """``row_products`` (the resolvent's rows against the columns, no eigenvector formed) against
+    y from the SVD null vector of the dense modal pencil Q(lambda) = lambda^2 + lambda (Gamma +
+    U^T D U) + Omega^2 at our roots (themselves within 1e-10 of the refined dense ones above),
+    scaled to y_J = -1 / lambda: y^T X and N = y^T Q'(lambda) y. The truth's own error is the
+    null vector's, ~eps times the root's conditioning (1e-13 here)."""
+    from mikota_jax._solver.spectral.modes import modal_data
+
+    system = mj.mikota_chain(30, dampers=[
+        mj.GroundedDamper(5.0, 2.0), mj.GroundedDamper(12.6, 0.5), mj.RelativeDamper((3, 20), 1.3)],
+        internal_damping=internal)
+    omega, u, _, _, gamma = (np.asarray(a) if a is not None else None
+                             for a in modal_data(system))
+    modes = damped_modes(system)
+    n = omega.shape[0]
+    gamma = np.zeros(n) if gamma is None else gamma
+    damping = u.T @ np.asarray(system.dense()[1]) @ u  # Gamma + U^T D U, dense
+    columns = np.random.default_rng(1).normal(size=(n, 3))
+    roots = np.arange(2 * n)
+    products, norm = (np.asarray(a) for a in modes.row_products(jnp.asarray(roots),
+                                                               jnp.asarray(columns)))
+    lam, anchor = np.asarray(modes.eigenvalues), np.asarray(modes.modes)
+    for j in roots:
+        pencil = lam[j] ** 2 * np.eye(n) + lam[j] * damping + np.diag(omega**2)
+        y = np.linalg.svd(pencil)[2][-1].conj()
+        y = y * (-1 / lam[j]) / y[anchor[j]]
+        dense_norm = y @ (2 * lam[j] * np.eye(n) + damping) @ y
+        np.testing.assert_allclose(products[j], y @ columns, rtol=1e-9,
+                                   atol=1e-9 * np.abs(y @ columns).max())
+        np.testing.assert_allclose(norm[j], dense_norm, rtol=1e-9)
+
+
 @pytest.mark.slow  # XLA's compiler segfaulted once here late in a full default run (not alone)
 def test_the_exceptional_point_under_jit_keeps_the_analytic_energy(close):
     # m = k = 1, d = 2: x = (1 + t) e^-t, J = 3/4 - e^(-2T) (T^2 + 2T + 3/2) / 2 exactly (its

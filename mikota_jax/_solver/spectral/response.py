@@ -278,25 +278,39 @@ def rows_response(system, ts, x0, v0, load, *, dofs, displacement, velocity, blo
     first, second, real, consistent = _conjugate_slots(jax.lax.stop_gradient(lam), size,
                                                        modes.clusters.mate)
     stiff = modes.omega**2 * q0
+    # the columns each root's eigenvector meets: y^T p0, y^T Omega^2 q0 (y^T g) and, for few
+    # outputs, U[dofs] y, from the resolvent rows without forming y (``row_products``)
+    columns = jnp.stack([p0, stiff] + ([] if g is None else [g]), axis=1)
+    if direct:
+        columns = jnp.concatenate([columns, out_rows.T], axis=1)
 
     def coefficients(roots):
-        y = modes.vector_rows(roots)
-        norm = modes.safe_normalisers(roots, modes.normaliser_rows(roots, y))
+        """(the roots' rows, (roots, n) y or (roots, d) (U[dofs] y)^T; a; b)."""
+        if direct:
+            products, norm = modes.row_products(roots, columns)
+            y = products[:, columns.shape[1] - out_rows.shape[0]:]
+        else:
+            y = modes.vector_rows(roots)
+            norm = modes.normaliser_rows(roots, y)
+            products = y @ columns
+        norm = modes.safe_normalisers(roots, norm)
         member = modes.clusters.member[roots]
-        a = jnp.where(member, 0.0, (y @ p0 - (y @ stiff) / lam[roots]) / norm)
-        return y, a, None if g is None else jnp.where(member, 0.0, (y @ g) / norm)
+        a = jnp.where(member, 0.0, (products[:, 0] - products[:, 1] / lam[roots]) / norm)
+        return y, a, None if g is None else jnp.where(member, 0.0, products[:, 2] / norm)
 
     def slots(one, two, is_real, weight):
         y1, a1, b1 = coefficients(one)
-        y2, a2, b2 = coefficients(two)
+        # the second root of a slot counts for real roots only (packed at the end): a block of
+        # conjugate pairs skips it
+        y2, a2, b2 = jax.lax.cond(
+            jnp.any(is_real), coefficients,
+            lambda two: jax.tree.map(jnp.zeros_like, (y1, a1, b1)), two)
         cx, cv = _modal_tables(lam[one], a1, b1, ts, load, displacement, velocity)
         rx, rv = _modal_tables(jnp.real(lam[two]), jnp.real(a2),
                                None if b2 is None else jnp.real(b2), ts, load, displacement,
                                velocity)
         w = jnp.where(is_real[:, None], jax.lax.complex(jnp.real(y1), -jnp.real(y2)), y1)
-        w = (weight[:, None] * w).T  # (n, block); padded slots add nothing
-        if direct:
-            w = jax.lax.complex(out_rows @ jnp.real(w), out_rows @ jnp.imag(w))  # (d, block)
+        w = (weight[:, None] * w).T  # (n or d, block); padded slots add nothing
 
         def history(c, r):
             packed = jnp.where(is_real[None, :], jax.lax.complex(jnp.real(c), r), 2 * c)

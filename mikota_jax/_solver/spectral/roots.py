@@ -39,7 +39,7 @@ import jax
 import jax.numpy as jnp
 
 from ..._custom_types import Array, Float
-from .clusters import Clusters, cluster_roots, find_clusters, no_clusters
+from .clusters import Clusters, cluster_roots, find_clusters
 from .rows import by_rows, by_rows_where, repulsion, row_block, small_solve
 from .starts import arc_starts, far_starts
 
@@ -163,6 +163,47 @@ class DampedModes(eqx.Module):
         return (jnp.sum((2 * lam[:, None] + self.gamma[None, :]) * y * y, axis=1)
                 + jnp.sum(yfw * self.weights[None, :] * yfw, axis=1))
 
+    @complex_arithmetic
+    def row_products(self, roots, columns) -> tuple[Array, Array]:
+        """(y_j^T X (roots, p), N_j (roots,)) of the roots ``roots`` for real columns X (n, p),
+        without forming the rows ``vector_rows``.
+
+        Off its own entry (-1 / lambda_j) a damped root's y_j is R_j F diag(d) c_j, so y_j^T X
+        = (d c_j)^T (R_j (F (x) X)) - X_J / lambda_j and N_j = (d c_j)^T ((2 lambda_j + gamma)
+        R_j^2 (F (x) F)) (d c_j) + (2 lambda_j + gamma_J) / lambda_j^2 + (y_j^T F) diag(d)
+        (F^T y_j): the resolvent's (roots, n) rows meet the columns in two real matrix products,
+        O(n k (k + p)) per root, instead of forming y and reading it once per column (a
+        memory-bound pass each at n = 10^4)."""
+        n, k = self.factor.shape
+        anchor, offset = self.anchor[roots], self.offset[roots]
+        mode = anchor % n
+        lam = self.poles[anchor] + offset
+        r, _ = _resolvent(self.poles, anchor, offset, self.active)
+        stacked = jnp.concatenate([self.factor, columns], axis=1)  # (n, k + p)
+        width = stacked.shape[1]
+        spread = (self.factor[:, :, None] * stacked[:, None, :]).reshape(n, k * width)
+        wc = self.null[roots] * self.weights[None, :]
+
+        def times(z, b):  # complex (roots, n) @ real (n, q), as two real products
+            return jax.lax.complex(jnp.real(z) @ b, jnp.imag(z) @ b)
+
+        products = times(r, spread).reshape(-1, k, width)
+        yx = jnp.einsum("ja,jab->jb", wc, products) - stacked[mode] / lam[:, None]
+        rate = 2 * lam[:, None] + self.gamma[None, :]
+        quad = times(rate * r * r,
+                     (self.factor[:, :, None] * self.factor[:, None, :]).reshape(n, k * k))
+        yf = yx[:, :k]
+        norm = (jnp.einsum("ja,jab,jb->j", wc, quad.reshape(-1, k, k), wc)
+                + (2 * lam + self.gamma[mode]) / lam**2
+                + jnp.sum(yf * self.weights[None, :] * yf, axis=1))
+        # a root of a mode no damper touches: y_j the unit vector of its mode
+        own = stacked[mode]
+        own_norm = 2 * lam + self.gamma[mode] + jnp.sum(own[:, :k] ** 2 * self.weights[None, :],
+                                                            axis=1)
+        active = self.root_active[roots]
+        return (jnp.where(active[:, None], yx, own)[:, k:],
+                jnp.where(active, norm, own_norm))
+
     def vectors(self) -> Array:
         """Modal eigenvectors y: (n, 2n) complex, (lambda^2 + lambda D_m + Omega^2) y = 0.
 
@@ -258,20 +299,22 @@ def _partner(anchor, n):
     return (anchor + n) % (2 * n)
 
 
-def _secular(poles, gamma, factor, weights, active, anchor, offset, block=None, moving=None):
+def _secular(poles, gamma, factor, weights, active, anchor, offset, block=None, moving=None,
+             spread=False):
     """Per root: (phi, phi', sum of the other poles' log-derivative + tr H^-1 H', c = H^-1 f_J,
     the size of phi's terms, dc/dlambda = -H^-1 H' c); ``block`` roots at a time
     (``by_rows``); with ``moving`` (2n,) only for those roots, zeros for the others
-    (``by_rows_where``)."""
+    (``by_rows_where``). ``spread``: also sum_(l != J) |r_l|^2 f_l f_l^T (roots, k, k), whence
+    the eigenvector's size |y|^2 (``_vector_size``)."""
     def rows(a, o):
-        return _secular_rows(poles, gamma, factor, weights, active, a, o)
+        return _secular_rows(poles, gamma, factor, weights, active, a, o, spread)
 
     if moving is None:
         return by_rows(rows, block, anchor, offset)
     return by_rows_where(rows, block, moving, anchor, offset)
 
 
-def _secular_rows(poles, gamma, factor, weights, active, anchor, offset):
+def _secular_rows(poles, gamma, factor, weights, active, anchor, offset, spread=False):
     """``_secular`` for the roots ``anchor``, ``offset`` (any number of them)."""
     k = factor.shape[1]
     n = gamma.shape[0]
@@ -298,7 +341,19 @@ def _secular_rows(poles, gamma, factor, weights, active, anchor, offset):
     phi_prime = 2 * lam + gamma[mode] + quad + lam * quad_prime
     scale = jnp.abs(pole) + jnp.abs(lam * quad)
     others = jnp.sum(jnp.where(mask, rate * r, 0.0), axis=1) + trace
-    return phi, phi_prime, others, c, scale, -jnp.einsum("jab,jb->ja", h_inv_h_prime, c)
+    out = (phi, phi_prime, others, c, scale, -jnp.einsum("jab,jb->ja", h_inv_h_prime, c))
+    if spread:
+        plain = (factor[:, :, None] * factor[:, None, :]).reshape(n, k * k)
+        out += (((jnp.real(r) ** 2 + jnp.imag(r) ** 2) @ plain).reshape(-1, k, k),)
+    return out
+
+
+def _vector_size(lam, c, weights, spread):
+    """|y|^2 of the eigenvectors y = R F diag(d) c with y_J = -1 / lambda (``DampedModes``) from
+    ``_secular``'s ``spread`` S: 1 / |lambda|^2 + (d c)^H S (d c), O(k^2) per root."""
+    wc = c * weights[None, :]
+    quad = jnp.einsum("ja,jab,jb->j", jnp.conj(wc), spread, wc)
+    return 1 / (jnp.real(lam) ** 2 + jnp.imag(lam) ** 2) + jnp.real(quad)
 
 
 def _axis_order(poles, candidates):
@@ -390,8 +445,9 @@ def _finish(poles, gamma, factor, weights, active, anchor, offset, trace, block=
             axis=None):
     """After the sweeps: each root's anchor, a Newton polish, and a restart of a missing root, in
     one loop of secular passes (one copy of ``_secular`` to compile, not three). Returns
-    (anchor, offset, lambda, c, per-root residual ok); ``trace``: tr D_m + sum gamma over the
-    damped modes, which the damped roots sum to minus.
+    (anchor, offset, lambda, c, per-root residual ok, phi_J', |y|^2), the last three from the
+    last pass, at the returned roots; ``trace``: tr D_m + sum gamma over the damped modes, which
+    the damped roots sum to minus.
 
     1. **Anchors.** Each root is re-anchored (same lambda) at the one of its nearest poles where
        phi_J vanishes. phi_J is zero at a root only if H_J = H - lambda r_J f_J f_J^T W stays
@@ -401,13 +457,14 @@ def _finish(poles, gamma, factor, weights, active, anchor, offset, trace, block=
        on it jumps to another root. So the ``_ANCHOR_CANDIDATES`` nearest poles of damped modes
        are tried in order, each root keeping the first smallest relative residual |phi_J| /
        (its terms) (the argmin's pick), until every damped root's is at rounding level
-       (usually after the nearest pole: one pass, not four).
+       (usually after the nearest pole: one pass, not four). A pass that settles every anchor
+       at the nearest pole evaluated each root at its final anchor, and is the polish's first.
     2. **Polish.** Newton steps on phi_J, until every step is below ``_POLISHED`` |lambda|
        (the roots sit at their fixed point to rounding: this pass's values are the last, the
        step is not taken) or ``_POLISH_STEPS`` were taken (the last pass only evaluates). After
        the sweeps the first step is usually at rounding level already (below 5e-15 |lambda|
-       on seven chains checked, the multi-damper notebook's triple chain among them): one
-       pass, not four.
+       on seven chains checked, the multi-damper notebook's triple chain among them): the
+       anchors' pass and the polish are then one pass, not five.
     3. **Restart.** Where exactly one root fails its residual and the roots' sum misses the
        trace, that root is restarted from the trace (minus the sum of the others) and gets up to
        ``_RESTART_STEPS`` Newton steps. On the triple chain (d_3 = 229 at DOF 101) Aberth
@@ -463,10 +520,12 @@ def _finish(poles, gamma, factor, weights, active, anchor, offset, trace, block=
             carry[:10])
         candidate = nearest[jnp.minimum(t, count - 1)]
         trial_offset = offset + (poles[anchor] - poles[candidate])
-        at_anchor = jnp.where(trying, candidate, anchor)
-        at_offset = jnp.where(trying, trial_offset, offset)
-        phi, phi_prime, _, c, scale, _ = _secular(poles, gamma, factor, weights, active,
-                                                  at_anchor, at_offset, block)
+        trial = trying & root_active  # a root of a mode no damper touches keeps its own pole
+        at_anchor = jnp.where(trial, candidate, anchor)
+        at_offset = jnp.where(trial, trial_offset, offset)
+        phi, phi_prime, _, c, scale, _, spread = _secular(poles, gamma, factor, weights, active,
+                                                          at_anchor, at_offset, block,
+                                                          spread=True)
         # 1. anchors: keep the first smallest residual (NaN as argmin treats it)
         value = jnp.where(scale > 0, jnp.abs(phi) / scale, jnp.inf)
         better = trying & jnp.where(jnp.isnan(best), False, jnp.isnan(value) | (value < best))
@@ -475,32 +534,37 @@ def _finish(poles, gamma, factor, weights, active, anchor, offset, trace, block=
         best_offset = jnp.where(better, trial_offset, best_offset)
         tried = trying & ((t + 1 >= count)
                           | ~jnp.any(root_active & ~(best <= _ANCHOR_SETTLED)))
+        anchor = jnp.where(tried & root_active, best_anchor, anchor)
+        offset = jnp.where(tried & root_active, best_offset, offset)
+        moving = jnp.where(tried, root_active, moving)
+        # anchors settled at the first candidate: every root was evaluated at its final anchor,
+        # and this pass is also the polish's first (usually its only one: one pass, not two)
+        first = tried & (t == 0)
+        polish = ~trying | first
         # 2. Newton on the moving roots, until every step is at rounding level (then this
         # pass's evaluation is the last) or after ``steps`` steps (the next pass only evaluates)
         newton = jnp.where(moving & (phi_prime != 0),
                            phi / jnp.where(phi_prime != 0, phi_prime, 1.0), 0.0)
         lam = poles[anchor] + offset
         quiet = jnp.all(jnp.abs(newton) <= _POLISHED * jnp.abs(lam))
-        finished = ~trying & ((t >= steps) | quiet)
-        offset = offset - jnp.where(~trying & ~finished, newton, 0.0)
+        finished = polish & ((t >= steps) | quiet)
+        offset = offset - jnp.where(polish & ~finished, newton, 0.0)
         # 3. after the last pass: a restart, once, where one root is missing
         lam, root_ok, trace_ok = assess(anchor, offset, phi, phi_prime, scale)
         again = finished & ~restarted & (jnp.sum(~root_ok) == 1) & ~trace_ok
         own, restart_offset = restart_point(lam, root_ok)
         bad = again & ~root_ok
-        anchor = jnp.where(tried, jnp.where(root_active, best_anchor, anchor),
-                           jnp.where(bad, own, anchor))
-        offset = jnp.where(tried, jnp.where(root_active, best_offset, offset),
-                           jnp.where(bad, restart_offset, offset))
-        moving = jnp.where(tried, root_active, jnp.where(again, ~root_ok, moving))
+        anchor = jnp.where(bad, own, anchor)
+        offset = jnp.where(bad, restart_offset, offset)
+        moving = jnp.where(again, ~root_ok, moving)
         steps = jnp.where(again, _RESTART_STEPS, steps)
-        t = jnp.where(tried | again, 0, t + 1)
+        t = jnp.where(again | (tried & ~first), 0, t + 1)
         return (trying & ~tried, t, anchor, offset, best, best_anchor, best_offset, moving,
-                steps, restarted | again, finished & ~again, phi, phi_prime, c, scale)
+                steps, restarted | again, finished & ~again, phi, phi_prime, c, scale, spread)
 
     shapes = jax.eval_shape(lambda o: _secular(poles, gamma, factor, weights, active, anchor, o,
-                                               block), offset)
-    empty = tuple(jnp.zeros(shapes[i].shape, shapes[i].dtype) for i in (0, 1, 3, 4))
+                                               block, spread=True), offset)
+    empty = tuple(jnp.zeros(shapes[i].shape, shapes[i].dtype) for i in (0, 1, 3, 4, 6))
     # the nearest pole's offset from the start, so that anchor and offset always match (a
     # root whose every residual is inf keeps the first candidate, as the argmin did)
     init = (jnp.array(True), jnp.array(0), anchor, offset, jnp.full(2 * n, jnp.inf), nearest[0],
@@ -508,9 +572,9 @@ def _finish(poles, gamma, factor, weights, active, anchor, offset, trace, block=
             jnp.array(_POLISH_STEPS), jnp.array(False), jnp.array(False)) + empty
     final = jax.lax.while_loop(lambda carry: ~carry[10], body, init)
     anchor, offset = final[2], final[3]
-    phi, phi_prime, c, scale = final[11:]
+    phi, phi_prime, c, scale, spread = final[11:]
     lam, root_ok, _ = assess(anchor, offset, phi, phi_prime, scale)
-    return anchor, offset, lam, c, root_ok
+    return anchor, offset, lam, c, root_ok, phi_prime, _vector_size(lam, c, weights, spread)
 
 
 @eqx.filter_jit
@@ -593,22 +657,19 @@ def modal_damped_modes(omega: Float[Array, " n"], factor: Float[Array, "n k"],
     anchor, offset, iterations, _, _ = jax.lax.while_loop(not_done, sweep, init)
     anchor = jnp.where(root_active, anchor, jnp.arange(2 * n))
     trace = jnp.sum(jnp.where(active, coupling**2 + gamma, 0.0))
-    anchor, offset, lam, c, root_ok = _finish(poles, gamma, factor, weights, active, anchor,
-                                              offset, trace, block, axis)
+    anchor, offset, lam, c, root_ok, phi_prime, size = _finish(
+        poles, gamma, factor, weights, active, anchor, offset, trace, block, axis)
     # a pair summed by contour: its two roots need not pass one by one (at a double root they
     # are only sqrt(eps)-accurate and Newton's residual stays at rounding), but the circle must
     # hold exactly two, and their sum (by contour) stands for them in the trace check
-    provisional = DampedModes(omega, gamma, factor, weights, active, anchor, offset, c,
-                              jnp.array(True), jnp.array(jnp.inf), iterations,
-                              no_clusters(2 * n), internal)
-
-    def conditioning(roots):  # 2 |lambda| |y|^2 / |N|: ~1 / separation near a double root
-        y = provisional.vector_rows(roots)
-        norm = jnp.abs(provisional.normaliser_rows(roots, y))
-        size = 2 * jnp.abs(lam[roots]) * jnp.sum(jnp.abs(y) ** 2, axis=1)
-        return jnp.where(norm > 0, size / jnp.where(norm > 0, norm, 1.0), jnp.inf)
-
-    condition = by_rows(conditioning, block, jnp.arange(2 * n))
+    # each root's conditioning 2 |lambda| |y|^2 / |N| (~1 / separation near a double root),
+    # from the last secular pass: N_j = y^T (2 lambda_j + D_m) y = phi_J'(lambda_j) / lambda_j^2
+    # (phi_J is the Schur complement of lambda^2 + lambda D_m + Omega^2 onto the anchor's
+    # entry, whose derivative at a root is y^T Q'(lambda) y for y_J = 1; here y_J = -1 /
+    # lambda), so no pass forms the eigenvector rows
+    norm = jnp.abs(phi_prime)
+    growth = 2 * jnp.abs(lam) ** 3 * size
+    condition = jnp.where(norm > 0, growth / jnp.where(norm > 0, norm, 1.0), jnp.inf)
     clusters, separation = find_clusters(poles, anchor, offset, active, condition, block)
     count, inside = cluster_roots(poles, factor, weights, active, clusters)
     paired = jnp.all(~clusters.valid | (jnp.abs(count - 2) < 1e-6))
@@ -629,19 +690,41 @@ def differentiable_roots(modes: DampedModes, block: int | None = None) -> Damped
     differentiation: dlambda = -dphi / phi'); the iteration itself carries no derivative.
     ``block``: as ``modal_damped_modes``.
 
-    One evaluation of the secular terms gives both derivatives: c = H^-1 f_J moves with the
-    system at fixed lambda (c's own tangent) and with lambda, by dc/dlambda = -H^-1 H' c taken
-    beside it, so dc = (dc at fixed lambda) + dc/dlambda dlambda, exact to first order."""
+    The values are the frozen roots' own; the derivative is a ``custom_jvp`` rule
+    (``_implicit``), so a call without derivatives costs nothing here. One evaluation of the
+    secular terms gives both derivatives: c = H^-1 f_J moves with the system at fixed lambda
+    (c's own tangent) and with lambda, by dc/dlambda = -H^-1 H' c taken beside it, so dc = (dc
+    at fixed lambda) + dc/dlambda dlambda, exact to first order."""
     block = row_block(modes.omega.shape[0], block)
     frozen = jax.lax.stop_gradient(modes)
-    poles = _poles(modes.omega, modes.gamma)
-    phi, phi_prime, _, c, _, c_prime = _secular(poles, modes.gamma, modes.factor, modes.weights,
-                                                frozen.active, frozen.anchor, frozen.offset,
-                                                block)
-    active = frozen.simple  # a root in a cluster carries no derivative of its own (1 / 0 there)
-    step = jnp.where(active, phi / jnp.where(active, phi_prime, 1.0), 0.0)
-    moved = -(step - jax.lax.stop_gradient(step))  # zero, with the tangent dlambda
-    offset = frozen.offset + moved
-    c = c + jnp.where(active[:, None], jax.lax.stop_gradient(c_prime), 0.0) * moved[:, None]
+    offset, null = _implicit(block, modes.omega, modes.gamma, modes.factor, modes.weights,
+                             frozen)
     return eqx.tree_at(lambda m: (m.omega, m.gamma, m.factor, m.weights, m.offset, m.null),
-                       frozen, (modes.omega, modes.gamma, modes.factor, modes.weights, offset, c))
+                       frozen, (modes.omega, modes.gamma, modes.factor, modes.weights, offset,
+                                null))
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _implicit(block, omega, gamma, factor, weights, frozen):
+    """(offset, c) of the frozen roots, whose tangents follow the system's (``_implicit_jvp``)."""
+    return frozen.offset, frozen.null
+
+
+@_implicit.defjvp
+@complex_arithmetic
+def _implicit_jvp(block, primals, tangents):
+    """d offset = -dphi / phi' at fixed offset (the anchor's pole moves with the system, the
+    offset by the Newton step), dc = dc at fixed offset + dc/dlambda d offset; zero for a root in
+    a cluster (1 / 0 there: its pair is summed by contour)."""
+    omega, gamma, factor, weights, frozen = primals
+
+    def secular(omega, gamma, factor, weights):
+        return _secular(_poles(omega, gamma), gamma, factor, weights, frozen.active,
+                        frozen.anchor, frozen.offset, block)
+
+    (_, phi_prime, _, _, _, c_prime), (dphi, _, _, dc, _, _) = jax.jvp(
+        secular, (omega, gamma, factor, weights), tangents[:4])
+    active = frozen.simple
+    d_offset = jnp.where(active, -dphi / jnp.where(active, phi_prime, 1.0), 0.0)
+    d_null = dc + jnp.where(active[:, None], c_prime, 0.0) * d_offset[:, None]
+    return (frozen.offset, frozen.null), (d_offset, d_null)
