@@ -80,13 +80,6 @@ class Clusters(eqx.Module):
         return jnp.any(self.valid)
 
 
-def no_clusters(size: int) -> Clusters:
-    """No pair (a system whose roots are all simple and apart, or an empty one)."""
-    return Clusters(jnp.zeros(MAX_CLUSTERS, complex), jnp.ones(MAX_CLUSTERS),
-                    jnp.zeros(MAX_CLUSTERS, bool), jnp.zeros(size, bool), jnp.arange(size),
-                    jnp.array(True))
-
-
 def find_clusters(poles, anchor, offset, active, condition, block=None):
     """(the pairs of damped roots to sum by contour, the roots' smallest separation), from the
     frozen roots (no derivative: the circles are fixed, the integrands carry the derivatives);
