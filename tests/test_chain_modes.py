@@ -105,6 +105,21 @@ def test_chain_mode_data_is_rows_and_projections_of_chain_modes(chunk, close):
     close(projected, modes.T @ vectors, atol=1e-14)
 
 
+@pytest.mark.parametrize("n", [50, 301])
+def test_chain_mode_data_keeps_the_sign_rule_where_mikotas_entries_tie(n, close):
+    """Mikota's modes have entries of equal size and opposite sign (n = 50: modes 10 and 50);
+    ``chain_mode_data`` streams the modes through a scan and must pick the same entry for the
+    sign as ``chain_modes`` (verified against the dense SVD path above), row for row."""
+    system = mj.mikota_chain(n)  # m = k = 1 (the scaled data of ``mikota`` round differently)
+    masses, springs = system.mass.diagonal, system.stiffness.springs
+    vectors = jnp.asarray(np.random.default_rng(6).standard_normal((n, 2)))
+    rows = jnp.arange(n)
+    _, picked, projected = chain_mode_data(masses, springs, rows, vectors, chunk=64)
+    _, modes = chain_modes(masses, springs)
+    close(picked, modes, atol=1e-13)
+    close(projected, modes.T @ vectors, atol=1e-12)
+
+
 def test_chain_mode_data_under_jit_takes_traced_rows(close):
     masses, springs = mikota(12)
     vectors = jnp.eye(12)[:, :2]

@@ -213,8 +213,95 @@ def _modes_of(masses, springs, omega2):
     z = _twisted_vectors(t, twisted)
     vectors = (z / jnp.linalg.norm(z, axis=0, keepdims=True))[::-1]
     modes = vectors / jnp.sqrt(masses)[:, None]
-    largest = jnp.take_along_axis(modes, jnp.argmax(jnp.abs(modes), axis=0)[None, :], axis=0)
-    return modes * jnp.where(largest < 0, -1.0, 1.0), twisted
+    return modes * _sign_rule(z, masses)[None, :], twisted
+
+
+def _sign_rule(z, masses):
+    """(c,) +-1 that makes each mode's largest |U_i| positive (the first in DOF order among
+    equals), judged on |z_j| / sqrt(m) in work order as ``_streamed_modes`` judges it in its
+    scan: Mikota's modes have entries of equal size and opposite sign, and the two ways of
+    rounding must not pick different ones (the derivative rule takes these modes, the values
+    the streamed ones)."""
+    size = (jnp.abs(z) * (1 / jnp.sqrt(masses[::-1]))[:, None])[::-1]  # DOF order
+    at = jnp.argmax(size, axis=0)
+    largest = jnp.take_along_axis(z[::-1], at[None, :], axis=0)[0]
+    return jnp.where(largest < 0, -1.0, 1.0)
+
+
+def _streamed_modes(masses, springs, omega2, rows, vectors):
+    """(U[rows] (s, c), U^T vectors (c, p)) for the eigenvalues ``omega2`` (c,), the same modes as
+    ``_modes_of`` without holding U: stacking an (n, c) output of a scan costs ~20x the
+    recurrence itself on a CPU (a fresh buffer's pages first touched, one row a step), and
+    ``_modes_of`` stacks seven. Here the top recurrence's s and the bottom one's p are the only
+    ones kept; the pivots D+ = q + s, D- = e + p are made again from them (the same roundings,
+    the same zero-pivot rule), the twist index is a running argmin inside the bottom scan, and
+    one last scan runs the vector's two recurrences (from the top down above r, from the bottom up
+    below it) while summing |z|^2, z's entries times ``vectors`` and the requested rows, and
+    tracking the largest entry for the sign rule: z itself is never stored. Same z entries as
+    ``_modes_of``; the sums in another order (rounding)."""
+    q, e, t = _qd(masses, springs)
+    n = q.shape[0]
+    scale = 1 / jnp.sqrt(masses[::-1])  # work order: U = z / (|z| sqrt(m))
+    weighted = vectors[::-1] * scale[:, None]  # (n, p) in work order
+    work_rows = n - 1 - rows  # (s,)
+
+    def down(s, entries):
+        qj, ej = entries
+        return s / _nonzero(qj + s, qj) * ej - omega2, s
+
+    _, s = jax.lax.scan(down, -omega2, (q, jnp.concatenate([e, jnp.zeros(1)])))
+    last = q[-1] - omega2
+    index = jnp.arange(n)
+
+    def up(carry, entries):  # row j < n - 1, from the bottom: p_j and the running argmin
+        p, best, twist = carry
+        qj, ej, sj, j = entries
+        p = p / _nonzero(ej + p, ej) * qj - omega2
+        gamma = jnp.abs(sj + p + omega2)
+        better = gamma <= best  # ties: the lowest j, as argmin
+        return (p, jnp.where(better, gamma, best), jnp.where(better, j, twist)), p
+
+    start = (last, jnp.abs(s[-1] + last + omega2), jnp.full(omega2.shape, n - 1))
+    (_, _, twist), p = jax.lax.scan(up, start, (q[:-1], e, s[:-1], index[:-1]), reverse=True)
+    p = jnp.concatenate([p, last[None]])
+
+    def vector(carry, entries):
+        top, bottom, norm, projected, picked, largest, at = carry
+        j_top, s_top, q_top, t_top, w_top, j_bottom, p_bottom, e_bottom, t_bottom, w_bottom = (
+            entries)
+        above = -t_top / _nonzero(q_top + s_top, q_top)  # z_j = above_j z_(j+1) for j < r
+        below = -t_bottom / _nonzero(e_bottom + p_bottom, e_bottom)  # z_j = below_j z_(j-1), j > r
+        top = jnp.where(j_top == twist, 1.0, jnp.where(j_top < twist, above * top, 0.0))
+        bottom = jnp.where(j_bottom == twist, 1.0,
+                           jnp.where(j_bottom > twist, below * bottom, 0.0))
+        lower = jnp.where(j_bottom > twist, bottom, 0.0)  # z_r counted once, from the top
+        norm = norm + top * top + lower * lower
+        projected = projected + top[:, None] * w_top[None, :] + lower[:, None] * w_bottom[None, :]
+        picked = jnp.where((work_rows == j_top)[:, None] & (j_top <= twist)[None, :],
+                           top[None, :], picked)
+        picked = jnp.where((work_rows == j_bottom)[:, None] & (j_bottom > twist)[None, :],
+                           lower[None, :], picked)
+        # the sign rule's entry: the largest |U_i|, the first in DOF order (the last in work
+        # order) among equals
+        for j, z, w in ((j_top, top, scale[j_top]), (j_bottom, lower, scale[j_bottom])):
+            size = jnp.abs(z) * w
+            take = (size > jnp.abs(largest)) | ((size == jnp.abs(largest)) & (j > at))
+            largest = jnp.where(take, z * w, largest)
+            at = jnp.where(take, j, at)
+        return (top, bottom, norm, projected, picked, largest, at), None
+
+    zeros = jnp.zeros_like(omega2)
+    t_pad = jnp.concatenate([t, jnp.zeros(1)])  # t_j couples j and j + 1; none below the last
+    init = (zeros, zeros, zeros, jnp.zeros(omega2.shape + vectors.shape[1:]),
+            jnp.zeros(rows.shape + omega2.shape), zeros, jnp.full(omega2.shape, -1))
+    e_prev = jnp.concatenate([jnp.ones(1), e])  # D-_j = e_(j-1) + p_j for j >= 1
+    t_prev = jnp.concatenate([jnp.zeros(1), t])
+    top_order = index[::-1]
+    (_, _, norm, projected, picked, largest, _), _ = jax.lax.scan(
+        vector, init, (top_order, s[::-1], q[::-1], t_pad[::-1], weighted[::-1], index, p,
+                       e_prev, t_prev, weighted))
+    sign = jnp.where(largest < 0, -1.0, 1.0) / jnp.sqrt(norm)
+    return picked * sign[None, :] * scale[work_rows][:, None], projected * sign[:, None]
 
 
 def _solve_deflated(q, e, t, omega2, twist, rhs):
@@ -341,8 +428,7 @@ def _mode_data(masses, springs, rows, vectors, size):
     omega2 = _eigenvalues(masses, springs)
 
     def chunk(lam):
-        modes, _ = _modes_of(masses, springs, lam)
-        return modes[rows], modes.T @ vectors
+        return _streamed_modes(masses, springs, lam, rows, vectors)
 
     picked, projected = jax.lax.map(chunk, _chunked(omega2, size.shape[0]))
     return omega2, _unchunked(picked, n, 1), _unchunked(projected, n, 0)
