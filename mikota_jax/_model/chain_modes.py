@@ -32,12 +32,11 @@ eigenvalues ascending; each mode's largest-magnitude entry positive (the package
 
 import functools
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._custom_types import Array, Float, Int, Matrix, Vector
+from .._custom_types import Array, Float, Matrix, Vector
 from .._errors import MARK, as_float, check
 from .._limits import chunk as work_chunk
 
@@ -147,14 +146,6 @@ def _bisect_qd(q, e, lower, upper, count: int):
     return lo + (hi - lo) / 2
 
 
-class _Twisted(eqx.Module):
-    """Twisted factorisation of T - lambda I per shift (columns): pivots and twist index."""
-
-    forward: Float[Array, "n c"]  # D+_j, pivots of L+ D+ L+^T from the top (work order)
-    backward: Float[Array, "n c"]  # D-_j, pivots of U- D- U-^T from the bottom
-    twist: Int[Array, " c"]  # r = argmin |gamma_r|
-
-
 def _nonzero(pivot, entry):
     """A zero pivot moved to eps * entry: a relative change of one ulp in the qd data, which keeps
     the recurrences finite (an exact zero occurs for integer data such as Mikota's chain)."""
@@ -162,58 +153,87 @@ def _nonzero(pivot, entry):
 
 
 def _twisted(q, e, tau):
-    """dstqds from the top and dqds from the bottom of L D L^T - tau I (Dhillon & Parlett 2004):
-    D+_j = q_j + s_j, D-_{j+1} = e_j + p_{j+1}, gamma_j = s_j + p_j + tau."""
+    """(s, p, r) of the twisted factorisations of L D L^T - tau I, per shift (columns): dstqds
+    from the top and dqds from the bottom (Dhillon & Parlett 2004), D+_j = q_j + s_j, D-_(j+1) =
+    e_j + p_(j+1), and the twist index r = argmin |gamma_j|, gamma_j = s_j + p_j + tau, found
+    inside the bottom scan. Only s and p (n, c) are kept: the pivots are made again from them
+    where needed (``_ratios``: the same roundings, the same zero-pivot rule). Stacking a scan's
+    (n, c) outputs costs ~20x the recurrence itself on a CPU (a fresh buffer's pages first
+    touched, a row a step), so every kept array counts."""
+    n = q.shape[0]
+
     def down(s, entries):
         qj, ej = entries
-        pivot = _nonzero(qj + s, qj)
-        return s / pivot * ej - tau, (pivot, s)
+        return s / _nonzero(qj + s, qj) * ej - tau, s
 
-    def up(p, entries):  # p = p_{j+1}
-        qj, ej = entries
-        pivot = _nonzero(ej + p, ej)  # D-_{j+1}
-        p = p / pivot * qj - tau
-        return p, (pivot, p)
-
-    _, (forward, s) = jax.lax.scan(down, -tau, (q, jnp.concatenate([e, jnp.zeros(1)])))
+    _, s = jax.lax.scan(down, -tau, (q, jnp.concatenate([e, jnp.zeros(1)])))
     last = q[-1] - tau
-    _, (backward, p) = jax.lax.scan(up, last, (q[:-1], e), reverse=True)
-    p = jnp.concatenate([p, last[None]])
-    backward = jnp.concatenate([_nonzero(p[:1], q[:1]), backward])  # D-_0 = p_0
-    twist = jnp.argmin(jnp.abs(s + p + tau[None, :]), axis=0)
-    return _Twisted(forward, backward, twist)
+
+    def up(carry, entries):  # row j < n - 1, from the bottom: p_j and the running argmin
+        p, best, twist = carry
+        qj, ej, sj, j = entries
+        p = p / _nonzero(ej + p, ej) * qj - tau
+        gamma = jnp.abs(sj + p + tau)
+        better = gamma <= best  # ties: the lowest j, as argmin
+        return (p, jnp.where(better, gamma, best), jnp.where(better, j, twist)), p
+
+    start = (last, jnp.abs(s[-1] + last + tau), jnp.full(tau.shape, n - 1))
+    (_, _, twist), p = jax.lax.scan(up, start, (q[:-1], e, s[:-1], jnp.arange(n - 1)),
+                                    reverse=True)
+    return s, jnp.concatenate([p, last[None]]), twist
 
 
-def _twisted_vectors(t, twisted):
-    """z with z_r = 1 and (T - lambda I) z = gamma_r e_r, per column (work order)."""
-    n = twisted.forward.shape[0]
-    index, r = jnp.arange(n)[:, None], twisted.twist[None, :]
-    zeros = jnp.zeros_like(twisted.forward[:1])
-    # z_j = -(t_j / D+_j) z_{j+1} above r; z_{j+1} = -(t_j / D-_{j+1}) z_j below r
-    above = jnp.concatenate([-t[:, None] / twisted.forward[:-1], zeros])
-    below = jnp.concatenate([zeros, -t[:, None] / twisted.backward[1:]])
+def _vector_scan(q, e, t, s, p, twist, visit, init):
+    """Runs the two recurrences of z (z_r = 1, (T - lambda I) z = gamma_r e_r) in one scan of n
+    steps, from the top down above r (z_j = -(t_j / D+_j) z_(j+1), j < r) and from the bottom
+    up below it (z_j = -(t_(j-1) / D-_j) z_(j-1), j > r); step i meets rows j = n - 1 - i and
+    j = i. ``visit(carry, (j, z_j) from the top, (j, z_j) from the bottom)`` -> (carry, out)
+    sees each entry once: the top's value at j <= r (z_r = 1 there), the bottom's at j > r
+    (zero elsewhere). Returns (carry, stacked outputs)."""
+    n = q.shape[0]
+    index = jnp.arange(n)
+    zero = jnp.zeros_like(twist, dtype=s.dtype)
 
-    def recurrence(mask):
-        def step(carry, entries):
-            ratio, j = entries
-            z = jnp.where(j == r[0], 1.0, jnp.where(mask(j, r[0]), ratio * carry, 0.0))
-            return z, z
-        return step
+    def step(carry, entries):
+        (top, bottom), inner = carry
+        j_top, q_top, t_top, j_bottom, p_bottom, e_bottom, t_bottom = entries
+        # the top's row of s read in place (a reversed copy of s would be one more (n, c)
+        # buffer)
+        s_top = jax.lax.dynamic_index_in_dim(s, j_top, keepdims=False)
+        above = -t_top / _nonzero(q_top + s_top, q_top)
+        below = -t_bottom / _nonzero(e_bottom + p_bottom, e_bottom)
+        top = jnp.where(j_top == twist, 1.0, jnp.where(j_top < twist, above * top, 0.0))
+        bottom = jnp.where(j_bottom == twist, 1.0,
+                           jnp.where(j_bottom > twist, below * bottom, 0.0))
+        inner, out = visit(inner, (j_top, top), (j_bottom, jnp.where(j_bottom > twist, bottom,
+                                                                       0.0)))
+        return ((top, bottom), inner), out
 
-    _, top = jax.lax.scan(recurrence(lambda j, r: j < r), zeros[0], (above, index[:, 0]),
-                          reverse=True)
-    _, bottom = jax.lax.scan(recurrence(lambda j, r: j > r), zeros[0], (below, index[:, 0]))
-    return top + bottom - (index == r).astype(top.dtype)
+    # t_j couples rows j and j + 1: none above the last (top) or below the first (bottom)
+    t_top = jnp.concatenate([t, jnp.zeros(1)])[::-1]
+    e_bottom = jnp.concatenate([jnp.ones(1), e])  # D-_j = e_(j-1) + p_j, j >= 1
+    t_bottom = jnp.concatenate([jnp.zeros(1), t])
+    ((_, _), inner), out = jax.lax.scan(
+        step, ((zero, zero), init),
+        (index[::-1], q[::-1], t_top, index, p, e_bottom, t_bottom))
+    return inner, out
+
+
+def _twisted_vectors(q, e, t, s, p, twist):
+    """z (n, c) of ``_vector_scan``, per column (work order)."""
+    _, (top, bottom) = _vector_scan(q, e, t, s, p, twist,
+                                    lambda inner, top, bottom: (inner, (top[1], bottom[1])), ())
+    return top[::-1] + bottom
 
 
 def _modes_of(masses, springs, omega2):
-    """(U, twisted) for the eigenvalues ``omega2`` (c,): M-orthonormal columns, sign rule."""
+    """(U, twist) for the eigenvalues ``omega2`` (c,): M-orthonormal columns, sign rule."""
     q, e, t = _qd(masses, springs)
-    twisted = _twisted(q, e, omega2)
-    z = _twisted_vectors(t, twisted)
+    s, p, twist = _twisted(q, e, omega2)
+    z = _twisted_vectors(q, e, t, s, p, twist)
     vectors = (z / jnp.linalg.norm(z, axis=0, keepdims=True))[::-1]
     modes = vectors / jnp.sqrt(masses)[:, None]
-    return modes * _sign_rule(z, masses)[None, :], twisted
+    return modes * _sign_rule(z, masses)[None, :], twist
 
 
 def _sign_rule(z, masses):
@@ -230,76 +250,34 @@ def _sign_rule(z, masses):
 
 def _streamed_modes(masses, springs, omega2, rows, vectors):
     """(U[rows] (s, c), U^T vectors (c, p)) for the eigenvalues ``omega2`` (c,), the same modes as
-    ``_modes_of`` without holding U: stacking an (n, c) output of a scan costs ~20x the
-    recurrence itself on a CPU (a fresh buffer's pages first touched, one row a step), and
-    ``_modes_of`` stacks seven. Here the top recurrence's s and the bottom one's p are the only
-    ones kept; the pivots D+ = q + s, D- = e + p are made again from them (the same roundings,
-    the same zero-pivot rule), the twist index is a running argmin inside the bottom scan, and
-    one last scan runs the vector's two recurrences (from the top down above r, from the bottom up
-    below it) while summing |z|^2, z's entries times ``vectors`` and the requested rows, and
-    tracking the largest entry for the sign rule: z itself is never stored. Same z entries as
-    ``_modes_of``; the sums in another order (rounding)."""
+    ``_modes_of`` without holding U or z: the vector's scan (``_vector_scan``) sums |z|^2, z's
+    entries times ``vectors`` and the requested rows, and tracks the largest entry for the sign
+    rule. Same z entries as ``_modes_of``; the sums in another order (rounding)."""
     q, e, t = _qd(masses, springs)
     n = q.shape[0]
     scale = 1 / jnp.sqrt(masses[::-1])  # work order: U = z / (|z| sqrt(m))
     weighted = vectors[::-1] * scale[:, None]  # (n, p) in work order
     work_rows = n - 1 - rows  # (s,)
+    s, p, twist = _twisted(q, e, omega2)
 
-    def down(s, entries):
-        qj, ej = entries
-        return s / _nonzero(qj + s, qj) * ej - omega2, s
-
-    _, s = jax.lax.scan(down, -omega2, (q, jnp.concatenate([e, jnp.zeros(1)])))
-    last = q[-1] - omega2
-    index = jnp.arange(n)
-
-    def up(carry, entries):  # row j < n - 1, from the bottom: p_j and the running argmin
-        p, best, twist = carry
-        qj, ej, sj, j = entries
-        p = p / _nonzero(ej + p, ej) * qj - omega2
-        gamma = jnp.abs(sj + p + omega2)
-        better = gamma <= best  # ties: the lowest j, as argmin
-        return (p, jnp.where(better, gamma, best), jnp.where(better, j, twist)), p
-
-    start = (last, jnp.abs(s[-1] + last + omega2), jnp.full(omega2.shape, n - 1))
-    (_, _, twist), p = jax.lax.scan(up, start, (q[:-1], e, s[:-1], index[:-1]), reverse=True)
-    p = jnp.concatenate([p, last[None]])
-
-    def vector(carry, entries):
-        top, bottom, norm, projected, picked, largest, at = carry
-        j_top, s_top, q_top, t_top, w_top, j_bottom, p_bottom, e_bottom, t_bottom, w_bottom = (
-            entries)
-        above = -t_top / _nonzero(q_top + s_top, q_top)  # z_j = above_j z_(j+1) for j < r
-        below = -t_bottom / _nonzero(e_bottom + p_bottom, e_bottom)  # z_j = below_j z_(j-1), j > r
-        top = jnp.where(j_top == twist, 1.0, jnp.where(j_top < twist, above * top, 0.0))
-        bottom = jnp.where(j_bottom == twist, 1.0,
-                           jnp.where(j_bottom > twist, below * bottom, 0.0))
-        lower = jnp.where(j_bottom > twist, bottom, 0.0)  # z_r counted once, from the top
-        norm = norm + top * top + lower * lower
-        projected = projected + top[:, None] * w_top[None, :] + lower[:, None] * w_bottom[None, :]
-        picked = jnp.where((work_rows == j_top)[:, None] & (j_top <= twist)[None, :],
-                           top[None, :], picked)
-        picked = jnp.where((work_rows == j_bottom)[:, None] & (j_bottom > twist)[None, :],
-                           lower[None, :], picked)
-        # the sign rule's entry: the largest |U_i|, the first in DOF order (the last in work
-        # order) among equals
-        for j, z, w in ((j_top, top, scale[j_top]), (j_bottom, lower, scale[j_bottom])):
-            size = jnp.abs(z) * w
+    def visit(inner, *entries):
+        norm, projected, picked, largest, at = inner
+        for j, z in entries:
+            norm = norm + z * z
+            projected = projected + z[:, None] * weighted[j][None, :]
+            picked = jnp.where((work_rows == j)[:, None] & (z != 0)[None, :], z[None, :], picked)
+            # the sign rule's entry: the largest |U_i|, the first in DOF order (the last in work
+            # order) among equals
+            size = jnp.abs(z) * scale[j]
             take = (size > jnp.abs(largest)) | ((size == jnp.abs(largest)) & (j > at))
-            largest = jnp.where(take, z * w, largest)
+            largest = jnp.where(take, z * scale[j], largest)
             at = jnp.where(take, j, at)
-        return (top, bottom, norm, projected, picked, largest, at), None
+        return (norm, projected, picked, largest, at), None
 
     zeros = jnp.zeros_like(omega2)
-    t_pad = jnp.concatenate([t, jnp.zeros(1)])  # t_j couples j and j + 1; none below the last
-    init = (zeros, zeros, zeros, jnp.zeros(omega2.shape + vectors.shape[1:]),
+    init = (zeros, jnp.zeros(omega2.shape + vectors.shape[1:]),
             jnp.zeros(rows.shape + omega2.shape), zeros, jnp.full(omega2.shape, -1))
-    e_prev = jnp.concatenate([jnp.ones(1), e])  # D-_j = e_(j-1) + p_j for j >= 1
-    t_prev = jnp.concatenate([jnp.zeros(1), t])
-    top_order = index[::-1]
-    (_, _, norm, projected, picked, largest, _), _ = jax.lax.scan(
-        vector, init, (top_order, s[::-1], q[::-1], t_pad[::-1], weighted[::-1], index, p,
-                       e_prev, t_prev, weighted))
+    (norm, projected, picked, largest, _), _ = _vector_scan(q, e, t, s, p, twist, visit, init)
     sign = jnp.where(largest < 0, -1.0, 1.0) / jnp.sqrt(norm)
     return picked * sign[None, :] * scale[work_rows][:, None], projected * sign[:, None]
 
@@ -352,7 +330,7 @@ def _solve_deflated(q, e, t, omega2, twist, rhs):
                         reverse=True)[1]
 
 
-def _tangents(masses, springs, omega2, modes, twisted, dmasses, dsprings):
+def _tangents(masses, springs, omega2, modes, twist, dmasses, dsprings):
     """(d omega^2, dU) of the modes in ``modes`` (n, c) for tangents (dm, dk), O(n) per mode."""
     q, e, t = _qd(masses, springs)
     zero = jnp.zeros_like(modes[:1])
@@ -364,7 +342,7 @@ def _tangents(masses, springs, omega2, modes, twisted, dmasses, dsprings):
     rhs = (omega2[None, :] * dmasses[:, None] * modes - stiff
            + domega2[None, :] * masses[:, None] * modes)
     scale = jnp.sqrt(masses)[:, None]
-    y = _solve_deflated(q, e, t, omega2, twisted.twist, (rhs / scale)[::-1])[::-1]
+    y = _solve_deflated(q, e, t, omega2, twist, (rhs / scale)[::-1])[::-1]
     w = y / scale  # (K - omega^2 M) w = rhs, up to a multiple of u
     along = jnp.sum(modes * masses[:, None] * w, axis=0)
     return domega2, w - (along + inertia / 2)[None, :] * modes
@@ -380,8 +358,8 @@ def _chain_modes(masses, springs):
 def _chain_modes_jvp(primals, tangents):
     (masses, springs), (dmasses, dsprings) = primals, tangents
     omega2 = _eigenvalues(masses, springs)
-    modes, twisted = _modes_of(masses, springs, omega2)
-    domega2, dmodes = _tangents(masses, springs, omega2, modes, twisted, dmasses, dsprings)
+    modes, twist = _modes_of(masses, springs, omega2)
+    domega2, dmodes = _tangents(masses, springs, omega2, modes, twist, dmasses, dsprings)
     return (omega2, modes), (domega2, dmodes)
 
 
@@ -442,8 +420,8 @@ def _mode_data_jvp(primals, tangents):
 
     @jax.checkpoint  # reverse mode recomputes each chunk's modes rather than storing all of U
     def chunk(lam):
-        modes, twisted = _modes_of(masses, springs, lam)
-        dlam, dmodes = _tangents(masses, springs, lam, modes, twisted, dmasses, dsprings)
+        modes, twist = _modes_of(masses, springs, lam)
+        dlam, dmodes = _tangents(masses, springs, lam, modes, twist, dmasses, dsprings)
         return (modes[rows], modes.T @ vectors, dlam, dmodes[rows],
                 dmodes.T @ vectors + modes.T @ dvectors)
 
@@ -496,7 +474,7 @@ def _lowest_of_pieces(q, e, t, lower, upper, count: int):
     and their unit eigenvectors of L D L^T, in work order."""
     def one(q, e, t, lower, upper):
         omega2 = _bisect_qd(q, e, lower, upper, count)
-        z = _twisted_vectors(t, _twisted(q, e, omega2))
+        z = _twisted_vectors(q, e, t, *_twisted(q, e, omega2))
         return omega2, z / jnp.linalg.norm(z, axis=0, keepdims=True)
 
     return jax.vmap(one)(q, e, t, lower, upper)
