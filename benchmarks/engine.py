@@ -27,7 +27,8 @@ x_3(0) = 1, v(0) = 0. Every comparison of a row runs in this one process, compil
   2n/3], c in [0.5, 3]), n = 300: time per design against one design alone (p = 7, c = 1) and
   against the mean of the same designs run one by one (their root iterations differ: 3 sweeps
   at p = 7, up to 14 for a damper inside the chain), and XLA's temporary memory per design
-  (``memory_analysis``).
+  (``memory_analysis``); and the same designs through ``mj.sweep`` (its CPU default, one design
+  after another in a ``lax.map``), its second call.
 * **Blocks of roots**: the same gradient with the O(n^2) per-root work done a block of roots at
   a time (the library's choice, ``row_block``) and all at once (``block=0``), n = 100, 300,
   1000, 3000: run time and XLA's temporary memory (a block's rows stay in cache).
@@ -181,14 +182,27 @@ def batch_row(n: int, batch: int, repeats: int) -> dict:
     singles = [float(one(p, c)[0]) for p, c in zip(ps[:2], cs[:2])]
     # the same designs one by one: their Aberth sweeps differ (3 at p = 7, up to 14 inside)
     alone_s = statistics.mean(timed(one, p, c, repeats=repeats)[1] for p, c in zip(ps, cs))
+    # the same designs through ``mj.sweep`` (its default on a CPU: one design after another,
+    # ``lax.map``), its second call (the first compiles)
+    points = dict(p=np.asarray(ps), c=np.asarray(cs))
+    swept = lambda point: g(point["p"], point["c"])  # noqa: E731
+    mj.sweep(swept, points)
+    sweep_s = min(_sweep_time(swept, points) for _ in range(2)) / batch
     return dict(n=n, batch=batch, one_s=one_s, batch_s=many_s, per_design_s=many_s / batch,
                 per_design_ratio=many_s / batch / one_s, alone_s=alone_s,
-                per_design_ratio_alone=many_s / batch / alone_s,
+                per_design_ratio_alone=many_s / batch / alone_s, sweep_per_design_s=sweep_s,
+                sweep_ratio=sweep_s / one_s, sweep_ratio_alone=sweep_s / alone_s,
                 one_temp_mb=one.executable.memory_analysis().temp_size_in_bytes / 1e6,
                 temp_mb_per_design=many.executable.memory_analysis().temp_size_in_bytes
                 / 1e6 / batch, compile_s=many.compile_s,
                 agrees=float(np.max(np.abs(np.asarray(values[:2]) - singles)
                                  / np.abs(singles))))
+
+
+def _sweep_time(function, points) -> float:
+    start = time.perf_counter()
+    jax.block_until_ready(mj.sweep(function, points))
+    return time.perf_counter() - start
 
 
 def block_row(n: int, repeats: int) -> dict:
@@ -244,6 +258,8 @@ def main(argv=None) -> dict:
                           ("per_design_ratio", "ratio", ".2f"),
                           ("alone_s", "same designs alone s", ".4f"),
                           ("per_design_ratio_alone", "ratio", ".2f"),
+                          ("sweep_per_design_s", "mj.sweep per design s", ".4f"),
+                          ("sweep_ratio", "ratio", ".2f"),
                           ("temp_mb_per_design", "MB per design", ".1f")])
     blocks = [block_row(n, repeats) for n in (QUICK_BLOCK_SIZES if args.quick else BLOCK_SIZES)]
     print_table(blocks, [("n", "n", "d"), ("blocks_s", "blocks s", ".4f"),
@@ -283,6 +299,11 @@ def summarise(gradients, histories, long, batch, blocks) -> dict:
     if "per_design_ratio_alone" in batch:
         out[f"{batch['batch']} designs n={batch['n']}: time per design / the same designs "
             "alone"] = batch["per_design_ratio_alone"]
+    if "sweep_ratio" in batch:
+        out[f"{batch['batch']} designs n={batch['n']} through mj.sweep: time per design / one "
+            "alone"] = batch["sweep_ratio"]
+        out[f"{batch['batch']} designs n={batch['n']} through mj.sweep: time per design / the "
+            "same designs alone"] = batch["sweep_ratio_alone"]
     out[f"{batch['batch']} designs n={batch['n']}: MB per design"] = batch["temp_mb_per_design"]
     for row in blocks:
         out[f"gradient n={row['n']}: all at once / blocks of roots"] = row["speedup"]

@@ -99,7 +99,10 @@ def find_clusters(poles, anchor, offset, active, condition, block=None):
 
     def rows(a, o, act, j):
         """Nearest other root, its distance, the distance of the next one; the separation."""
-        distance = jnp.abs(roots_difference(poles, anchor, offset, a, o))
+        # squared distances (no hypot per pair; the minima are monotone in them), square
+        # roots of the few kept
+        gap = roots_difference(poles, anchor, offset, a, o)
+        distance = jnp.real(gap) ** 2 + jnp.imag(gap) ** 2
         distance = jnp.where(index[None, :] == j[:, None], jnp.inf, distance)
         nearest = jnp.argmin(distance, axis=1)
         first = jnp.take_along_axis(distance, nearest[:, None], axis=1)[:, 0]
@@ -107,7 +110,8 @@ def find_clusters(poles, anchor, offset, active, condition, block=None):
         same_mode = (a % n)[:, None] == mode[None, :]
         interacting = (act[:, None] & root_active[None, :]) | (same_mode & ~act[:, None])
         closest = jnp.min(jnp.where(interacting, distance, jnp.inf), axis=1)
-        return nearest, first, jnp.min(rest, axis=1), closest / jnp.abs(poles[a] + o)
+        return (nearest, jnp.sqrt(first), jnp.sqrt(jnp.min(rest, axis=1)),
+                jnp.sqrt(closest) / jnp.abs(poles[a] + o))
 
     nearest, first, second, separation = by_rows(rows, block, anchor, offset, root_active,
                                                  index)

@@ -120,8 +120,11 @@ def _conjugate_slots(lam, block=None, mate=None):
     size = lam.shape[0]
     n = size // 2
     index = jnp.arange(size)
-    partner = by_rows(  # argmin_k |lambda_k - conj(lambda_j)|
-        lambda z: jnp.argmin(jnp.abs(lam[None, :] - jnp.conj(z)[:, None]), axis=1), block, lam)
+    def nearest(z):  # argmin_k |lambda_k - conj(lambda_j)|, squared: no hypot per pair
+        gap = lam[None, :] - jnp.conj(z)[:, None]
+        return jnp.argmin(jnp.real(gap) ** 2 + jnp.imag(gap) ** 2, axis=1)
+
+    partner = by_rows(nearest, block, lam)
     if mate is not None:
         partner = jnp.where(mate != index, mate, partner)
     consistent = jnp.all(partner[partner] == index)

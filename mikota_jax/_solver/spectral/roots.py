@@ -464,7 +464,7 @@ def _finish(poles, gamma, factor, weights, active, anchor, offset, trace, block=
        step is not taken) or ``_POLISH_STEPS`` were taken (the last pass only evaluates). After
        the sweeps the first step is usually at rounding level already (below 5e-15 |lambda|
        on seven chains checked, the multi-damper notebook's triple chain among them): the
-       anchors' pass and the polish are then one pass, not five.
+       anchors' pass and the polish are then one pass, not two.
     3. **Restart.** Where exactly one root fails its residual and the roots' sum misses the
        trace, that root is restarted from the trace (minus the sum of the others) and gets up to
        ``_RESTART_STEPS`` Newton steps. On the triple chain (d_3 = 229 at DOF 101) Aberth
