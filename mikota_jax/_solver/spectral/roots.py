@@ -405,7 +405,8 @@ def _reanchor(poles, active, anchor, offset, block=None, axis=None):
         if axis is not None:
             new_anchor = _axis_nearest(poles, axis, lam, 1)[:, 0]
         else:
-            distance = jnp.abs(lam[:, None] - poles[None, :])
+            gap = lam[:, None] - poles[None, :]
+            distance = jnp.real(gap) ** 2 + jnp.imag(gap) ** 2  # squared: no hypot per pair
             new_anchor = jnp.argmin(jnp.where(candidates[None, :], distance, jnp.inf), axis=1)
         return new_anchor, offset + (poles[anchor] - poles[new_anchor])
 
@@ -427,8 +428,9 @@ def _nearest_anchors(poles, active, anchor, offset, block=None, axis=None):
         lam = poles[anchor] + offset
         if axis is not None:
             return _axis_nearest(poles, axis, lam, min(_ANCHOR_CANDIDATES, 2 * n))
-        distance = jnp.where(candidates[None, :], jnp.abs(lam[:, None] - poles[None, :]),
-                             jnp.inf)
+        gap = lam[:, None] - poles[None, :]
+        distance = jnp.where(candidates[None, :], jnp.real(gap) ** 2 + jnp.imag(gap) ** 2,
+                             jnp.inf)  # squared: no hypot per pair
         # successive argmins, not ``lax.top_k``: XLA's CPU top_k sorts each row (40 ms at
         # n = 300, a third of one spectral value), a few masked argmins cost a pass each
         nearest = []
