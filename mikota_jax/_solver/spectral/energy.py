@@ -185,21 +185,43 @@ def _projected_cross(modes: DampedModes, s, w, u, q0, lam, a, horizon, projectio
     f = jnp.where(modes.active[:, None], modes.factor, 0.0)
     wf_u = jnp.einsum("la,plm->pam", f, u) * modes.weights[None, :, None]  # W F^T u_p
     wf_q = (f.T @ q0) * modes.weights[:, None]  # W F^T q0 (k, m)
-    y_dq = yf @ wf_q  # y_j^T D_m q0 (2n, m)
-    y_du = jnp.einsum("ja,pam->pjm", yf, wf_u)  # y_j^T D_m u_p (P, 2n, m)
-    y_b = s[:, None, None] * yq[None] + (y_dq + yp)[None]  # y_j^T b(s_p)
-    return _cross_terms(modes, s, w, lam, a, horizon, y_b, y_du)
+    # y_j^T b(s_p) = s_p y_j^T q0 + y_j^T D_m q0 + y_j^T p0
+    return _cross_terms(modes, s, w, lam, a, horizon, yq, yf @ wf_q + yp, yf, wf_u)
 
 
-def _cross_terms(modes: DampedModes, s, w, lam, a, horizon, y_b, y_du):
-    """The cross terms from y_j^T b(s_p) and y_j^T D_m u_p, each (P, 2n, m), by the identity
-    y_j^T (Omega^2 + s lambda_j) u = lambda_j (y_j^T b(s) - 2 s y_j^T D_m u) / (s + lambda_j)
-    (``cluster_energy``)."""
+def _cross_terms(modes: DampedModes, s, w, lam, a, horizon, y_q, y_c, yf, wf_u, internal=None):
+    """The cross terms sum_(p, j) w_p h(s_p + lambda_j) a_j y_j^T (Omega^2 + s_p lambda_j) u_p
+    (per state m) by the identity y_j^T (Omega^2 + s lambda_j) u = lambda_j (y_j^T b(s) - 2 s
+    y_j^T D_m u) / (s + lambda_j) (``cluster_energy``), with y_j^T b(s_p) = s_p ``y_q`` +
+    ``y_c`` (2n, m) and y_j^T D_m u_p = (F^T y_j)^T W F^T u_p (``yf`` (2n, k), ``wf_u`` (P, k,
+    m)) plus, with ``internal`` = (head (2n, s), rest (P, s, m), g_rf (P, 2n, k), W F^T q0 (k,
+    m)), y_j^T Gamma u_p = head_j^T rest_p + g_rf_pj^T (W F^T q0 - s_p W F^T u_p)
+    (``_internal_cross``). Each product is summed over the roots before it meets the states
+    (K_pj = w_p h lambda_j / (s_p + lambda_j) against a_j times the root's factor), so no
+    (P, 2n, m) array is formed: the trace's 54 unit states at n = 801 made ten of 111 MB each
+    in its gradient."""
     plus = s[:, None] + lam[None, :]  # (P, 2n), |plus| >= 2/3 |Re c| (``cluster_energy``)
     plus_safe = jnp.where(plus != 0, plus, 1.0)  # an unused circle's nodes (weights 0) anywhere
-    gram = lam[None, :, None] * (y_b - 2 * s[:, None, None] * y_du) / plus_safe[:, :, None]
-    coefficient = jnp.where(modes.simple[:, None], a, 0.0)
-    return jnp.real(jnp.einsum("p,pjm,pj,jm->m", w, gram, growth(plus, horizon), coefficient))
+    kernel = w[:, None] * growth(plus, horizon) * lam[None, :] / plus_safe
+    coefficient = jnp.where(modes.simple[:, None], a, 0.0)  # (2n, m)
+    roots, states = coefficient.shape
+    value = (jnp.sum((s @ kernel)[:, None] * coefficient * y_q, axis=0)
+             + jnp.sum(jnp.sum(kernel, axis=0)[:, None] * coefficient * y_c, axis=0))
+    twice = -2 * s  # y_j^T D_m u_p enters with -2 s_p
+
+    def against(factor):  # sum_j K_pj a_jm factor_j. (2n, ...) -> (P, ..., m)
+        spread = coefficient.reshape((roots,) + (1,) * (factor.ndim - 1) + (states,))
+        out = kernel @ (factor[..., None] * spread).reshape(roots, -1)
+        return out.reshape((s.shape[0],) + factor.shape[1:] + (states,))
+
+    value = value + jnp.einsum("p,pam,pam->m", twice, wf_u, against(yf))
+    if internal is not None:
+        head, rest, g_rf, wf_q = internal
+        d = jnp.einsum("pja,jm->pam", kernel[:, :, None] * g_rf, coefficient)
+        value = value + (jnp.einsum("p,plm,plm->m", twice, rest, against(head))
+                         + jnp.einsum("p,am,pam->m", twice, wf_q, d)
+                         - jnp.einsum("p,pam,pam->m", twice * s, wf_u, d))
+    return jnp.real(value)
 
 
 def _internal_cross(modes: DampedModes, s, w, u, q0, p0, lam, a, horizon, y, support):
@@ -215,18 +237,14 @@ def _internal_cross(modes: DampedModes, s, w, u, q0, p0, lam, a, horizon, y, sup
     yf = y @ f  # F^T y_j (2n, k)
     head, q_head, p_head = y[:, :rows], q0[:rows], p0[:rows]
     # y_j^T b(s_p) = s_p y_j^T q0 + y_j^T Gamma q0 + (F^T y_j) W F^T q0 + y_j^T p0
-    y_q = head @ q_head
-    y_b = s[:, None, None] * y_q[None] + (head @ (gamma[:rows, None] * q_head) + yf @ wf_q
-                                          + head @ p_head)[None]
+    y_c = head @ (gamma[:rows, None] * q_head) + yf @ wf_q + head @ p_head
     # y_j^T Gamma u_p = y_j^T Gamma R_p ((s_p + Gamma) q0 + p0) + (y_j^T Gamma R_p F) W F^T q0
     #                   - s_p (y_j^T Gamma R_p F) W F^T u_p
     g_rf = jnp.einsum("jl,pl,la->pja", y * gamma[None, :], r, f)  # (P, 2n, k)
     rest = r[:, :rows, None] * gamma[None, :rows, None] * (
         (s[:, None, None] + gamma[None, :rows, None]) * q_head[None] + p_head[None])
-    y_gu = (jnp.einsum("jl,plm->pjm", head, rest) + jnp.einsum("pja,am->pjm", g_rf, wf_q)
-            - s[:, None, None] * jnp.einsum("pja,pam->pjm", g_rf, wf_u))
-    y_du = y_gu + jnp.einsum("ja,pam->pjm", yf, wf_u)  # y_j^T D_m u_p
-    return _cross_terms(modes, s, w, lam, a, horizon, y_b, y_du)
+    return _cross_terms(modes, s, w, lam, a, horizon, head @ q_head, y_c, yf, wf_u,
+                        (head, rest, g_rf, wf_q))
 
 
 @complex_arithmetic
