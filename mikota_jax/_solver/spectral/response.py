@@ -120,6 +120,7 @@ def _conjugate_slots(lam, block=None, mate=None):
     size = lam.shape[0]
     n = size // 2
     index = jnp.arange(size)
+
     def nearest(z):  # argmin_k |lambda_k - conj(lambda_j)|, squared: no hypot per pair
         gap = lam[None, :] - jnp.conj(z)[:, None]
         return jnp.argmin(jnp.real(gap) ** 2 + jnp.imag(gap) ** 2, axis=1)
@@ -262,8 +263,10 @@ def rows_response(system, ts, x0, v0, load, *, dofs, displacement, velocity, blo
     time). O(N n^2) flops either way; the (n, 2n) vectors, the (2n, 2n) partner search and U
     are never held. For few outputs (``modal_first`` false, as for the path with U) the rows
     U[dofs] come with the chain's modes, and each block adds its outputs directly: O(n^2 d +
-    N n d), no modal history. ``block``: roots per block (``response_block``; the secular
-    equation's own blocks are ``row_block``'s).
+    N n d), no modal history; there a block forms no eigenvector rows either: U[dofs] y_j,
+    y_j^T p0, y_j^T Omega^2 q0 (y_j^T g) and N_j come from the resolvent's rows in two real
+    matrix products (``DampedModes.row_products``). ``block``: roots per block
+    (``response_block``; the secular equation's own blocks are ``row_block``'s).
     """
     n = system.size
     masses = system.mass.diagonal
