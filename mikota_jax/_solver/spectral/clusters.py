@@ -41,7 +41,7 @@ import jax
 import jax.numpy as jnp
 
 from ..._custom_types import Array
-from .rows import by_rows, roots_difference, small_solve
+from .rows import abs2, by_rows, roots_difference, small_solve
 
 NODES = 40  # trapezoidal points on each circle (error 3^-NODES)
 MAX_CLUSTERS = 2  # pairs summed by contour at once (a conjugate pair of pairs takes two)
@@ -99,10 +99,8 @@ def find_clusters(poles, anchor, offset, active, condition, block=None):
 
     def rows(a, o, act, j):
         """Nearest other root, its distance, the distance of the next one; the separation."""
-        # squared distances (no hypot per pair; the minima are monotone in them), square
-        # roots of the few kept
-        gap = roots_difference(poles, anchor, offset, a, o)
-        distance = jnp.real(gap) ** 2 + jnp.imag(gap) ** 2
+        # squared distances (``abs2``), square roots of the few kept
+        distance = abs2(roots_difference(poles, anchor, offset, a, o))
         distance = jnp.where(index[None, :] == j[:, None], jnp.inf, distance)
         nearest = jnp.argmin(distance, axis=1)
         first = jnp.take_along_axis(distance, nearest[:, None], axis=1)[:, 0]

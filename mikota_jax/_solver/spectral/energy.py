@@ -37,7 +37,7 @@ from ..._model.modal import modal_projection
 from .clusters import initial_rhs, resolvent_at, solve_at
 from .modes import live_modes, live_rows, uses_rows
 from .roots import DampedModes, complex_arithmetic
-from .rows import by_rows, row_block, small_solve
+from .rows import abs2, by_rows, row_block, small_solve
 
 # --- the energy kernels: Gram matrix of the damped modes, pair sums, time integrals ----------
 
@@ -99,7 +99,7 @@ def conjugate_partners(modes: DampedModes, roots, pair):
     gap = (base[None, :] - jnp.conj(base[roots])[:, None]) + (
         modes.offset[None, :] - jnp.conj(modes.offset[roots])[:, None])
     gap = jax.lax.stop_gradient(gap)
-    return jnp.argmin(jnp.where(pair, jnp.real(gap) ** 2 + jnp.imag(gap) ** 2, jnp.inf), axis=1)
+    return jnp.argmin(jnp.where(pair, abs2(gap), jnp.inf), axis=1)
 
 
 # (e^x - 1) / x = sum_m x^m / (m+1)!, and its derivative sum_m (m+1) x^m / (m+2)!, to |x| < 1/2
@@ -135,40 +135,45 @@ def growth(s, horizon):
 
 
 @complex_arithmetic
-def cluster_energy(modes: DampedModes, q0, p0, horizon, a, block, projections=None,
-                   support=None, y=None):
+def cluster_energy(modes: DampedModes, q0, p0, horizon, a, projections=None, support=None,
+                   y=None):
     """The terms of J that involve the clusters: twice cluster x simple root, plus cluster x
     cluster; (m,) for q0, p0 (n, m) and the simple roots' coefficients a (2n, m) (zero in the
     clusters). Zero without a cluster (then not computed, except under ``vmap``).
 
-    With u(s) = Q(s)^-1 b(s), b(s) = (s I + D_m) q0 + p0, the clusters' part of the modal state
-    is sum_p w_p exp(s_p t) (Omega u_p, s_p u_p) (``Clusters.nodes``), so each term is the
-    simple roots' one with (lambda_j, a_j y_j) replaced by (s_p, w_p u_p). The cross terms'
-    Gram entries y_j^T (Omega^2 + s_p lambda_j) u_p take O(NODES n) per root and cluster
-    (``block`` roots at a time, as ``_blocked_energy``); with ``projections`` (dampers alone:
-    each root's y_j^T q0, y_j^T p0 (2n, m) and F^T y_j (2n, k), from the pass that made its
-    coefficient) they take O(NODES k) by the eigen-equations: y_j^T Q(lambda_j) = 0 and Q(s_p)
-    u_p = b(s_p) give y_j^T (Omega^2 + s lambda_j) u = lambda_j (y_j^T b(s) - 2 s y_j^T D_m u)
-    / (s + lambda_j), where y_j^T D_m u = (F^T y_j)^T W F^T u. A circle's radius is at most a
-    third of its centre's distance to the imaginary axis (``find_clusters``), so Re s_p <= 2/3
-    Re c < 0 and |s_p + lambda_j| >= 2/3 |Re c| for every root: no division near zero. Under
-    ``vmap`` the cross terms are computed for every design of a batch, clusters or not: there
-    this is the difference between O(NODES n^2) and O(NODES n k) per design. With internal
-    damping (no ``projections``; ``y`` the (2n, n) rows) the same identity holds with D_m = Gamma
-    + F W F^T, and Q(s_p) u_p = b(s_p) by Woodbury turns the one O(n)-per-entry product,
-    y_j^T Gamma u_p, into y_j^T Gamma R_p b_p - s_p (y_j^T Gamma R_p F) W F^T u_p: O(NODES n
-    (k + support m)) per root instead of O(NODES n m), where only the first ``support`` rows
-    of q0 and p0 may be nonzero (None: all; the trace's unit states of its s lowest modes: s)."""
+    With u(s) = Q(s)^-1 b(s), b(s) = (s I + D_m) q0 + p0, the clusters' part of the modal state is
+    sum_p w_p exp(s_p t) (Omega u_p, s_p u_p) (``Clusters.nodes``), so each term is the simple
+    roots' one with (lambda_j, a_j y_j) replaced by (s_p, w_p u_p). The cross terms' Gram entries
+    y_j^T (Omega^2 + s_p lambda_j) u_p would take O(NODES n) per root and cluster; with
+    ``projections`` (dampers alone: each root's y_j^T q0, y_j^T p0 (2n, m) and F^T y_j (2n, k), from
+    the pass that made its coefficient) they take O(NODES k) by the eigen-equations: y_j^T
+    Q(lambda_j) = 0 and Q(s_p) u_p = b(s_p) give y_j^T (Omega^2 + s lambda_j) u = lambda_j (y_j^T
+    b(s) - 2 s y_j^T D_m u) / (s + lambda_j), where y_j^T D_m u = (F^T y_j)^T W F^T u. A circle's
+    radius is at most a third of its centre's distance to the imaginary axis (``find_clusters``), so
+    Re s_p <= 2/3 Re c < 0 and |s_p + lambda_j| >= 2/3 |Re c| for every root: no division near zero.
+    Under ``vmap`` the cross terms are computed for every design of a batch, clusters or not: there
+    this is the difference between O(NODES n^2) and O(NODES n k) per design. With internal damping
+    (no ``projections``; ``y`` the (2n, n) rows) the same identity holds with D_m = Gamma + F W F^T,
+    and Q(s_p) u_p = b(s_p) by Woodbury turns the one O(n)-per-entry product, y_j^T Gamma u_p, into
+    y_j^T Gamma R_p b_p - s_p (y_j^T Gamma R_p F) W F^T u_p: O(NODES n (k + support m)) per root
+    instead of O(NODES n m), where only the first ``support`` rows of q0 and p0 may be nonzero
+    (None: all; the trace's unit states of its s lowest modes: s)."""
     def terms():
         s, w = modes.clusters.nodes()
         u = solve_at(modes, s, initial_rhs(modes, s, q0, p0))  # (P, n, m)
         omega2 = modes.omega**2
         lam = modes.eigenvalues
         weighted = u * omega2[None, :, None]
+        f = jnp.where(modes.active[:, None], modes.factor, 0.0)
+        wf_u = jnp.einsum("la,plm->pam", f, u) * modes.weights[None, :, None]  # W F^T u_p
+        wf_q = (f.T @ q0) * modes.weights[:, None]  # W F^T q0 (k, m)
         if projections is not None:
-            both = _projected_cross(modes, s, w, u, q0, lam, a, horizon, projections)
+            yq, yp, yf = projections  # (2n, m), (2n, m), (2n, k)
+            # y_j^T b(s_p) = s_p y_j^T q0 + y_j^T D_m q0 + y_j^T p0
+            both = _cross_terms(modes, s, w, lam, a, horizon, yq, yf @ wf_q + yp, yf, wf_u)
         else:
-            both = _internal_cross(modes, s, w, u, q0, p0, lam, a, horizon, y, support)
+            both = _internal_cross(modes, s, w, q0, p0, lam, a, horizon, y, support, f, wf_u,
+                                   wf_q)
         gram = jnp.einsum("plm,qlm->pqm", weighted, u) + (
             s[:, None, None] * s[None, :, None]) * jnp.einsum("plm,qlm->pqm", u, u)
         kernel = growth(s[:, None] + s[None, :], horizon)
@@ -177,16 +182,6 @@ def cluster_energy(modes: DampedModes, q0, p0, horizon, a, block, projections=No
 
     shape = jax.eval_shape(terms)
     return jax.lax.cond(modes.clusters.any, terms, lambda: jnp.zeros(shape.shape, shape.dtype))
-
-
-def _projected_cross(modes: DampedModes, s, w, u, q0, lam, a, horizon, projections):
-    """``cluster_energy``'s cross terms from the roots' projections, O(NODES k) per root."""
-    yq, yp, yf = projections  # (2n, m), (2n, m), (2n, k)
-    f = jnp.where(modes.active[:, None], modes.factor, 0.0)
-    wf_u = jnp.einsum("la,plm->pam", f, u) * modes.weights[None, :, None]  # W F^T u_p
-    wf_q = (f.T @ q0) * modes.weights[:, None]  # W F^T q0 (k, m)
-    # y_j^T b(s_p) = s_p y_j^T q0 + y_j^T D_m q0 + y_j^T p0
-    return _cross_terms(modes, s, w, lam, a, horizon, yq, yf @ wf_q + yp, yf, wf_u)
 
 
 def _cross_terms(modes: DampedModes, s, w, lam, a, horizon, y_q, y_c, yf, wf_u, internal=None):
@@ -224,16 +219,15 @@ def _cross_terms(modes: DampedModes, s, w, lam, a, horizon, y_q, y_c, yf, wf_u, 
     return jnp.real(value)
 
 
-def _internal_cross(modes: DampedModes, s, w, u, q0, p0, lam, a, horizon, y, support):
+def _internal_cross(modes: DampedModes, s, w, q0, p0, lam, a, horizon, y, support, f, wf_u,
+                    wf_q):
     """``cluster_energy``'s cross terms with internal damping, from the rows ``y`` (2n, n): the
     eigen-equations' identity with D_m = Gamma + F W F^T, and y_j^T Gamma u_p by Woodbury
-    (``cluster_energy``), O(NODES n (k + support m)) per root."""
+    (``cluster_energy``), O(NODES n (k + support m)) per root. ``f``: the damped modes' factor;
+    ``wf_u``, ``wf_q``: W F^T u_p (P, k, m) and W F^T q0 (k, m)."""
     rows = q0.shape[0] if support is None else support
-    f = jnp.where(modes.active[:, None], modes.factor, 0.0)
-    gamma, weights = modes.gamma, modes.weights
+    gamma = modes.gamma
     r, _, _ = resolvent_at(modes, s)  # (P, n)
-    wf_u = jnp.einsum("la,plm->pam", f, u) * weights[None, :, None]  # W F^T u_p
-    wf_q = (f.T @ q0) * weights[:, None]  # W F^T q0 (k, m)
     yf = y @ f  # F^T y_j (2n, k)
     head, q_head, p_head = y[:, :rows], q0[:rows], p0[:rows]
     # y_j^T b(s_p) = s_p y_j^T q0 + y_j^T Gamma q0 + (F^T y_j) W F^T q0 + y_j^T p0
@@ -329,7 +323,7 @@ def _dampers_energy(modes: DampedModes, q0, p0, horizon, block):
     own = allowed & allowed[partner]
     kernel = jnp.where(own, size * growth(jnp.where(own, s_partner, -1.0), horizon), 0.0)
     value = value + jnp.sum((a.real**2 + a.imag**2) * kernel[:, None], axis=0) / 2
-    value = value + cluster_energy(modes, q0, p0, horizon, a, block, projections)
+    value = value + cluster_energy(modes, q0, p0, horizon, a, projections)
     value = value.reshape(batch)
     q0, p0 = q0.reshape((n,) + batch), p0.reshape((n,) + batch)
     return value + _idle_energy(modes, q0, p0, horizon)
@@ -508,7 +502,7 @@ def energy_from_modes(modes: DampedModes, q0, p0, horizon, block: int | None = N
     batch = q0.shape[1:]
     n = q0.shape[0]
     value = value + cluster_energy(modes, q0.reshape(n, -1), p0.reshape(n, -1), horizon,
-                                   a.reshape(2 * n, -1), None, support=support,
+                                   a.reshape(2 * n, -1), support=support,
                                    y=y).reshape(batch)
     return value
 

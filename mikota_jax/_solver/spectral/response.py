@@ -43,7 +43,7 @@ from .clusters import initial_rhs, solve_at
 from .modes import live_modes, live_rows, uses_rows
 from .modes import spectral_applies as system_applies
 from .roots import complex_arithmetic
-from .rows import by_rows, sum_by_rows
+from .rows import abs2, by_rows, sum_by_rows
 
 
 def spectral_applies(model) -> str | None:
@@ -121,11 +121,8 @@ def _conjugate_slots(lam, block=None, mate=None):
     n = size // 2
     index = jnp.arange(size)
 
-    def nearest(z):  # argmin_k |lambda_k - conj(lambda_j)|, squared: no hypot per pair
-        gap = lam[None, :] - jnp.conj(z)[:, None]
-        return jnp.argmin(jnp.real(gap) ** 2 + jnp.imag(gap) ** 2, axis=1)
-
-    partner = by_rows(nearest, block, lam)
+    partner = by_rows(  # argmin_k |lambda_k - conj(lambda_j)|, squared (``abs2``)
+        lambda z: jnp.argmin(abs2(lam[None, :] - jnp.conj(z)[:, None]), axis=1), block, lam)
     if mate is not None:
         partner = jnp.where(mate != index, mate, partner)
     consistent = jnp.all(partner[partner] == index)

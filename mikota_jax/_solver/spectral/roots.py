@@ -40,7 +40,7 @@ import jax.numpy as jnp
 
 from ..._custom_types import Array, Float
 from .clusters import Clusters, cluster_roots, find_clusters
-from .rows import by_rows, by_rows_where, repulsion, row_block, small_solve
+from .rows import abs2, by_rows, by_rows_where, repulsion, row_block, small_solve
 from .starts import arc_starts, far_starts
 
 
@@ -344,7 +344,7 @@ def _secular_rows(poles, gamma, factor, weights, active, anchor, offset, spread=
     out = (phi, phi_prime, others, c, scale, -jnp.einsum("jab,jb->ja", h_inv_h_prime, c))
     if spread:
         plain = (factor[:, :, None] * factor[:, None, :]).reshape(n, k * k)
-        out += (((jnp.real(r) ** 2 + jnp.imag(r) ** 2) @ plain).reshape(-1, k, k),)
+        out += ((abs2(r) @ plain).reshape(-1, k, k),)
     return out
 
 
@@ -353,7 +353,7 @@ def _vector_size(lam, c, weights, spread):
     ``_secular``'s ``spread`` S: 1 / |lambda|^2 + (d c)^H S (d c), O(k^2) per root."""
     wc = c * weights[None, :]
     quad = jnp.einsum("ja,jab,jb->j", jnp.conj(wc), spread, wc)
-    return 1 / (jnp.real(lam) ** 2 + jnp.imag(lam) ** 2) + jnp.real(quad)
+    return 1 / abs2(lam) + jnp.real(quad)
 
 
 def _axis_order(poles, candidates):
@@ -405,8 +405,7 @@ def _reanchor(poles, active, anchor, offset, block=None, axis=None):
         if axis is not None:
             new_anchor = _axis_nearest(poles, axis, lam, 1)[:, 0]
         else:
-            gap = lam[:, None] - poles[None, :]
-            distance = jnp.real(gap) ** 2 + jnp.imag(gap) ** 2  # squared: no hypot per pair
+            distance = abs2(lam[:, None] - poles[None, :])
             new_anchor = jnp.argmin(jnp.where(candidates[None, :], distance, jnp.inf), axis=1)
         return new_anchor, offset + (poles[anchor] - poles[new_anchor])
 
@@ -428,9 +427,7 @@ def _nearest_anchors(poles, active, anchor, offset, block=None, axis=None):
         lam = poles[anchor] + offset
         if axis is not None:
             return _axis_nearest(poles, axis, lam, min(_ANCHOR_CANDIDATES, 2 * n))
-        gap = lam[:, None] - poles[None, :]
-        distance = jnp.where(candidates[None, :], jnp.real(gap) ** 2 + jnp.imag(gap) ** 2,
-                             jnp.inf)  # squared: no hypot per pair
+        distance = jnp.where(candidates[None, :], abs2(lam[:, None] - poles[None, :]), jnp.inf)
         # successive argmins, not ``lax.top_k``: XLA's CPU top_k sorts each row (40 ms at
         # n = 300, a third of one spectral value), a few masked argmins cost a pass each
         nearest = []
