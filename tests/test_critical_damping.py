@@ -366,3 +366,76 @@ def test_a_damper_on_the_node_of_two_modes_keeps_the_exact_energy(c):
     dense = mj.DenseExponential()
     central = (float(energy(c + h, dense)) - float(energy(c - h, dense))) / (2 * h)
     assert float(slope) == pytest.approx(central, rel=1e-6)
+
+
+# Mikota's chain with its damper on the middle DOF: at c = 2 sqrt(k m) every mode pair (1, 2),
+# (3, 4), ... meets at once (n / 2 double roots, measured by the roots' separation: 1e-11
+# relative at c = 2 for n = 8, 20, 300), more pairs than the contour's slots. Summed root by root,
+# the old bound (2 |lambda| |y|^2 / |N| <= 1e6) let through J 4e-2 off at n = 20 and 1e-3 off at
+# n = 300 for c = 2 (1 + 1e-9): such a pair is held to ``PAIR_LIMIT`` and refused beyond it.
+MIDDLE = (lambda c: mj.mikota_chain(8, dampers=[mj.GroundedDamper(4.0, c)]), np.eye(8)[2],
+          np.linspace(0.0, 1.0, 8))
+
+
+def middle_truths(c):
+    """(J, trace, dJ/dc) of ``MIDDLE`` at the float c: mpmath's eigen-expansion at 80 digits
+    (at 1e-2 from the meeting point the pairs cost ~1 digit) and central differences of it with
+    h = 1e-12 c at 80 digits (truncation ~1e-24)."""
+    make, x0, v0 = MIDDLE
+    m, with_one, k = (np.asarray(a) for a in make(1.0).dense())
+    d0 = np.asarray(make(0.0).dense()[1])
+    d1 = mp.matrix((with_one - d0).tolist())  # D(c) = D0 + c D1, entries 0 and 1: exact
+    with mp.workdps(80):
+        def at(c):
+            return mp_truths((m, mp.matrix(d0.tolist()) + c * d1, k), T, x0, v0, [], exact=True)
+
+        energy, trace, _ = at(mp.mpf(c))
+        h = mp.mpf(c) * mp.mpf("1e-12")
+        slope = (at(mp.mpf(c) + h)[0] - at(mp.mpf(c) - h)[0]) / (2 * h)
+        return float(energy), float(trace), float(slope)
+
+
+@pytest.mark.parametrize("delta", [1e-2, pytest.param(-1e-2, marks=pytest.mark.slow),
+                                   pytest.param(3e-3, marks=pytest.mark.slow)])
+def test_every_pair_meeting_at_once_keeps_the_exact_energy_outside_the_refusal(delta, close):
+    make, x0, v0 = MIDDLE
+    c = 2 * (1 + delta)
+    energy, trace, slope = middle_truths(c)
+    value, grad = jax.value_and_grad(lambda c: mj.Energy(T, x0, v0)(make(c)))(c)
+    close(value, energy, rtol=1e-12, what="J")
+    close(mj.AverageEnergy()(make(c)), trace, rtol=1e-12, what="trace")
+    # measured 1.2e-10 at delta = -1e-2, 1e-9 at 3e-3: the pairs the contour rule leaves to the
+    # root-by-root sums lose ~eps cond^4 in the derivative
+    close(grad, slope, rtol=2e-9, what="dJ/dc")
+
+
+@pytest.mark.parametrize("delta", [1e-4, -1e-9, 0.0])
+def test_every_pair_meeting_at_once_is_refused_eagerly_and_under_jit(delta):
+    make, x0, v0 = MIDDLE
+    energy = mj.Energy(T, x0, v0)
+    with pytest.raises(ValueError, match="spectral path did not hold"):
+        energy(make(2 * (1 + delta)))
+    with pytest.raises(jax.errors.JaxRuntimeError, match="spectral path did not hold"):
+        jax.jit(lambda c: energy(make(c)))(2 * (1 + delta))
+    # the dense path the message names holds there: against mpmath's expansion at 80 digits (at
+    # the defective point itself, c = 2, against it at c = 2 (1 + 1e-9): dJ/dc ~ 1, so within
+    # ~2e-9 J)
+    dense = mj.Energy(T, x0, v0, method=mj.DenseExponential())(make(2 * (1 + delta)))
+    m, d, k = make(2 * (1 + (delta or 1e-9))).dense()
+    truth, _, _ = mp_truths((m, d, k), T, x0, v0, [])
+    assert float(dense) == pytest.approx(truth, rel=1e-11 if delta else 1e-8)
+
+
+@pytest.mark.slow
+def test_the_optimiser_says_why_it_stops_before_the_middle_dampers_trace_optimum():
+    # the trace of MIDDLE is smallest at c = 2 (the dense path's gradient there: 2e-14), inside
+    # the refusal: the search stops at the band's edge, fails, and its status says why
+    make, _, _ = MIDDLE
+    solution = mj.optimise(mj.DamperDesign(make(1.0), mj.AverageEnergy()), mj.Coefficients())
+    assert solution.result == mj.DesignResult.failed
+    assert "no finite criterion" in solution.stats["status"]
+    assert abs(float(solution.coefficients[0]) - 2.0) < 1e-2
+    # a feasible design's trace lies above the minimum: mpmath at 80 digits next to c = 2
+    m, d, k = make(2 * (1 + 1e-9)).dense()
+    _, minimum, _ = mp_truths((m, d, k), T, np.zeros(8), np.zeros(8), [])
+    assert minimum < solution.value < minimum * (1 + 1e-5)

@@ -360,7 +360,7 @@ def search_coefficients(system: SecondOrderSystem, objective, *, free=None, lowe
 
     evaluate_jit = lambda point: _value_and_gradient(  # noqa: E731
         jnp.asarray(point, dtype=jnp.float64), system, args, basis)
-    evaluations = 0
+    evaluations = refused = 0
     last = {}
 
     def design(u):
@@ -369,10 +369,11 @@ def search_coefficients(system: SecondOrderSystem, objective, *, free=None, lowe
         return point
 
     def evaluate(u):  # f and df/du = d * df/dd for the free coefficients
-        nonlocal evaluations
+        nonlocal evaluations, refused
         evaluations += 1
         point = design(u)
         f, g = evaluate_jit(jnp.asarray(point))
+        refused += not np.isfinite(f)
         last[u.tobytes()] = np.asarray(g)
         return float(f), np.asarray(g)[mask] * point[mask]
 
@@ -404,6 +405,9 @@ def search_coefficients(system: SecondOrderSystem, objective, *, free=None, lowe
     converged = history[-1][1] < tolerance
     if converged:
         status = "converged" if mask.any() else "nothing to move: every free coefficient is pinned"
+    elif refused:
+        status += (f"; {refused} trial designs had no finite criterion (the spectral path "
+                   "refuses where roots meet beyond what it sums exactly, or a mode is undamped)")
     return CoefficientRun(d, f, g, history[-1][1], converged, iterations, evaluations,
                            time.perf_counter() - start, history, status, state)
 
