@@ -36,12 +36,12 @@ Nearly equal roots with well-conditioned eigenvectors (the identical branches of
 chain) are no such case and stay simple. A pair the rule wants but no slot took is held to the
 far tighter ``PAIR_LIMIT``: summed root by root, its coefficients lose ~eps cond^2 of J and
 ~eps cond^4 of dJ/dc. Mikota's chain with the damper on its middle DOF meets every mode pair at
-once at c = 2 sqrt(k m) (n / 2 double roots); under the old bound alone J came back 4e-2 off at
-n = 20 and 1e-3 off at n = 300 for c = 2 (1 + 1e-9), and it is now refused within ~2e-3 of that
-c (J to 3e-12 and dJ/dc to 1e-9 just outside, n = 8 and 20). Crowded roots of long chains are no
-such case either: the largest bound seen on a grid of designs, ~90 at n = 1000, belongs to roots
-the rule does not want (their neighbours lie as close as their partner), and J and dJ/dc there
-agree with the dense path to 1e-11 (n = 300).
+once at c = 2 sqrt(k m) (n / 2 double roots): summed root by root under ``CONDITION_LIMIT``,
+J came back 4e-2 off at n = 20 for c = 2 (1 + 1e-9); held to ``PAIR_LIMIT`` it is refused within
+2e-3 of that c (J to 3e-12 and dJ/dc to 1e-9 just outside, n = 8 and 20). Crowded roots of
+long chains are no such case either: the largest bound seen on a grid of designs, ~90 at n =
+1000, belongs to roots the rule does not want (their neighbours lie as close as their partner),
+and J and dJ/dc there agree with the dense path to 1e-11 (n = 300).
 """
 
 import equinox as eqx
