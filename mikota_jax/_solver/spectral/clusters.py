@@ -38,7 +38,7 @@ far tighter ``PAIR_LIMIT``: summed root by root, its coefficients lose ~eps cond
 ~eps cond^4 of dJ/dc. Mikota's chain with the damper on its middle DOF meets every mode pair at
 once at c = 2 sqrt(k m) (n / 2 double roots): summed root by root under ``CONDITION_LIMIT``,
 J came back 4e-2 off at n = 20 for c = 2 (1 + 1e-9); held to ``PAIR_LIMIT`` it is refused within
-2e-3 of that c (J to 3e-12 and dJ/dc to 1e-9 just outside, n = 8 and 20). Crowded roots of
+2e-3 of that c (J to 3e-12, dJ/dc to 1.5e-8 just outside, n = 8 to 300). Crowded roots of
 long chains are no such case either: the largest bound seen on a grid of designs, ~90 at n =
 1000, belongs to roots the rule does not want (their neighbours lie as close as their partner),
 and J and dJ/dc there agree with the dense path to 1e-11 (n = 300).
