@@ -294,7 +294,12 @@ def section5(package, n, repeats):
 
 def plot(data: dict) -> None:
     pairs = data.get("all_pairs")
-    fig, axes = figure(readable=True, ncols=3 if pairs else 2, figsize=(18 if pairs else 12, 5.2))
+    if pairs:  # a second row for the middle damper, the fourth panel empty
+        fig, axes = figure(readable=True, nrows=2, ncols=2, figsize=(12, 11))
+        axes = axes.ravel()
+        axes[3].axis("off")
+    else:
+        fig, axes = figure(readable=True, ncols=2, figsize=(12, 5.2))
     ax = axes[0]
     for name, rows in data["accuracy"].items():
         order = sorted(rows, key=lambda r: (np.sign(r["delta"]), abs(r["delta"])))
