@@ -136,6 +136,30 @@ def test_energy_with_a_method_object_passes_through_jit_vmap_and_grad():
     assert float(values[1]) == pytest.approx(quadrature_energy(), rel=1e-12)
 
 
+@pytest.mark.parametrize(("method", "rel"), [(mj.Auto(), 1e-13), (mj.Spectral(), 1e-13),
+                                             (mj.DenseExponential(), 1e-10)],
+                         ids=["auto", "spectral", "dense"])
+def test_average_energy_takes_the_exact_methods_of_solve(method, rel):
+    # one mass, m = k = 1: trace X = c / 2 + 2 / c exactly
+    value = mj.AverageEnergy(method=method)(one_mass())
+    assert float(value) == pytest.approx(C / 2 + 2 / C, rel=rel)
+
+
+@pytest.mark.parametrize("method", ["dense", mj.ODE()], ids=["string", "ode"])
+def test_average_energy_refuses_other_methods_in_one_line(method):
+    with pytest.raises(ValueError, match="AverageEnergy's method must be") as info:
+        mj.AverageEnergy(method=method)(one_mass())
+    assert "\n" not in str(info.value)
+
+
+def test_a_full_order_search_refuses_an_energy_by_ode_in_one_line():
+    # it used to drop the method and search on the damped modes
+    design = mj.DamperDesign(one_mass(), mj.Energy(T, x0=jnp.ones(1), method=mj.ODE()))
+    with pytest.raises(ValueError, match="no ODE") as info:
+        mj.optimise(design, mj.Coefficients())
+    assert "\n" not in str(info.value)
+
+
 @pytest.mark.parametrize("method", ["exact", mj.ODE(diffrax.Kvaerno5()), None],
                          ids=["string", "kvaerno5", "none"])
 def test_energy_refuses_other_methods_in_one_line(method):

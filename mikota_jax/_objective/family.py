@@ -9,7 +9,8 @@ function of the model's values, so ``jax.grad``, ``jax.vmap`` and ``mj.sweep`` p
     >>> jax.grad(lambda c: energy(mj.mikota_chain(300, dampers=[mj.GroundedDamper(7.0, c)])))(1.0)
 
 * ``Energy(horizon, x0, v0, load)``: int_0^T (x^T K x + x'^T M x') / 2 dt;
-* ``AverageEnergy(lowest)``: Veselic's total average energy, the trace of the Lyapunov solution;
+* ``AverageEnergy(lowest, method)``: Veselic's total average energy, the trace of the Lyapunov
+  solution;
 * ``OutputEnergy(cx, cv, x0, v0, lowest, horizon)``: the energy of weighted outputs;
 * ``H2Norm(inputs, cx, cv)``: ||G||_H2 of the input-output map;
 * ``Peak(dof, ts, x0, v0, load, order, method)``: a smooth peak of one DOF's displacement from a
@@ -77,11 +78,17 @@ def energy_options(method) -> dict:
         atol = 1e-11 if method.atol is None else method.atol
         return dict(method="ode", rtol=method.rtol, atol=atol, max_steps=method.max_steps,
                     adjoint=method.adjoint)
+    return dict(method=exact_method(method, "Energy", " or ODE(...)"))
+
+
+def exact_method(method, owner: str, more: str = "") -> str:
+    """The exact functions' method name of ``Auto()``, ``Spectral()`` or ``DenseExponential()``;
+    anything else refused in one line naming ``owner`` (``more``: the other methods it takes)."""
     for kind, name in ((Auto, "exact"), (Spectral, "spectral"), (DenseExponential, "dense")):
         if type(method) is kind:
-            return dict(method=name)
-    raise ValueError(MARK + "Energy's method must be Auto(), Spectral(), DenseExponential() or "
-                     f"ODE(...), got {method!r}.")
+            return name
+    raise ValueError(MARK + f"{owner}'s method must be Auto(), Spectral(), DenseExponential()"
+                     f"{more}, got {method!r}.")
 
 
 class AverageEnergy(AbstractObjective):
@@ -90,15 +97,22 @@ class AverageEnergy(AbstractObjective):
     is infinite (refused) where a mode is undamped. Its unit is time. It is Veselic's and
     FastOptimalDamping.jl's trace: ``OutputEnergy`` with C_x = Omega U^T M, C_v = U^T M (the
     energy norm) and the same ``lowest``; a trace of the physical (x, x') Gramian is another
-    number (the module docstring of ``_output_criteria`` compares the published definitions)."""
+    number (the module docstring of ``_output_criteria`` compares the published definitions).
+
+    ``method``: ``Auto()`` (default: the damped modes where they apply, chosen from the
+    structure), ``Spectral()`` or ``DenseExponential()`` (Smith doubling of Van Loan's integral,
+    O(n^3): where the damped modes refuse, e.g. where more pairs of roots meet at once than they
+    sum exactly)."""
 
     lowest: int | None = eqx.field(static=True, default=None)
+    method: AbstractMethod = Auto()
 
     def __call__(self, model) -> Array:
         """trace X of ``model``."""
         from .functions import total_average_energy
 
-        return total_average_energy(model, self.lowest)
+        return total_average_energy(model, self.lowest,
+                                    method=exact_method(self.method, "AverageEnergy"))
 
 
 class OutputEnergy(AbstractObjective):

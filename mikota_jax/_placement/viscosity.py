@@ -57,13 +57,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._errors import MARK, check_lowest, check_x64, integer_indices
+from .._errors import MARK, RESULTS, check_lowest, check_x64, integer_indices
 from .._model.dampers import Dampers
 from .._model.parameters import with_parameters
 from .._model.reduced import galerkin
 from .._model.system import SecondOrderSystem
-from .._objective.family import AverageEnergy, Energy, H2Norm, OutputEnergy, Peak
-from .._objective.functions import smooth_peak
+from .._objective.family import AverageEnergy, Energy, H2Norm, OutputEnergy, Peak, exact_method
+from .._objective.functions import (
+    integrated_energy_exact_with_result,
+    smooth_peak,
+    total_average_energy_with_result,
+)
 from .._objective.outputs import (
     _reduced_output_energy,
     output_arguments,
@@ -121,7 +125,16 @@ def criterion_value(system, objective):
     seen): no check inside, so a compiled search meets a failed design as a value to reject,
     never as an error."""
     o = objective
-    if isinstance(o, AverageEnergy):
+    if isinstance(o, AverageEnergy | Energy) and exact_method(o.method, "") == "dense":
+        # the objective's own choice (where the damped modes refuse): Van Loan's integrals
+        if isinstance(o, AverageEnergy):
+            value, result = total_average_energy_with_result(system, lowest=o.lowest,
+                                                             method="dense")
+        else:
+            value, result = integrated_energy_exact_with_result(system, o.horizon, o.x0, o.v0,
+                                                                method="dense")
+        ok = result == RESULTS.successful
+    elif isinstance(o, AverageEnergy):
         value, ok = spectral_trace_with_result(system, lowest=o.lowest)
     elif isinstance(o, Energy):
         value, ok = spectral_energy_with_result(system, o.horizon, o.x0, o.v0)
@@ -263,9 +276,11 @@ def checked_objective(system, objective):
         x0, v0 = initial_vector(o.x0, n, "x0"), initial_vector(o.v0, n, "v0")
         if not (bool(jnp.any(x0 != 0)) or bool(jnp.any(v0 != 0))):
             raise ValueError(MARK + "objective Energy needs an excitation: x0 or v0.")
-        return Energy(horizon, x0, v0)
+        exact_method(o.method, "Energy in a full-order search", " (no ODE: it is exact)")
+        return Energy(horizon, x0, v0, method=o.method)
     if isinstance(o, AverageEnergy):
         check_lowest(o.lowest, n)
+        exact_method(o.method, "AverageEnergy")
         return o
     if isinstance(o, Peak):
         return _checked_peak(n, o.x0, o.v0, o.dof, o.ts, o.order)
@@ -407,7 +422,8 @@ def search_coefficients(system: SecondOrderSystem, objective, *, free=None, lowe
         status = "converged" if mask.any() else "nothing to move: every free coefficient is pinned"
     elif refused:
         status += (f"; {refused} trial designs had no finite criterion (the spectral path "
-                   "refuses where roots meet beyond what it sums exactly, or a mode is undamped)")
+                   "refuses where roots meet beyond what it sums exactly: an objective's "
+                   "method=DenseExponential() holds there; or a mode is undamped)")
     return CoefficientRun(d, f, g, history[-1][1], converged, iterations, evaluations,
                            time.perf_counter() - start, history, status, state)
 
