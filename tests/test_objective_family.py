@@ -152,11 +152,17 @@ def test_average_energy_refuses_other_methods_in_one_line(method):
     assert "\n" not in str(info.value)
 
 
-def test_a_full_order_search_refuses_an_energy_by_ode_in_one_line():
+@pytest.mark.parametrize(("objective", "says"), [
+    (mj.Energy(T, x0=jnp.ones(1), method=mj.ODE()), "no ODE"),
+    (mj.Peak(1, np.linspace(0.0, T, 11), x0=jnp.ones(1), method=mj.DenseExponential()),
+     "Auto\\(\\) or Spectral\\(\\)"),
+    (mj.Peak(1, np.linspace(0.0, T, 11), x0=jnp.ones(1), method=mj.ODE()),
+     "Auto\\(\\) or Spectral\\(\\)"),
+], ids=["energy by ode", "peak by dense", "peak by ode"])
+def test_a_full_order_search_refuses_a_method_it_would_not_use_in_one_line(objective, says):
     # it used to drop the method and search on the damped modes
-    design = mj.DamperDesign(one_mass(), mj.Energy(T, x0=jnp.ones(1), method=mj.ODE()))
-    with pytest.raises(ValueError, match="no ODE") as info:
-        mj.optimise(design, mj.Coefficients())
+    with pytest.raises(ValueError, match=says) as info:
+        mj.optimise(mj.DamperDesign(one_mass(), objective), mj.Coefficients())
     assert "\n" not in str(info.value)
 
 

@@ -76,6 +76,7 @@ from .._objective.outputs import (
     state_matrix,
 )
 from .._solver.ode import initial_vector
+from .._solver.solve import Auto, Spectral
 from .._solver.spectral.energy import (
     spectral_energy_with_result,
     spectral_output_energy_with_result,
@@ -283,6 +284,9 @@ def checked_objective(system, objective):
         exact_method(o.method, "AverageEnergy")
         return o
     if isinstance(o, Peak):
+        if type(o.method) not in (Auto, Spectral):
+            raise ValueError(MARK + "Peak in a full-order search solves by the damped modes: its "
+                             f"method must be Auto() or Spectral(), got {o.method!r}.")
         return _checked_peak(n, o.x0, o.v0, o.dof, o.ts, o.order)
     # OutputEnergy, H2Norm: checked as the public functions check them, before compiling
     cx, cv = output_arguments(system, o.cx, o.cv)
