@@ -292,6 +292,17 @@ def section5(package, n, repeats):
     return out
 
 
+def _delta_axes(ax, deltas, xlabel, ylabel, title) -> None:
+    """An errors-against-delta panel: one tick per delta, the 1e-9 line, log errors."""
+    ax.set_xticks(range(len(deltas)), [f"{d:.0e}" for d in deltas], rotation=90)
+    ax.axhline(1e-9, color="grey", ls="--", lw=1)
+    ax.set_yscale("log")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    legend(ax, "below")
+
+
 def plot(data: dict) -> None:
     pairs = data.get("all_pairs")
     if pairs:  # a second row for the middle damper, the fourth panel empty
@@ -307,13 +318,9 @@ def plot(data: dict) -> None:
         worst = [max(r["error_J"], r["error_trace"], r["error_x"], r["error_dJ"],
                      r["error_dtrace"], 1e-17) for r in order]
         ax.plot(range(len(x)), worst, "o-", label=name)
-        ax.set_xticks(range(len(x)), [f"{d:.0e}" for d in x], rotation=90)
-    ax.axhline(1e-9, color="grey", ls="--", lw=1)
-    ax.set_yscale("log")
-    ax.set_xlabel("delta (c = c* (1 + delta))")
-    ax.set_ylabel("worst relative error (J, trace, x, dJ/dc, dtrace/dc)")
-    ax.set_title("default path through critical damping")
-    legend(ax, "below")
+    _delta_axes(ax, x, "delta (c = c* (1 + delta))",
+                "worst relative error (J, trace, x, dJ/dc, dtrace/dc)",
+                "default path through critical damping")
     ax = axes[1]
     sizes = sorted(data["memory"]["gradient"], key=int)
     for mode, marker in (("jit", "o-"), ("eager", "s--")):
@@ -335,13 +342,9 @@ def plot(data: dict) -> None:
                                         for r in order], marker, label=f"n = {n}: {key[6:]}")
             refused = [i for i, r in enumerate(order) if r["refused"]]
             ax.plot(refused, [1.0] * len(refused), "kx", ms=9)
-            ax.set_xticks(range(len(x)), [f"{d:.0e}" for d in x], rotation=90)
-        ax.axhline(1e-9, color="grey", ls="--", lw=1)
-        ax.set_yscale("log")
-        ax.set_xlabel("delta (c = 2 (1 + delta)); x at the top: refused")
-        ax.set_ylabel("relative error against the dense path")
-        ax.set_title("middle damper: every mode pair meets at c = 2")
-        legend(ax, "below")
+        _delta_axes(ax, x, "delta (c = 2 (1 + delta)); x at the top: refused",
+                    "relative error against the dense path",
+                    "middle damper: every mode pair meets at c = 2")
     fig.suptitle(subtitle(data.get("meta")), fontsize=9)
     save_figure(fig, NAME, data.get("quick", False))
 
