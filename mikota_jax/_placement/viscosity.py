@@ -77,11 +77,7 @@ from .._objective.outputs import (
 )
 from .._solver.ode import initial_vector
 from .._solver.solve import Auto, Spectral
-from .._solver.spectral.energy import (
-    spectral_energy_with_result,
-    spectral_output_energy_with_result,
-    spectral_trace_with_result,
-)
+from .._solver.spectral.energy import spectral_output_energy_with_result
 from .._solver.spectral.modes import spectral_applies
 from .._solver.spectral.response import spectral_solve_with_result
 
@@ -126,19 +122,14 @@ def criterion_value(system, objective):
     seen): no check inside, so a compiled search meets a failed design as a value to reject,
     never as an error."""
     o = objective
-    if isinstance(o, AverageEnergy | Energy) and exact_method(o.method, "") == "dense":
-        # the objective's own choice (where the damped modes refuse): Van Loan's integrals
-        if isinstance(o, AverageEnergy):
-            value, result = total_average_energy_with_result(system, lowest=o.lowest,
-                                                             method="dense")
-        else:
-            value, result = integrated_energy_exact_with_result(system, o.horizon, o.x0, o.v0,
-                                                                method="dense")
+    if isinstance(o, AverageEnergy):  # by the objective's own method (Auto: the damped modes)
+        value, result = total_average_energy_with_result(
+            system, lowest=o.lowest, method=exact_method(o.method, "AverageEnergy"))
         ok = result == RESULTS.successful
-    elif isinstance(o, AverageEnergy):
-        value, ok = spectral_trace_with_result(system, lowest=o.lowest)
     elif isinstance(o, Energy):
-        value, ok = spectral_energy_with_result(system, o.horizon, o.x0, o.v0)
+        value, result = integrated_energy_exact_with_result(
+            system, o.horizon, o.x0, o.v0, method=exact_method(o.method, "Energy"))
+        ok = result == RESULTS.successful
     elif isinstance(o, H2Norm):
         value, ok = spectral_output_energy_with_result(system, None, None, o.inputs, o.cx, o.cv,
                                                        None, None)

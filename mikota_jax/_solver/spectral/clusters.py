@@ -153,7 +153,7 @@ def find_clusters(poles, anchor, offset, active, condition, block=None):
                              * jnp.abs(poles[:n]))
     # a pair the rule wants but no slot took (more pairs than slots) is summed root by root:
     # held to ``PAIR_LIMIT``
-    in_pair = root_active & (wanted | (mutual & wanted[nearest]))
+    in_pair = wanted | (mutual & wanted[nearest])
     limit = jnp.where(in_pair, PAIR_LIMIT, CONDITION_LIMIT)
     ill = root_active & ~member & ~(condition <= limit)
     ok = ~jnp.any(ill) & ~jnp.any(double_pole)
