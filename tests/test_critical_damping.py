@@ -99,18 +99,25 @@ def derivative_truths(name, c):
             jp, tp, _ = one_dof_truth(mp.mpf(c) + h, exact=True)
             jm, tm, _ = one_dof_truth(mp.mpf(c) - h, exact=True)
             return float((jp - jm) / (2 * h)), float(mp.mpf(0.5) - 2 / mp.mpf(c) ** 2)
-        m, with_one, k = (np.asarray(a) for a in make(1.0).dense())
-        d0 = np.asarray(make(0.0).dense()[1])
-        d1 = with_one - d0  # D(c) = D0 + c D1 (entries 0, +-1 and the fixed damper's: exact)
-
-        def at(c):
-            damping = mp.matrix(d0.tolist()) + c * mp.matrix(d1.tolist())
-            energy, trace, _ = mp_truths((m, damping, k), T, x0, v0, [], exact=True)
-            return energy, trace
-
+        at = mp_system(make, x0, v0)
         jp, tp = at(mp.mpf(c) + h)
         jm, tm = at(mp.mpf(c) - h)
         return float((jp - jm) / (2 * h)), float((tp - tm) / (2 * h))
+
+
+def mp_system(make, x0, v0):
+    """c (an mpmath number) -> (J, trace) of ``make(c)`` from mpmath's eigen-expansion at 80
+    digits, with D(c) = D0 + c D1 built exactly (D1's entries 0, +-1 and the fixed dampers')."""
+    m, with_one, k = (np.asarray(a) for a in make(1.0).dense())
+    d0 = np.asarray(make(0.0).dense()[1])
+    d1 = with_one - d0
+
+    def at(c):
+        damping = mp.matrix(d0.tolist()) + c * mp.matrix(d1.tolist())
+        energy, trace, _ = mp_truths((m, damping, k), T, x0, v0, [], exact=True)
+        return energy, trace
+
+    return at
 
 
 def spectral_values(name, c):
@@ -381,15 +388,9 @@ def middle_truths(c):
     """(J, trace, dJ/dc) of ``MIDDLE`` at the float c: mpmath's eigen-expansion at 80 digits
     (at 1e-2 from the meeting point the pairs cost ~1 digit) and central differences of it with
     h = 1e-12 c at 80 digits (truncation ~1e-24)."""
-    make, x0, v0 = MIDDLE
-    m, with_one, k = (np.asarray(a) for a in make(1.0).dense())
-    d0 = np.asarray(make(0.0).dense()[1])
-    d1 = mp.matrix((with_one - d0).tolist())  # D(c) = D0 + c D1, entries 0 and 1: exact
     with mp.workdps(80):
-        def at(c):
-            return mp_truths((m, mp.matrix(d0.tolist()) + c * d1, k), T, x0, v0, [], exact=True)
-
-        energy, trace, _ = at(mp.mpf(c))
+        at = mp_system(*MIDDLE)
+        energy, trace = at(mp.mpf(c))
         h = mp.mpf(c) * mp.mpf("1e-12")
         slope = (at(mp.mpf(c) + h)[0] - at(mp.mpf(c) - h)[0]) / (2 * h)
         return float(energy), float(trace), float(slope)
