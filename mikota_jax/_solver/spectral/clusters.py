@@ -49,7 +49,7 @@ import jax
 import jax.numpy as jnp
 
 from ..._custom_types import Array
-from .rows import abs2, by_rows, roots_difference, small_solve
+from .rows import abs2, by_rows, complex_product, roots_difference, small_solve
 
 NODES = 40  # trapezoidal points on each circle (error 3^-NODES)
 MAX_CLUSTERS = 2  # pairs summed by contour at once (a conjugate pair of pairs takes two)
@@ -196,9 +196,9 @@ def cluster_roots(poles, factor, weights, active, clusters: Clusters):
 def solve_at(modes, s, rhs):
     """u = Q(s_p)^-1 rhs_p: (P, n, m) from rhs (P, n, m), O(P n k m) by Woodbury."""
     r, f, h = resolvent_at(modes, s)
-    g = jnp.einsum("la,pl,plm->pam", f, r, rhs)  # F^T R b
+    g = complex_product(f.T, r[:, :, None] * rhs)  # F^T R b
     z = small_solve(h, g)  # H^-1 F^T R b = F^T u
-    correction = jnp.einsum("la,a,pam->plm", f, modes.weights, z)
+    correction = complex_product(f * modes.weights[None, :], z)
     return r[:, :, None] * (rhs - s[:, None, None] * correction)
 
 

@@ -37,7 +37,7 @@ from ..._model.modal import modal_projection
 from .clusters import initial_rhs, resolvent_at, solve_at
 from .modes import live_modes, live_rows, uses_rows
 from .roots import DampedModes, complex_arithmetic
-from .rows import abs2, by_rows, row_block, small_solve
+from .rows import abs2, by_rows, complex_product, row_block, small_solve
 
 # --- the energy kernels: Gram matrix of the damped modes, pair sums, time integrals ----------
 
@@ -76,7 +76,8 @@ def modal_gram(modes: DampedModes, y) -> Array:
     s_safe = jnp.where(pair & (s != 0), s, 1.0)
     cauchy = (c * weights[None, :]) @ c.T
     if modes.internal:
-        cauchy = cauchy + (lam[:, None] * lam[None, :]) * ((y * modes.gamma[None, :]) @ y.T)
+        cauchy = cauchy + (lam[:, None] * lam[None, :]) * complex_product(
+            y * modes.gamma[None, :], y.T)
     gram = -2 * cauchy / s_safe
     partner = conjugate_partners(modes, jnp.arange(lam.shape[0]), pair)
     direct = jnp.sum((omega[None, :] ** 2 + (lam * lam[partner])[:, None]) * y * y[partner],
@@ -206,13 +207,13 @@ def _cross_terms(modes: DampedModes, s, w, lam, a, horizon, y_q, y_c, yf, wf_u, 
 
     def against(factor):  # sum_j K_pj a_jm factor_j. (2n, ...) -> (P, ..., m)
         spread = coefficient.reshape((roots,) + (1,) * (factor.ndim - 1) + (states,))
-        out = kernel @ (factor[..., None] * spread).reshape(roots, -1)
+        out = complex_product(kernel, (factor[..., None] * spread).reshape(roots, -1))
         return out.reshape((s.shape[0],) + factor.shape[1:] + (states,))
 
     value = value + jnp.einsum("p,pam,pam->m", twice, wf_u, against(yf))
     if internal is not None:
         head, rest, g_rf, wf_q = internal
-        d = jnp.einsum("pja,jm->pam", kernel[:, :, None] * g_rf, coefficient)
+        d = complex_product(jnp.swapaxes(kernel[:, :, None] * g_rf, 1, 2), coefficient)
         value = value + (jnp.einsum("p,plm,plm->m", twice, rest, against(head))
                          + jnp.einsum("p,am,pam->m", twice, wf_q, d)
                          - jnp.einsum("p,pam,pam->m", twice * s, wf_u, d))
@@ -234,7 +235,9 @@ def _internal_cross(modes: DampedModes, s, w, q0, p0, lam, a, horizon, y, suppor
     y_c = head @ (gamma[:rows, None] * q_head) + yf @ wf_q + head @ p_head
     # y_j^T Gamma u_p = y_j^T Gamma R_p ((s_p + Gamma) q0 + p0) + (y_j^T Gamma R_p F) W F^T q0
     #                   - s_p (y_j^T Gamma R_p F) W F^T u_p
-    g_rf = jnp.einsum("jl,pl,la->pja", y * gamma[None, :], r, f)  # (P, 2n, k)
+    points, k = s.shape[0], f.shape[1]
+    g_rf = complex_product(y * gamma[None, :], (r.T[:, :, None] * f[:, None, :]).reshape(
+        -1, points * k)).reshape(-1, points, k).swapaxes(0, 1)  # (P, 2n, k)
     rest = r[:, :rows, None] * gamma[None, :rows, None] * (
         (s[:, None, None] + gamma[None, :rows, None]) * q_head[None] + p_head[None])
     return _cross_terms(modes, s, w, lam, a, horizon, head @ q_head, y_c, yf, wf_u,
@@ -498,13 +501,13 @@ def energy_from_modes(modes: DampedModes, q0, p0, horizon, block: int | None = N
     a = modes.coefficients(q0, p0)
     kernel = jnp.where(pair, modal_gram(modes, y) * growth(jnp.where(pair, s, -1.0), horizon),
                        0.0)
-    value = jnp.real(jnp.einsum("j...,jk,k...->...", a, kernel, a)) / 2
     batch = q0.shape[1:]
     n = q0.shape[0]
-    value = value + cluster_energy(modes, q0.reshape(n, -1), p0.reshape(n, -1), horizon,
-                                   a.reshape(2 * n, -1), support=support,
-                                   y=y).reshape(batch)
-    return value
+    columns = a.reshape(2 * n, -1)
+    value = jnp.real(jnp.sum(columns * complex_product(kernel, columns), axis=0)) / 2
+    clusters = cluster_energy(modes, q0.reshape(n, -1), p0.reshape(n, -1), horizon, columns,
+                              support=support, y=y)
+    return (value + clusters).reshape(batch)
 
 
 @eqx.filter_jit

@@ -40,7 +40,7 @@ import jax.numpy as jnp
 
 from ..._custom_types import Array, Float
 from .clusters import Clusters, cluster_roots, find_clusters
-from .rows import abs2, by_rows, by_rows_where, repulsion, row_block, small_solve
+from .rows import abs2, by_rows, by_rows_where, complex_product, repulsion, row_block, small_solve
 from .starts import arc_starts, far_starts
 
 
@@ -234,7 +234,11 @@ class DampedModes(eqx.Module):
         roots = jnp.arange(lam.shape[0])
         norm = self.safe_normalisers(roots, self.normalisers()).reshape(lam.shape)
         member = self.clusters.member.reshape(lam.shape)
-        return jnp.where(member, 0.0, (y @ p0 - (y @ stiff) / lam) / norm)
+        n = q0.shape[0]
+        both = complex_product(y, jnp.concatenate([p0.reshape(n, -1), stiff.reshape(n, -1)],
+                                                  axis=1))
+        yp, ys = (part.reshape(lam.shape[:1] + q0.shape[1:]) for part in jnp.split(both, 2, 1))
+        return jnp.where(member, 0.0, (yp - ys / lam) / norm)
 
     @complex_arithmetic
     def load_coefficients(self, g: Float[Array, " n"]) -> Array:

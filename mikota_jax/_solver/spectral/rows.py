@@ -121,6 +121,31 @@ def repulsion(poles, anchor, offset, root_active, block, moving):
     return by_rows_where(rows, block, moving, anchor, offset, root_active, index)
 
 
+def complex_product(a, b):
+    """a @ b (``jnp.matmul``, batch axes leading) for complex a (..., m, p) and b (..., p, q),
+    either of which may be real, as one real matrix product of stacked real and imaginary parts.
+    XLA's CPU complex product ran 12x slower than a real one of the same shape and 3x slower than
+    the four real products it stands for ((1602, 801) by (801, 1602): 0.23 s, 0.019 s, 0.076 s),
+    and reverse mode transposes it into complex products again. Each entry is the same sums of
+    real products as the complex product's, so both round alike."""
+    if not jnp.iscomplexobj(a) and not jnp.iscomplexobj(b):
+        return a @ b
+    if not jnp.iscomplexobj(b):
+        out = jnp.concatenate([jnp.real(a), jnp.imag(a)], axis=-2) @ b
+        return jax.lax.complex(out[..., :a.shape[-2], :], out[..., a.shape[-2]:, :])
+    if not jnp.iscomplexobj(a):
+        q = b.shape[-1]
+        out = a @ jnp.concatenate([jnp.real(b), jnp.imag(b)], axis=-1)
+        return jax.lax.complex(out[..., :q], out[..., q:])
+    q = b.shape[-1]
+    left = jnp.concatenate([jnp.real(a), jnp.imag(a)], axis=-1)  # (..., m, 2p)
+    right = jnp.concatenate([jnp.concatenate([jnp.real(b), jnp.imag(b)], axis=-1),
+                             jnp.concatenate([-jnp.imag(b), jnp.real(b)], axis=-1)],
+                            axis=-2)  # (..., 2p, 2q)
+    out = left @ right  # (..., m, 2q): the real parts, then the imaginary ones
+    return jax.lax.complex(out[..., :q], out[..., q:])
+
+
 def small_solve(a, b):
     """x with a x = b for a batch of small systems: a (..., k, k), b (..., k, m).
 
