@@ -327,9 +327,9 @@ def _secular_rows(poles, gamma, factor, weights, active, anchor, offset, spread=
     r, mask = _resolvent(poles, anchor, offset, active)
     rate = 2 * lam[:, None] + gamma[None, :]  # d/dlambda (lambda^2 + gamma_l lambda + omega_l^2)
     r_prime = r - lam[:, None] * rate * r**2  # d/dlambda (lambda r)
-    ff = factor[:, :, None] * factor[:, None, :] * weights[None, None, :]  # (n, k, k)
-    h = jnp.eye(k)[None] + lam[:, None, None] * jnp.einsum("jl,lab->jab", r, ff)
-    h_prime = jnp.einsum("jl,lab->jab", r_prime, ff)
+    ff = (factor[:, :, None] * factor[:, None, :] * weights[None, None, :]).reshape(n, k * k)
+    h = jnp.eye(k)[None] + lam[:, None, None] * complex_product(r, ff).reshape(-1, k, k)
+    h_prime = complex_product(r_prime, ff).reshape(-1, k, k)
     f = factor[mode]  # (2n, k)
     solved = small_solve(h, jnp.stack([f.astype(h.dtype)] + [h_prime[:, :, i] for i in
                                                              range(k)], axis=-1))
@@ -519,19 +519,26 @@ def _finish(poles, gamma, factor, weights, active, anchor, offset, trace, block=
         return own, missing - poles[own]
 
     def body(carry):
-        trying, t, anchor, offset, best, best_anchor, best_offset, moving, steps, restarted = (
-            carry[:10])
+        (trying, t, anchor, offset, best, best_anchor, best_offset, moving, steps, restarted, _,
+         at, values) = carry
         candidate = nearest[jnp.minimum(t, count - 1)]
         trial_offset = offset + (poles[anchor] - poles[candidate])
-        trial = trying & root_active  # a root of a mode no damper touches keeps its own pole
+        # a root of a mode no damper touches keeps its own pole; a root settled at rounding
+        # level tries no further anchor
+        trial = trying & root_active & ~(best <= _ANCHOR_SETTLED)
         at_anchor = jnp.where(trial, candidate, anchor)
         at_offset = jnp.where(trial, trial_offset, offset)
-        phi, phi_prime, _, c, scale, _, spread = _secular(poles, gamma, factor, weights, active,
-                                                          at_anchor, at_offset, block,
-                                                          spread=True)
+        # only the roots whose point moved since their last evaluation (``by_rows_where``)
+        stale = (at_anchor != at[0]) | (at_offset != at[1])
+        fresh = _secular(poles, gamma, factor, weights, active, at_anchor, at_offset, block,
+                         stale, spread=True)
+        values = tuple(jnp.where(stale.reshape((-1,) + (1,) * (new.ndim - 1)), new, old)
+                       for new, old in zip((fresh[i] for i in (0, 1, 3, 4, 6)), values))
+        phi, phi_prime, c, scale, spread = values
+        at = (at_anchor, at_offset)
         # 1. anchors: keep the first smallest residual (NaN as argmin treats it)
         value = jnp.where(scale > 0, jnp.abs(phi) / scale, jnp.inf)
-        better = trying & jnp.where(jnp.isnan(best), False, jnp.isnan(value) | (value < best))
+        better = trial & jnp.where(jnp.isnan(best), False, jnp.isnan(value) | (value < best))
         best = jnp.where(better, value, best)
         best_anchor = jnp.where(better, candidate, best_anchor)
         best_offset = jnp.where(better, trial_offset, best_offset)
@@ -545,13 +552,15 @@ def _finish(poles, gamma, factor, weights, active, anchor, offset, trace, block=
         first = tried & (t == 0)
         polish = ~trying | first
         # 2. Newton on the moving roots, until every step is at rounding level (then this
-        # pass's evaluation is the last) or after ``steps`` steps (the next pass only evaluates)
+        # pass's evaluation is the last) or after ``steps`` steps (the next pass only evaluates).
+        # A root whose step is at rounding level already stays (and is not evaluated again)
         newton = jnp.where(moving & (phi_prime != 0),
                            phi / jnp.where(phi_prime != 0, phi_prime, 1.0), 0.0)
         lam = poles[anchor] + offset
-        quiet = jnp.all(jnp.abs(newton) <= _POLISHED * jnp.abs(lam))
+        small = jnp.abs(newton) <= _POLISHED * jnp.abs(lam)
+        quiet = jnp.all(small)
         finished = polish & ((t >= steps) | quiet)
-        offset = offset - jnp.where(polish & ~finished, newton, 0.0)
+        offset = offset - jnp.where(polish & ~finished & ~small, newton, 0.0)
         # 3. after the last pass: a restart, once, where one root is missing
         lam, root_ok, trace_ok = assess(anchor, offset, phi, phi_prime, scale)
         again = finished & ~restarted & (jnp.sum(~root_ok) == 1) & ~trace_ok
@@ -563,19 +572,21 @@ def _finish(poles, gamma, factor, weights, active, anchor, offset, trace, block=
         steps = jnp.where(again, _RESTART_STEPS, steps)
         t = jnp.where(again | (tried & ~first), 0, t + 1)
         return (trying & ~tried, t, anchor, offset, best, best_anchor, best_offset, moving,
-                steps, restarted | again, finished & ~again, phi, phi_prime, c, scale, spread)
+                steps, restarted | again, finished & ~again, at, values)
 
     shapes = jax.eval_shape(lambda o: _secular(poles, gamma, factor, weights, active, anchor, o,
                                                block, spread=True), offset)
     empty = tuple(jnp.zeros(shapes[i].shape, shapes[i].dtype) for i in (0, 1, 3, 4, 6))
     # the nearest pole's offset from the start, so that anchor and offset always match (a
-    # root whose every residual is inf keeps the first candidate, as the argmin did)
+    # root whose every residual is inf keeps the first candidate, as the argmin did); no root
+    # evaluated yet (anchor -1)
     init = (jnp.array(True), jnp.array(0), anchor, offset, jnp.full(2 * n, jnp.inf), nearest[0],
             offset + (poles[anchor] - poles[nearest[0]]), root_active,
-            jnp.array(_POLISH_STEPS), jnp.array(False), jnp.array(False)) + empty
+            jnp.array(_POLISH_STEPS), jnp.array(False), jnp.array(False),
+            (jnp.full_like(anchor, -1), offset), empty)
     final = jax.lax.while_loop(lambda carry: ~carry[10], body, init)
     anchor, offset = final[2], final[3]
-    phi, phi_prime, c, scale, spread = final[11:]
+    phi, phi_prime, c, scale, spread = final[12]
     lam, root_ok, _ = assess(anchor, offset, phi, phi_prime, scale)
     return anchor, offset, lam, c, root_ok, phi_prime, _vector_size(lam, c, weights, spread)
 
