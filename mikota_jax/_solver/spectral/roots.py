@@ -459,12 +459,14 @@ def _finish(poles, gamma, factor, weights, active, anchor, offset, trace, block=
        removal leaves H_J as singular as H: phi_J is then O(1) at the (correct) root and Newton
        on it jumps to another root. So the ``_ANCHOR_CANDIDATES`` nearest poles of damped modes
        are tried in order, each root keeping the first smallest relative residual |phi_J| /
-       (its terms) (the argmin's pick), until every damped root's is at rounding level
-       (usually after the nearest pole: one pass, not four). A pass that settles every anchor
-       at the nearest pole evaluated each root at its final anchor, and is the polish's first.
+       (its terms) (the argmin's pick); a root whose residual is at rounding level
+       (``_ANCHOR_SETTLED``) tries no further pole (usually after the nearest one: one pass,
+       not four). A pass that settles every anchor at the nearest pole evaluated each root at
+       its final anchor, and is the polish's first.
     2. **Polish.** Newton steps on phi_J, until every step is below ``_POLISHED`` |lambda|
        (the roots sit at their fixed point to rounding: this pass's values are the last, the
-       step is not taken) or ``_POLISH_STEPS`` were taken (the last pass only evaluates). After
+       step is not taken; a root whose own step is below it stays where it is meanwhile) or
+       ``_POLISH_STEPS`` were taken (the last pass only evaluates). After
        the sweeps the first step is usually at rounding level already (below 5e-15 |lambda|
        on seven chains checked, the multi-damper notebook's triple chain among them): the
        anchors' pass and the polish are then one pass, not two.
@@ -473,6 +475,12 @@ def _finish(poles, gamma, factor, weights, active, anchor, offset, trace, block=
        ``_RESTART_STEPS`` Newton steps. On the triple chain (d_3 = 229 at DOF 101) Aberth
        parked a second copy beside a real root, -27.9 + 7e-5 i, while a far real root went
        missing: 21 of the multi-damper notebook's 441 landscape points.
+
+    Each pass evaluates only the roots whose point (anchor, offset) moved since their last
+    evaluation (``by_rows_where``: blocks without one are skipped outside ``vmap``): the
+    FastOptimalDamping example (n = 801) has six low roots settling at 1e-13 to 2e-13, above
+    ``_ANCHOR_SETTLED``; they alone try the further poles, and its finish took 47 ms instead of
+    141 ms (eight passes over all 1602 roots).
     """
     n = gamma.shape[0]
     root_active = jnp.concatenate([active, active])
