@@ -195,16 +195,11 @@ def cluster_roots(poles, factor, weights, active, clusters: Clusters):
 
 def solve_at(modes, s, rhs):
     """u = Q(s_p)^-1 rhs_p: (P, n, m) from rhs (P, n, m), O(P n k m) by Woodbury."""
-    return solve_at_with_factor(modes, s, rhs)[0]
-
-
-def solve_at_with_factor(modes, s, rhs):
-    """(u, F^T u): ``solve_at`` and the damped modes' factor times it, (P, k, m)."""
     r, f, h = resolvent_at(modes, s)
     g = complex_product(f.T, r[:, :, None] * rhs)  # F^T R b
     z = small_solve(h, g)  # H^-1 F^T R b = F^T u
     correction = complex_product(f * modes.weights[None, :], z)
-    return r[:, :, None] * (rhs - s[:, None, None] * correction), z
+    return r[:, :, None] * (rhs - s[:, None, None] * correction)
 
 
 def damping_times(modes, q):

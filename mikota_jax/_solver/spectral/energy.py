@@ -34,7 +34,7 @@ import jax.numpy as jnp
 
 from ..._custom_types import Array
 from ..._model.modal import modal_projection
-from .clusters import initial_rhs, resolvent_at, solve_at, solve_at_with_factor
+from .clusters import initial_rhs, resolvent_at, solve_at
 from .modes import live_modes, live_rows, uses_rows
 from .roots import DampedModes, complex_arithmetic
 from .rows import abs2, by_rows, complex_product, row_block, small_solve
@@ -159,13 +159,15 @@ def cluster_energy(modes: DampedModes, q0, p0, horizon, a, projections=None, sup
     y_j^T Gamma R_p b_p - s_p (y_j^T Gamma R_p F) W F^T u_p: O(NODES n (k + support m)) per root
     instead of O(NODES n m), where only the first ``support`` rows of q0 and p0 may be nonzero
     (None: all; the trace's unit states of its s lowest modes: s)."""
+    rows = q0.shape[0] if support is None else support
+
     def terms():
         s, w = modes.clusters.nodes()
-        u, fu = solve_at_with_factor(modes, s, initial_rhs(modes, s, q0, p0))  # (P, n, m)
+        head, fu = _node_solutions(modes, s, q0, p0, rows)  # u_p's first rows, F^T u_p
         lam = modes.eigenvalues
         f = jnp.where(modes.active[:, None], modes.factor, 0.0)
         wf_u = fu * modes.weights[None, :, None]  # W F^T u_p
-        wf_q = (f.T @ q0) * modes.weights[:, None]  # W F^T q0 (k, m)
+        wf_q = (f[:rows].T @ q0[:rows]) * modes.weights[:, None]  # W F^T q0 (k, m)
         if projections is not None:
             yq, yp, yf = projections  # (2n, m), (2n, m), (2n, k)
             # y_j^T b(s_p) = s_p y_j^T q0 + y_j^T D_m q0 + y_j^T p0
@@ -173,7 +175,7 @@ def cluster_energy(modes: DampedModes, q0, p0, horizon, a, projections=None, sup
         else:
             both = _internal_cross(modes, s, w, q0, p0, lam, a, horizon, y, support, f, wf_u,
                                    wf_q)
-        gram = _node_gram(modes, s, u, wf_q[None] - s[:, None, None] * wf_u, support)
+        gram = _node_gram(modes, s, head, wf_q[None] - s[:, None, None] * wf_u)
         kernel = growth(s[:, None] + s[None, :], horizon)
         inner = jnp.einsum("p,q,pqm,pq->m", w, w, gram, kernel)
         return both + jnp.real(inner) / 2
@@ -182,16 +184,39 @@ def cluster_energy(modes: DampedModes, q0, p0, horizon, a, projections=None, sup
     return jax.lax.cond(modes.clusters.any, terms, lambda: jnp.zeros(shape.shape, shape.dtype))
 
 
-def _node_gram(modes: DampedModes, s, u, spread, support):
+def _node_solutions(modes: DampedModes, s, q0, p0, rows: int):
+    """(u_p's first ``rows`` rows (P, rows, m), F^T u_p (P, k, m)) for u_p = Q(s_p)^-1 b(s_p),
+    b(s) = (s I + D_m) q0 + p0 (``cluster_energy``), where q0 and p0 vanish below ``rows``:
+    there b = F W F^T q0, so F^T R_p b_p takes the tail rows through F^T R_p F (k x k), and no
+    (P, n, m) array is formed (55 MB for the FastOptimalDamping example's trace, n = 801, 54
+    states). ``solve_at`` by Woodbury otherwise: O(P (rows m + n k^2) k)."""
+    r, f, h = resolvent_at(modes, s)
+    weights = modes.weights
+    q_head, p_head = q0[:rows], p0[:rows]
+    wf_q = (f[:rows].T @ q_head) * weights[:, None]  # W F^T q0 (k, m)
+    b_head = (s[:, None, None] * q_head[None] + (modes.gamma[:rows, None] * q_head + p_head
+                                                  + f[:rows] @ wf_q)[None])  # (P, rows, m)
+    r_head = r[:, :rows, None]
+    g = complex_product(f[:rows].T, r_head * b_head)  # F^T R b over the first rows
+    if rows < q0.shape[0]:
+        tail = f[rows:]
+        frf = complex_product(r[:, rows:], (tail[:, :, None] * tail[:, None, :]).reshape(
+            -1, tail.shape[1] ** 2)).reshape(-1, tail.shape[1], tail.shape[1])
+        g = g + complex_product(frf, wf_q)  # F^T R F W F^T q0 over the others
+    z = small_solve(h, g)  # H^-1 F^T R b = F^T u
+    head = r_head * (b_head - s[:, None, None] * complex_product(f[:rows] * weights[None, :], z))
+    return head, z
+
+
+def _node_gram(modes: DampedModes, s, head, spread):
     """G_pqm = u_pm^T (Omega^2 + s_p s_q) u_qm: (P, P, m), the energy inner products of the
-    nodes' states (``cluster_energy``). Below row ``support`` (None: none) q0 and p0 vanish, and
-    there u_p = R_p F C_p with C_p = W F^T q0 - s_p W F^T u_p (``spread``, (P, k, m)) by
-    Woodbury: those rows enter through E_pq = F^T R_p (Omega^2 + s_p s_q) R_q F (k x k), O(P^2 n
-    k^2 + P^2 k^2 m) instead of O(P^2 n m) (0.13 s of the FastOptimalDamping example's trace,
-    n = 801, m = 54 states of its 27 lowest modes)."""
-    n = u.shape[1]
-    rows = n if support is None else support
-    head = u[:, :rows]
+    nodes' states (``cluster_energy``), from u_p's first rows ``head`` (P, rows, m), below which
+    q0 and p0 vanish: there u_p = R_p F C_p with C_p = W F^T q0 - s_p W F^T u_p (``spread``,
+    (P, k, m)) by Woodbury, and those rows enter through E_pq = F^T R_p (Omega^2 + s_p s_q) R_q
+    F (k x k): O(P^2 n k^2 + P^2 k^2 m) instead of O(P^2 n m) (0.13 s of the
+    FastOptimalDamping example's trace, n = 801, m = 54 states of its 27 lowest modes)."""
+    n = modes.omega.shape[0]
+    rows = head.shape[1]
     omega2 = modes.omega**2
     gram = jnp.einsum("plm,qlm->pqm", head * omega2[None, :rows, None], head) + (
         s[:, None, None] * s[None, :, None]) * jnp.einsum("plm,qlm->pqm", head, head)
