@@ -198,14 +198,21 @@ def _node_solutions(modes: DampedModes, s, q0, p0, rows: int):
                                                   + f[:rows] @ wf_q)[None])  # (P, rows, m)
     r_head = r[:, :rows, None]
     g = complex_product(f[:rows].T, r_head * b_head)  # F^T R b over the first rows
-    if rows < q0.shape[0]:
-        tail = f[rows:]
-        frf = complex_product(r[:, rows:], (tail[:, :, None] * tail[:, None, :]).reshape(
-            -1, tail.shape[1] ** 2)).reshape(-1, tail.shape[1], tail.shape[1])
+    tail = rows < q0.shape[0]
+    if tail:
+        others = f[rows:]
+        frf = complex_product(r[:, rows:], (others[:, :, None] * others[:, None, :]).reshape(
+            -1, others.shape[1] ** 2)).reshape(-1, others.shape[1], others.shape[1])
         g = g + complex_product(frf, wf_q)  # F^T R F W F^T q0 over the others
     z = small_solve(h, g)  # H^-1 F^T R b = F^T u
     head = r_head * (b_head - s[:, None, None] * complex_product(f[:rows] * weights[None, :], z))
-    return head, z
+    # F^T u (= z) summed over the rows, the others' as F^T R F C_p, C_p = W F^T q0 - s_p W z_p:
+    # with z itself XLA kept more buffers alive under ``vmap`` (12.1 MB per design at n = 300
+    # instead of 10.6, ``benchmarks/engine.py``)
+    fu = complex_product(f[:rows].T, head)
+    if tail:
+        fu = fu + complex_product(frf, wf_q[None] - s[:, None, None] * weights[None, :, None] * z)
+    return head, fu
 
 
 def _node_gram(modes: DampedModes, s, head, spread):

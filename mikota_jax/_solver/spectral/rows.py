@@ -130,9 +130,8 @@ def complex_product(a, b):
     real products as the complex product's, so both round alike."""
     if not jnp.iscomplexobj(a) and not jnp.iscomplexobj(b):
         return a @ b
-    if not jnp.iscomplexobj(b):
-        out = jnp.concatenate([jnp.real(a), jnp.imag(a)], axis=-2) @ b
-        return jax.lax.complex(out[..., :a.shape[-2], :], out[..., a.shape[-2]:, :])
+    if not jnp.iscomplexobj(b):  # two products: no stacked copy of a
+        return jax.lax.complex(jnp.real(a) @ b, jnp.imag(a) @ b)
     if not jnp.iscomplexobj(a):
         q = b.shape[-1]
         out = a @ jnp.concatenate([jnp.real(b), jnp.imag(b)], axis=-1)
