@@ -158,7 +158,8 @@ def cluster_energy(modes: DampedModes, q0, p0, horizon, a, projections=None, sup
     and Q(s_p) u_p = b(s_p) by Woodbury turns the one O(n)-per-entry product, y_j^T Gamma u_p, into
     y_j^T Gamma R_p b_p - s_p (y_j^T Gamma R_p F) W F^T u_p: O(NODES n (k + support m)) per root
     instead of O(NODES n m), where only the first ``support`` rows of q0 and p0 may be nonzero
-    (None: all; the trace's unit states of its s lowest modes: s)."""
+    (None: all; the trace's unit states of its s lowest modes: s); the nodes' solutions are then
+    formed on those rows alone (``_node_solutions``, ``_node_gram``)."""
     rows = q0.shape[0] if support is None else support
 
     def terms():
@@ -189,7 +190,7 @@ def _node_solutions(modes: DampedModes, s, q0, p0, rows: int):
     b(s) = (s I + D_m) q0 + p0 (``cluster_energy``), where q0 and p0 vanish below ``rows``:
     there b = F W F^T q0, so F^T R_p b_p takes the tail rows through F^T R_p F (k x k), and no
     (P, n, m) array is formed (55 MB for the FastOptimalDamping example's trace, n = 801, 54
-    states). ``solve_at`` by Woodbury otherwise: O(P (rows m + n k^2) k)."""
+    states): O(P (rows m + n k) k). With rows = n this is ``solve_at``'s Woodbury solve."""
     r, f, h = resolvent_at(modes, s)
     weights = modes.weights
     q_head, p_head = q0[:rows], p0[:rows]
