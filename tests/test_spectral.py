@@ -559,3 +559,36 @@ def test_the_energy_of_a_crowded_spectrum_is_exact(c, asymmetry, close):
     ours, grad = jax.value_and_grad(lambda c: spectral_energy(make(c), T, x0, v0))(c)
     close(ours, value, rtol=1e-14)
     close(grad, slope, rtol=1e-14)
+
+
+@pytest.mark.parametrize("internal", ["modal", "rayleigh", "overdamped"])
+def test_the_sorted_window_finds_the_same_nearest_poles_as_a_pass_over_all(internal):
+    """With internal damping the poles leave the imaginary axis; each sweep's nearest pole (and
+    the finish's four nearest) come from a window of the poles sorted by imaginary part, with a
+    pass over all poles for a block the window does not certify. Truth: the pass over all
+    poles (an argmin, exact), on the converged roots and on roots pushed far into the plane
+    (real roots and far-off ones, which the window cannot certify)."""
+    from mikota_jax._solver.spectral import roots as R
+
+    system = mj.mikota_chain(30, dampers=[mj.GroundedDamper(7, 40.0), mj.GroundedDamper(20, 0.3)],
+                             internal_damping=INTERNAL[internal])
+    modes = damped_modes(system)
+    rng = np.random.default_rng(3)
+    far = jnp.asarray(rng.normal(scale=30.0, size=60) + 1j * rng.normal(scale=30.0, size=60))
+    with jax.numpy_dtype_promotion("standard"):
+        poles, active = modes.poles, modes.active
+        order = R._axis_order(poles, jnp.concatenate([active, active]))
+        for anchor, offset in [(modes.anchor, modes.offset),
+                               (modes.anchor, modes.offset + far),
+                               (modes.anchor, modes.offset - jnp.real(far))]:
+            for block in (None, 16):
+                window = R._reanchor(poles, active, anchor, offset, block, None, order)
+                everywhere = R._reanchor(poles, active, anchor, offset, block)
+                assert np.array_equal(window[0], everywhere[0])
+                assert np.array_equal(window[1], everywhere[1])
+                window = R._nearest_anchors(poles, active, anchor, offset, block, None, order)
+                everywhere = R._nearest_anchors(poles, active, anchor, offset, block)
+                assert np.array_equal(window, everywhere)
+        lam = modes.eigenvalues
+        _, certified = R._window_nearest(poles, order, jnp.concatenate([lam, lam + far]))
+        assert not np.all(np.asarray(certified))  # the fallback ran
