@@ -384,18 +384,27 @@ def _axis_nearest(poles, axis, lam, count: int):
     if count == 1:
         below = jnp.searchsorted(values, values[jnp.clip(above - 1, 0, size - 1)], side="left")
         slots = jnp.stack([jnp.where(above > 0, below, -1), above], axis=1)
-    valid = (slots >= 0) & (slots < size)
-    index = order[jnp.clip(slots, 0, size - 1)]
-    valid = valid & jnp.isfinite(values[jnp.clip(slots, 0, size - 1)])
-    distance = jnp.where(valid, jnp.abs(lam[:, None] - poles[index]), jnp.inf)
+    return _slot_picks(poles, axis, lam, slots, count, jnp.abs)[0]
+
+
+def _slot_picks(poles, axis, lam, slots, count: int, measure):
+    """(picks (roots, count), the last pick's ``measure`` of distance): the ``count`` poles at
+    ``slots`` (roots, w) of the sorted order nearest each root, by (distance, index) as successive
+    argmins over all poles pick them (ties to the lowest index)."""
+    order, values = axis
+    size = values.shape[0]
+    clipped = jnp.clip(slots, 0, size - 1)
+    index = order[clipped]
+    valid = (slots >= 0) & (slots < size) & jnp.isfinite(values[clipped])
+    distance = jnp.where(valid, measure(lam[:, None] - poles[index]), jnp.inf)
     rows = jnp.arange(lam.shape[0])
     picks = []
     for _ in range(count):
-        tie = distance == jnp.min(distance, axis=1, keepdims=True)
-        pick = jnp.argmin(jnp.where(tie, index, size), axis=1)
-        picks.append(index[rows, pick])
-        distance = distance.at[rows, pick].set(jnp.inf)
-    return jnp.stack(picks, axis=1)
+        best = jnp.min(distance, axis=1)
+        column = jnp.argmin(jnp.where(distance == best[:, None], index, size), axis=1)
+        picks.append(index[rows, column])
+        distance = distance.at[rows, column].set(jnp.inf)
+    return jnp.stack(picks, axis=1), best
 
 
 def _window_nearest(poles, order, lam, count: int = 1, width: int = 32):
@@ -412,24 +421,14 @@ def _window_nearest(poles, order, lam, count: int = 1, width: int = 32):
     size = values.shape[0]
     above = jnp.searchsorted(values, jnp.imag(lam), side="left")  # (roots,)
     slots = above[:, None] + jnp.arange(-width, width)[None, :]
-    clipped = jnp.clip(slots, 0, size - 1)
-    index = order[clipped]
-    valid = (slots >= 0) & (slots < size) & jnp.isfinite(values[clipped])
-    distance = jnp.where(valid, abs2(lam[:, None] - poles[index]), jnp.inf)
-    rows = jnp.arange(lam.shape[0])
-    picks = []
-    for _ in range(count):
-        best = jnp.min(distance, axis=1)
-        column = jnp.argmin(jnp.where(distance == best[:, None], index, size), axis=1)
-        picks.append(index[rows, column])
-        distance = distance.at[rows, column].set(jnp.inf)
+    picks, best = _slot_picks(poles, (order, values), lam, slots, count, abs2)
     low = above - width - 1  # the last pole below the window, and the first above it
     high = above + width
     gap_low = jnp.where(low >= 0, jnp.imag(lam) - values[jnp.clip(low, 0, size - 1)], jnp.inf)
     gap_high = jnp.where(high < size, values[jnp.clip(high, 0, size - 1)] - jnp.imag(lam),
                          jnp.inf)
     gap = jnp.minimum(gap_low, gap_high)
-    return jnp.stack(picks, axis=1), best < gap * gap
+    return picks, best < gap * gap
 
 
 def _reanchor(poles, active, anchor, offset, block=None, axis=None, order=None):
