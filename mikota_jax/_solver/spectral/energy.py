@@ -164,7 +164,7 @@ def cluster_energy(modes: DampedModes, q0, p0, horizon, a, projections=None, sup
 
     def terms():
         s, w = modes.clusters.nodes()
-        head, fu = _node_solutions(modes, s, q0, p0, rows)  # u_p's first rows, F^T u_p
+        head, fu, r = _node_solutions(modes, s, q0, p0, rows)  # u_p's first rows, F^T u_p, R
         lam = modes.eigenvalues
         f = jnp.where(modes.active[:, None], modes.factor, 0.0)
         wf_u = fu * modes.weights[None, :, None]  # W F^T u_p
@@ -176,7 +176,7 @@ def cluster_energy(modes: DampedModes, q0, p0, horizon, a, projections=None, sup
         else:
             both = _internal_cross(modes, s, w, q0, p0, lam, a, horizon, y, support, f, wf_u,
                                    wf_q)
-        gram = _node_gram(modes, s, head, wf_q[None] - s[:, None, None] * wf_u)
+        gram = _node_gram(modes, s, head, wf_q[None] - s[:, None, None] * wf_u, r, f)
         kernel = growth(s[:, None] + s[None, :], horizon)
         inner = jnp.einsum("p,q,pqm,pq->m", w, w, gram, kernel)
         return both + jnp.real(inner) / 2
@@ -186,7 +186,8 @@ def cluster_energy(modes: DampedModes, q0, p0, horizon, a, projections=None, sup
 
 
 def _node_solutions(modes: DampedModes, s, q0, p0, rows: int):
-    """(u_p's first ``rows`` rows (P, rows, m), F^T u_p (P, k, m)) for u_p = Q(s_p)^-1 b(s_p),
+    """(u_p's first ``rows`` rows (P, rows, m), F^T u_p (P, k, m), R (P, n)) for u_p =
+    Q(s_p)^-1 b(s_p),
     b(s) = (s I + D_m) q0 + p0 (``cluster_energy``), where q0 and p0 vanish below ``rows``:
     there b = F W F^T q0, so F^T R_p b_p takes the tail rows through F^T R_p F (k x k), and no
     (P, n, m) array is formed (55 MB for the FastOptimalDamping example's trace, n = 801, 54
@@ -213,16 +214,17 @@ def _node_solutions(modes: DampedModes, s, q0, p0, rows: int):
     fu = complex_product(f[:rows].T, head)
     if tail:
         fu = fu + complex_product(frf, wf_q[None] - s[:, None, None] * weights[None, :, None] * z)
-    return head, fu
+    return head, fu, r
 
 
-def _node_gram(modes: DampedModes, s, head, spread):
+def _node_gram(modes: DampedModes, s, head, spread, r, f):
     """G_pqm = u_pm^T (Omega^2 + s_p s_q) u_qm: (P, P, m), the energy inner products of the
     nodes' states (``cluster_energy``), from u_p's first rows ``head`` (P, rows, m), below which
     q0 and p0 vanish: there u_p = R_p F C_p with C_p = W F^T q0 - s_p W F^T u_p (``spread``,
     (P, k, m)) by Woodbury, and those rows enter through E_pq = F^T R_p (Omega^2 + s_p s_q) R_q
     F (k x k): O(P^2 n k^2 + P^2 k^2 m) instead of O(P^2 n m) (0.13 s of the
-    FastOptimalDamping example's trace, n = 801, m = 54 states of its 27 lowest modes)."""
+    FastOptimalDamping example's trace, n = 801, m = 54 states of its 27 lowest modes). ``r``:
+    R (P, n) at the nodes; ``f``: the damped modes' factor (n, k)."""
     n = modes.omega.shape[0]
     rows = head.shape[1]
     omega2 = modes.omega**2
@@ -231,8 +233,7 @@ def _node_gram(modes: DampedModes, s, head, spread):
     if rows == n:
         return gram
     points, k = spread.shape[0], spread.shape[1]
-    r = resolvent_at(modes, s)[0][:, rows:]  # (P, n - rows)
-    f = jnp.where(modes.active[:, None], modes.factor, 0.0)[rows:]
+    r, f = r[:, rows:], f[rows:]  # (P, n - rows), (n - rows, k)
     ff = (f[:, :, None] * f[:, None, :]).reshape(-1, 1, k * k)
     right = r.T[:, :, None] * ff  # (n - rows, P, k^2)
     both = complex_product(r, jnp.concatenate([right * omega2[rows:, None, None], right],
