@@ -171,9 +171,9 @@ class DampedModes(eqx.Module):
         Off its own entry (-1 / lambda_j) a damped root's y_j is R_j F diag(d) c_j, so y_j^T X
         = (d c_j)^T (R_j (F (x) X)) - X_J / lambda_j and N_j = (d c_j)^T ((2 lambda_j + gamma)
         R_j^2 (F (x) F)) (d c_j) + (2 lambda_j + gamma_J) / lambda_j^2 + (y_j^T F) diag(d)
-        (F^T y_j): the resolvent's (roots, n) rows meet the columns in two real matrix products,
-        O(n k (k + p)) per root, instead of forming y and reading it once per column (a
-        memory-bound pass each at n = 10^4)."""
+        (F^T y_j): the resolvent's (roots, n) rows meet the columns in two real matrix products
+        (``complex_product``), O(n k (k + p)) per root, instead of forming y and reading it once
+        per column (a memory-bound pass each at n = 10^4)."""
         n, k = self.factor.shape
         anchor, offset = self.anchor[roots], self.offset[roots]
         mode = anchor % n
@@ -184,14 +184,11 @@ class DampedModes(eqx.Module):
         spread = (self.factor[:, :, None] * stacked[:, None, :]).reshape(n, k * width)
         wc = self.null[roots] * self.weights[None, :]
 
-        def times(z, b):  # complex (roots, n) @ real (n, q), as two real products
-            return jax.lax.complex(jnp.real(z) @ b, jnp.imag(z) @ b)
-
-        products = times(r, spread).reshape(-1, k, width)
+        products = complex_product(r, spread).reshape(-1, k, width)
         yx = jnp.einsum("ja,jab->jb", wc, products) - stacked[mode] / lam[:, None]
         rate = 2 * lam[:, None] + self.gamma[None, :]
-        quad = times(rate * r * r,
-                     (self.factor[:, :, None] * self.factor[:, None, :]).reshape(n, k * k))
+        quad = complex_product(rate * r * r, (self.factor[:, :, None]
+                                              * self.factor[:, None, :]).reshape(n, k * k))
         yf = yx[:, :k]
         norm = (jnp.einsum("ja,jab,jb->j", wc, quad.reshape(-1, k, k), wc)
                 + (2 * lam + self.gamma[mode]) / lam**2
