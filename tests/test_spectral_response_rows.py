@@ -35,7 +35,7 @@ def response(system, load, dofs, block):
     roots at a time (7 does not divide the 40 slots: the last block is padded)."""
     options = dict(dofs=dofs, displacement=True, velocity=True)
     if block:
-        trajectory, ok = rows_response(system, TS, X0, V0, load, block=block, **options)
+        trajectory, ok, _ = rows_response(system, TS, X0, V0, load, block=block, **options)
     else:
         trajectory, ok = spectral_solve_with_result(system, TS, X0, V0, load, **options)
     return trajectory.displacement, trajectory.velocity, ok

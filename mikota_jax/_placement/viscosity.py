@@ -66,6 +66,7 @@ from .._objective.family import AverageEnergy, Energy, H2Norm, OutputEnergy, Pea
 from .._objective.functions import (
     integrated_energy_exact_with_result,
     smooth_peak,
+    takes_spectral,
     total_average_energy_with_result,
 )
 from .._objective.outputs import (
@@ -77,9 +78,14 @@ from .._objective.outputs import (
 )
 from .._solver.ode import initial_vector
 from .._solver.solve import Auto, Spectral
-from .._solver.spectral.energy import spectral_output_energy_with_result
+from .._solver.spectral.energy import (
+    spectral_energy_with_roots,
+    spectral_output_energy_with_roots,
+    spectral_trace_with_roots,
+)
 from .._solver.spectral.modes import spectral_applies
-from .._solver.spectral.response import spectral_solve_with_result
+from .._solver.spectral.response import spectral_solve_with_roots
+from .._solver.spectral.roots import RootStart
 
 _SPG_MEMORY = 10  # the non-monotone line search compares with the largest of the last 10 values
 _ARMIJO = 1e-4
@@ -121,28 +127,43 @@ def criterion_value(system, objective):
     (a root not converged, roots coinciding beyond a critically damped pair, an undamped mode
     seen): no check inside, so a compiled search meets a failed design as a value to reject,
     never as an error."""
+    return criterion_with_roots(system, objective)[0]
+
+
+def criterion_with_roots(system, objective, start=None):
+    """(``criterion_value``, roots): its damped roots' sweeps started at ``start`` (a
+    ``RootStart``, None for the arc starts), and the roots found as the next design's start
+    (None where the objective's method is dense)."""
     o = objective
-    if isinstance(o, AverageEnergy):  # by the objective's own method (Auto: the damped modes)
-        value, result = total_average_energy_with_result(
-            system, lowest=o.lowest, method=exact_method(o.method, "AverageEnergy"))
-        ok = result == RESULTS.successful
-    elif isinstance(o, Energy):
-        value, result = integrated_energy_exact_with_result(
-            system, o.horizon, o.x0, o.v0, method=exact_method(o.method, "Energy"))
-        ok = result == RESULTS.successful
+    if isinstance(o, (AverageEnergy, Energy)):  # by the objective's own method (Auto: the modes)
+        method = exact_method(o.method, type(o).__name__)
+        if method == "dense" or not takes_spectral(system):
+            if isinstance(o, AverageEnergy):
+                value, result = total_average_energy_with_result(system, lowest=o.lowest,
+                                                                 method=method)
+            else:
+                value, result = integrated_energy_exact_with_result(system, o.horizon, o.x0,
+                                                                    o.v0, method=method)
+            return jnp.where(result == RESULTS.successful, value, jnp.inf), None
+        if isinstance(o, AverageEnergy):
+            value, ok, roots = spectral_trace_with_roots(system, lowest=o.lowest, start=start)
+        else:
+            value, ok, roots = spectral_energy_with_roots(system, o.horizon, o.x0, o.v0,
+                                                          start=start)
     elif isinstance(o, H2Norm):
-        value, ok = spectral_output_energy_with_result(system, None, None, o.inputs, o.cx, o.cv,
-                                                       None, None)
+        value, ok, roots = spectral_output_energy_with_roots(system, None, None, o.inputs, o.cx,
+                                                             o.cv, None, None, start=start)
         value = jnp.sqrt(value)
     elif isinstance(o, Peak):
-        trajectory, ok = spectral_solve_with_result(system, o.ts, o.x0, o.v0, None,
-                                                    dofs=(o.dof,), displacement=True,
-                                                    velocity=False)
+        trajectory, ok, roots = spectral_solve_with_roots(system, o.ts, o.x0, o.v0, None,
+                                                          dofs=(o.dof,), displacement=True,
+                                                          velocity=False, start=start)
         value = smooth_peak(trajectory.displacement, o.order)
     else:  # OutputEnergy
-        value, ok = spectral_output_energy_with_result(system, o.x0, o.v0, None, o.cx, o.cv,
-                                                       o.horizon, o.lowest)
-    return jnp.where(ok, value, jnp.inf)
+        value, ok, roots = spectral_output_energy_with_roots(system, o.x0, o.v0, None, o.cx,
+                                                             o.cv, o.horizon, o.lowest,
+                                                             start=start)
+    return jnp.where(ok, value, jnp.inf), roots
 
 
 # the objectives a search through a Galerkin model evaluates (its dense reduced Gramian)
@@ -164,20 +185,22 @@ def reduced_criterion_value(model, objective):
 
 
 @eqx.filter_jit
-def _value_and_gradient(d, system, criterion, basis=None):
-    """(f, df/dd) for the (g + p,) coefficient vector d: one compile per system structure and
-    criterion (the system's values are traced); with a ``basis`` (n, r), of the Galerkin model
-    on it (the dampers' coefficients enter its projected damping linearly)."""
+def _value_and_gradient(d, system, criterion, basis=None, start=None):
+    """(f, df/dd, roots) for the (g + p,) coefficient vector d: one compile per system
+    structure and criterion (the system's values are traced); with a ``basis`` (n, r), of the
+    Galerkin model on it (the dampers' coefficients enter its projected damping linearly; roots
+    None). ``start``, roots: as ``criterion_with_roots``."""
     grounded = system.damping.coefficients.shape[0]
 
     def value(d):
         designed = with_parameters(system, dict(coefficients=d[:grounded],
                                                 relative_coefficients=d[grounded:]))
         if basis is None:
-            return criterion_value(designed, criterion)
-        return reduced_criterion_value(galerkin(designed, basis), criterion)
+            return criterion_with_roots(designed, criterion, start)
+        return reduced_criterion_value(galerkin(designed, basis), criterion), None
 
-    return jax.value_and_grad(value)(d)
+    (f, roots), g = jax.value_and_grad(value, has_aux=True)(d)
+    return f, g, roots
 
 
 def criterion_function(system, objective):
@@ -185,7 +208,8 @@ def criterion_function(system, objective):
     ``OutputEnergy``, ``H2Norm``, ``Peak``) over the (g + p,) coefficient vector d, compiled once
     per system structure (``_value_and_gradient``); the objective is checked here."""
     criterion = checked_objective(system, objective)
-    return lambda d: _value_and_gradient(jnp.asarray(d, dtype=jnp.float64), system, criterion)
+    return lambda d: _value_and_gradient(jnp.asarray(d, dtype=jnp.float64), system,
+                                         criterion)[:2]
 
 
 def _check_bounds(bound, size, name, default):
@@ -368,10 +392,14 @@ def search_coefficients(system: SecondOrderSystem, objective, *, free=None, lowe
     with np.errstate(divide="ignore"):
         u_lo, u_hi = np.log(lo[mask]), np.log(hi[mask])
 
-    evaluate_jit = lambda point: _value_and_gradient(  # noqa: E731
-        jnp.asarray(point, dtype=jnp.float64), system, args, basis)
+    evaluate_jit = lambda point, start: _value_and_gradient(  # noqa: E731
+        jnp.asarray(point, dtype=jnp.float64), system, args, basis, start)
     evaluations = refused = 0
     last = {}
+    # each design's damped roots start where the previous design's ended (``RootStart``); the
+    # first from the arc starts, with the same shapes (one compiled program for both)
+    cold = None if basis is not None else RootStart.cold(system.size)
+    sweeps_from = cold
 
     def design(u):
         point = d.copy()
@@ -379,10 +407,15 @@ def search_coefficients(system: SecondOrderSystem, objective, *, free=None, lowe
         return point
 
     def evaluate(u):  # f and df/du = d * df/dd for the free coefficients
-        nonlocal evaluations, refused
+        nonlocal evaluations, refused, sweeps_from
         evaluations += 1
         point = design(u)
-        f, g = evaluate_jit(jnp.asarray(point))
+        f, g, roots = evaluate_jit(point, sweeps_from)
+        if not np.isfinite(f) and sweeps_from is not None and bool(sweeps_from.usable):
+            # refused from the previous design's roots: once more from the arc starts, so
+            # that a value never depends on where the sweeps started
+            f, g, roots = evaluate_jit(point, cold)
+        sweeps_from = cold if roots is None else roots
         refused += not np.isfinite(f)
         last[u.tobytes()] = np.asarray(g)
         return float(f), np.asarray(g)[mask] * point[mask]

@@ -578,15 +578,24 @@ def spectral_energy_with_result(system, horizon, x0, v0, *, block: int | None = 
     ``block``: roots per block of the O(n^2) work (``row_block``). None (the library's
     choice): blocks above n = 512, and a chain above n = 4096 (``uses_rows``) without U, O(n)
     memory; 0: all at once from U (the benchmarks' comparison)."""
+    return spectral_energy_with_roots(system, horizon, x0, v0, block=block)[:2]
+
+
+@eqx.filter_jit
+def spectral_energy_with_roots(system, horizon, x0, v0, *, block: int | None = None,
+                               start=None):
+    """(J, ok, roots): ``spectral_energy_with_result``, its sweeps started at ``start`` (a
+    ``RootStart``, None for the arc starts), and the roots found as the next design's start."""
     if block != 0 and uses_rows(system):  # a large chain: no U, the roots a block at a time
-        modes, projected, ok, _ = live_rows(system, jnp.stack([x0, v0], axis=1), block)
+        modes, projected, ok, _ = live_rows(system, jnp.stack([x0, v0], axis=1), block,
+                                            start=start)
         q0, p0 = projected[:, 0], projected[:, 1]
     else:
-        modes, modes_u, ok = live_modes(system, block)
+        modes, modes_u, ok = live_modes(system, block, start)
         project = modal_projection(system, modes_u)
         q0, p0 = project(x0), project(v0)
     value = energy_from_modes(modes, q0, p0, horizon, block)
-    return value, ok & jnp.isfinite(value)
+    return value, ok & jnp.isfinite(value), modes.start
 
 
 def _unit_states(omega, lowest):
@@ -628,9 +637,16 @@ def trace_from_modes(modes: DampedModes, lowest):
 @eqx.filter_jit
 def spectral_trace_with_result(system, *, lowest):
     """(trace X, ok) of ``total_average_energy``; where not ok, the value must not be used."""
-    modes, _, ok = live_modes(system)
+    return spectral_trace_with_roots(system, lowest=lowest)[:2]
+
+
+@eqx.filter_jit
+def spectral_trace_with_roots(system, *, lowest, start=None):
+    """(trace X, ok, roots): ``spectral_trace_with_result`` from ``start`` (as
+    ``spectral_energy_with_roots``)."""
+    modes, _, ok = live_modes(system, start=start)
     value = trace_from_modes(modes, lowest)
-    return value, ok & jnp.isfinite(value)
+    return value, ok & jnp.isfinite(value), modes.start
 
 
 @complex_arithmetic
@@ -699,7 +715,16 @@ def spectral_output_energy_with_result(system, x0, v0, forces, cx, cv, horizon, 
     impulses of the columns of ``forces`` (n, m) (v0 += M^-1 forces; each None for none; all
     None and no ``lowest``: all 2n unit states);
     ``cx``, ``cv`` (q, n) physical output matrices. Where not ok, the value must not be used."""
-    modes, modes_u, ok = live_modes(system)
+    return spectral_output_energy_with_roots(system, x0, v0, forces, cx, cv, horizon,
+                                             lowest)[:2]
+
+
+@eqx.filter_jit
+def spectral_output_energy_with_roots(system, x0, v0, forces, cx, cv, horizon, lowest, *,
+                                      start=None):
+    """(value, ok, roots): ``spectral_output_energy_with_result`` from ``start`` (as
+    ``spectral_energy_with_roots``)."""
+    modes, modes_u, ok = live_modes(system, start=start)
     n = modes_u.shape[0]
     if lowest is None and x0 is None and v0 is None and forces is None:
         lowest = n  # no state given: all 2n unit states
@@ -714,4 +739,5 @@ def spectral_output_energy_with_result(system, x0, v0, forces, cx, cv, horizon, 
         if forces is not None:
             p0 = p0 + modes_u.T @ forces  # eta'(0+) = U^T M M^-1 f
     value = output_energy_from_modes(modes, q0, p0, cx @ modes_u, cv @ modes_u, horizon)
-    return value, ok & ~jnp.isnan(value)  # inf: an undamped mode is seen (the caller says so)
+    # inf: an undamped mode is seen (the caller says so)
+    return value, ok & ~jnp.isnan(value), modes.start

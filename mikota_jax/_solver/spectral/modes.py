@@ -98,35 +98,35 @@ def damped_modes(system) -> DampedModes:
     return modal_damped_modes(omega, factor, weights, gamma)
 
 
-def live_modes(system, block: int | None = None):
+def live_modes(system, block: int | None = None, start=None):
     """(differentiable ``DampedModes``, U, ok): the roots found without derivatives, then
     carrying the implicit derivative of the secular equation; ok: converged and no two
-    interacting roots nearly coincide outside a cluster (``_spectral_clusters``). ``block``: as
-    ``modal_damped_modes``."""
+    interacting roots nearly coincide outside a cluster (``_spectral_clusters``). ``block``,
+    ``start``: as ``modal_damped_modes``."""
     omega, modes_u, factor, weights, gamma = modal_data(system)
-    modes, ok = live_modal_modes(omega, factor, weights, gamma, block)
+    modes, ok = live_modal_modes(omega, factor, weights, gamma, block, start)
     return modes, modes_u, ok
 
 
-def live_rows(system, vectors, block: int | None = None, dofs=None):
+def live_rows(system, vectors, block: int | None = None, dofs=None, start=None):
     """(differentiable ``DampedModes``, U^T M vectors, ok, U[dofs]) of a chain that
-    ``uses_rows``: ``live_modes`` in O(n) memory (``block``: as ``modal_damped_modes``;
-    ``dofs``: as ``modal_rows``)."""
+    ``uses_rows``: ``live_modes`` in O(n) memory (``block``, ``start``: as
+    ``modal_damped_modes``; ``dofs``: as ``modal_rows``)."""
     why = spectral_applies(system)
     if why is not None:
         raise ValueError(MARK + f"system: {why}.")
     omega, factor, weights, projected, picked = modal_rows(system, vectors, dofs)
-    modes, ok = live_modal_modes(omega, factor, weights, None, block)
+    modes, ok = live_modal_modes(omega, factor, weights, None, block, start)
     return modes, projected, ok, picked
 
 
-def live_modal_modes(omega, factor, weights, gamma, block=None):
+def live_modal_modes(omega, factor, weights, gamma, block=None, start=None):
     """(differentiable ``DampedModes``, ok) of modal data: frequencies ``omega`` (n,), the
     dampers' modal factor F (n, k) and weights d (k,), internal rates ``gamma`` (n,) or None;
     ``ok`` as ``live_modes``'s. Any modal system takes it: a chain's, or a Galerkin model's in
-    its own modal coordinates."""
+    its own modal coordinates. ``start``: as ``modal_damped_modes``."""
     frozen = modal_damped_modes(*jax.lax.stop_gradient((omega, factor, weights, gamma)),
-                                block=block)
+                                block=block, start=start)
     live = frozen if gamma is None else eqx.tree_at(lambda m: m.gamma, frozen, gamma)
     modes = differentiable_roots(eqx.tree_at(lambda m: (m.omega, m.factor, m.weights), live,
                                               (omega, factor, weights)), block)

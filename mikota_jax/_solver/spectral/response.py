@@ -188,10 +188,21 @@ def spectral_solve_with_result(system, ts, x0, v0, load, *, dofs, displacement, 
     A chain that ``uses_rows`` (n > 4096, dampers only) takes ``rows_response``: no U and no
     (n, 2n) vectors (``block`` 0: all at once from U, as below).
     """
+    return spectral_solve_with_roots(system, ts, x0, v0, load, dofs=dofs,
+                                     displacement=displacement, velocity=velocity,
+                                     block=block)[:2]
+
+
+@eqx.filter_jit
+def spectral_solve_with_roots(system, ts, x0, v0, load, *, dofs, displacement, velocity,
+                              block=None, start=None):
+    """(``Trajectory``, ok, roots): ``spectral_solve_with_result``, its sweeps started at
+    ``start`` (a ``RootStart``, None for the arc starts), and the roots found as the next
+    design's start."""
     if block != 0 and uses_rows(system):
         return rows_response(system, ts, x0, v0, load, dofs=dofs, displacement=displacement,
-                             velocity=velocity, block=block)
-    modes, modes_u, modes_ok = live_modes(system)
+                             velocity=velocity, block=block, start=start)
+    modes, modes_u, modes_ok = live_modes(system, start=start)
     project = modal_projection(system, modes_u)
     q0, p0 = project(x0), project(v0)
     a = modes.coefficients(q0, p0)
@@ -239,7 +250,7 @@ def spectral_solve_with_result(system, ts, x0, v0, load, *, dofs, displacement, 
     x, v = jax.lax.cond(modes.clusters.any, clusters, lambda x, v: (x, v), x, v)
     finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(y)) for y in (x, v) if y is not None]))
     ok = modes_ok & consistent & finite
-    return Trajectory(ts, x, v, dofs, None), ok
+    return Trajectory(ts, x, v, dofs, None), ok, modes.start
 
 
 def response_block(n: int, block: int | None = None) -> int:
@@ -250,8 +261,9 @@ def response_block(n: int, block: int | None = None) -> int:
 
 
 @complex_arithmetic
-def rows_response(system, ts, x0, v0, load, *, dofs, displacement, velocity, block=None):
-    """(``Trajectory``, ok) of a chain that ``uses_rows``, in O(n (N + block)) memory.
+def rows_response(system, ts, x0, v0, load, *, dofs, displacement, velocity, block=None,
+                  start=None):
+    """(``Trajectory``, ok, roots) of a chain that ``uses_rows``, in O(n (N + block)) memory.
 
     The same sums as ``spectral_solve_with_result`` in the other order: the modal history
     eta(t_k) = Re sum_j C_kj y_j (N, n) first, a block of conjugate slots at a time
@@ -273,7 +285,8 @@ def rows_response(system, ts, x0, v0, load, *, dofs, displacement, velocity, blo
     # its outputs (N, d) directly, O(n^2 d + N n d), instead of the modal history (N, n)
     direct = not modal_first(ts.shape[0], n, len(dofs))
     modes, projected, modes_ok, out_rows = live_rows(system, jnp.stack(columns, axis=1),
-                                                     dofs=index if direct else None)
+                                                     dofs=index if direct else None,
+                                                     start=start)
     q0, p0 = projected[:, 0], projected[:, 1]
     g = None if load is None else projected[:, 2]
     lam = modes.eigenvalues
@@ -341,4 +354,4 @@ def rows_response(system, ts, x0, v0, load, *, dofs, displacement, velocity, blo
     x = outputs[0] if displacement else None
     v = outputs[-1] if velocity else None
     finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(y)) for y in (x, v) if y is not None]))
-    return Trajectory(ts, x, v, dofs, None), modes_ok & consistent & finite
+    return Trajectory(ts, x, v, dofs, None), modes_ok & consistent & finite, modes.start
