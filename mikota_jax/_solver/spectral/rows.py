@@ -28,15 +28,25 @@ def row_block(n: int, block: int | None = None) -> int | None:
     return None if n <= BLOCK_ABOVE else max(16, min(n, BLOCK_ENTRIES // n))
 
 
+def balanced(m: int, block: int) -> tuple[int, int]:
+    """(blocks, roots per block) for m roots at most ``block`` at a time: as few blocks, of
+    equal size, so that the last is padded by fewer than ``blocks`` roots (600 roots at most 218
+    at a time: 3 blocks of 200, not 3 of 218 with 54 roots of padding, which cost their work and
+    their memory)."""
+    count = -(-m // max(min(block, m), 1))
+    return count, -(-m // count)
+
+
 def by_rows(fn, block, *rows):
     """``fn(*rows)`` over the roots' leading axis: at once (``block`` None), or ``block`` roots
-    at a time in a ``lax.map`` (the last block padded with copies of the last root, cut off
-    after). Each block is a ``jax.checkpoint``: reverse mode recomputes it instead of storing
-    its (block, n) intermediates, so the memory stays O(n block) in every mode."""
+    at a time in a ``lax.map`` (in ``balanced`` blocks, the last padded with copies of the
+    last root, cut off after). Each block is a ``jax.checkpoint``: reverse mode recomputes it
+    instead of storing its (block, n) intermediates, so the memory stays O(n block) in every
+    mode."""
     if block is None:
         return fn(*rows)
     m = rows[0].shape[0]
-    count = -(-m // block)
+    count, block = balanced(m, block)
 
     def split(a):
         pad = jnp.repeat(a[-1:], count * block - m, axis=0)
@@ -77,8 +87,7 @@ def sum_by_rows(fn, block, *rows):
     the padding (copies of the last root), which ``fn`` must scale its terms by. Each block is a
     ``jax.checkpoint``."""
     m = rows[0].shape[0]
-    block = min(block, m)
-    count = -(-m // block)
+    count, block = balanced(m, block)
     weight = (jnp.arange(count * block) < m).astype(float)
 
     def split(a):
