@@ -10,6 +10,9 @@ the 27 lowest modes (``mj.AverageEnergy(27)``), start [100, 100, 100]. Timed in 
   these shapes, compile included (what a notebook cell costs), then the same call **warm**.
 * **Its parts** at the optimum: the compiled value and ``value_and_grad`` (trace + lower and XLA
   apart, run the median of warm calls) and the damped modes alone (``damped_modes``).
+* **Warm starts**: the damped modes of the design one step on from the optimum (each
+  coefficient 1 % larger), from the arc starts and from the optimum's roots, as the search
+  starts each design's sweeps from the last design's roots (sweeps and seconds).
 * **The optimum**: against a reference, scipy's L-BFGS-B on the same compiled value and gradient
   in log d from our optimum with tolerances at rounding level (its relative difference is the
   "same optimum" check), and against the published viscosities (our trace at them; theirs is in
@@ -100,6 +103,23 @@ def parts_row(n1: int, coefficients, repeats: int) -> dict:
                 gradient_function=gradient, system=base)
 
 
+def warm_start_row(n1: int, coefficients, repeats: int) -> dict:
+    """The damped modes of the design one step on from the optimum (every coefficient 1 %
+    larger), from the arc starts and from the optimum's roots (``RootStart``: what the search
+    does between successive designs)."""
+    here = fod_example(n1, ours(coefficients))
+    step = fod_example(n1, ours([1.01 * c for c in coefficients]))
+    start = Compiled(damped_modes, here)(here).start
+    warm = Compiled(damped_modes, step, start)
+    cold_roots, cold_s, _ = timed(Compiled(damped_modes, step), step, repeats=repeats)
+    warm_roots, warm_s, _ = timed(warm, step, start, repeats=repeats)
+    lam_cold, lam_warm = np.asarray(cold_roots.eigenvalues), np.asarray(warm_roots.eigenvalues)
+    apart = max(np.min(np.abs(lam_warm - x)) / abs(x) for x in lam_cold)
+    return dict(step=0.01, cold_sweeps=int(cold_roots.iterations), cold_s=cold_s,
+                warm_sweeps=int(warm_roots.iterations), warm_s=warm_s,
+                roots_relative_difference=float(apart))
+
+
 def reference_row(parts: dict, coefficients) -> dict:
     """scipy's L-BFGS-B on the same compiled value and gradient, in log d, from our optimum."""
     function, base = parts.pop("gradient_function"), parts.pop("system")
@@ -129,6 +149,12 @@ def main(argv=None) -> dict:
     optimum = runs[-1]["coefficients"]
     parts = parts_row(n1, optimum, QUICK_REPEATS if args.quick else REPEATS)
     reference = reference_row(parts, optimum)
+    warm_start = warm_start_row(n1, optimum, QUICK_REPEATS if args.quick else REPEATS)
+    print_table([warm_start], [("cold_sweeps", "sweeps from the arcs", "d"),
+                               ("cold_s", "s", ".3f"),
+                               ("warm_sweeps", "from the last design's roots", "d"),
+                               ("warm_s", "s", ".3f"),
+                               ("roots_relative_difference", "roots apart", ".1e")])
     print_table([parts], [("n", "n", "d"), ("value_s", "value s", ".3f"),
                           ("gradient_s", "value + gradient s", ".3f"),
                           ("gradient_trace_s", "its trace s", ".1f"),
@@ -152,14 +178,17 @@ def main(argv=None) -> dict:
             np.abs(np.asarray(optimum) / np.asarray(reference["coefficients"]) - 1))),
         "value + gradient s": parts["gradient_s"],
         "value + gradient: trace + XLA s": parts["gradient_trace_s"] + parts["gradient_xla_s"],
+        "damped modes a 1 % step on, s: from the arc starts / from the last design's roots": (
+            warm_start["cold_s"], warm_start["warm_s"]),
     }
     if published is not None:
         summary["our trace at the published viscosities / at our optimum - 1"] = (
             published["value"] / runs[-1]["value"] - 1)
     print(summary)
     data = dict(summary=summary, runs=runs, parts=parts, reference=reference,
-                published=published, problem=dict(n1=n1, lowest=LOWEST, start=list(START),
-                                                   internal="ModalDamping(0.01)"),
+                warm_start=warm_start, published=published,
+                problem=dict(n1=n1, lowest=LOWEST, start=list(START),
+                             internal="ModalDamping(0.01)"),
                 total_wall_s=elapsed(start))
     write_json(NAME, args.quick, data)
     print(plot(read_json(NAME, args.quick), args.quick))

@@ -622,3 +622,22 @@ def test_a_warm_start_finds_the_same_roots_in_fewer_sweeps():
         unusable = modes(p1, c1, RootStart(before.anchor, before.offset, jnp.array(False)))
         assert int(unusable.iterations) == int(cold.iterations)
         assert_same_roots(np.asarray(unusable.eigenvalues), np.asarray(cold.eigenvalues), 1e-14)
+
+
+def test_a_warm_start_lets_a_pair_split_onto_the_real_axis():
+    """Between the two designs the lowest pair of a 12-mass chain passes critical damping (two
+    real roots after, none before). A conjugate-symmetric start stays symmetric under the
+    iteration, so the pair could not split (36 sweeps when the warm start was the old roots
+    themselves, against 10 from the arcs); the warm start moves the lower half's roots off
+    symmetry. Truth: the Newton-refined dense eigenvalues (``physical_roots``) and the cold
+    start's sweep count."""
+    before = damped_modes(mj.mikota_chain(12, dampers=[mj.GroundedDamper(1, 7.942)]))
+    system = mj.mikota_chain(12, dampers=[mj.GroundedDamper(1, 9.261)])
+    cold, warm = damped_modes(system), damped_modes(system, before.start)
+    def real(modes):  # roots on the real axis to rounding
+        lam = np.asarray(modes.eigenvalues)
+        return int(np.sum(np.abs(lam.imag) <= 1e-12 * np.abs(lam)))
+
+    assert real(before) == 0 and real(cold) == real(warm) == 2
+    assert bool(warm.converged) and int(warm.iterations) <= int(cold.iterations)
+    assert_same_roots(np.asarray(warm.eigenvalues), physical_roots(system), 1e-12)

@@ -84,7 +84,7 @@ def modal_data(system):
     return jnp.sqrt(omega2), modes, low_rank.factor, low_rank.weights, gamma
 
 
-def damped_modes(system) -> DampedModes:
+def damped_modes(system, start=None) -> DampedModes:
     """The damped modes of a ``SecondOrderSystem`` with dampers (and internal damping diagonal
     in modal coordinates: Rayleigh, modal).
 
@@ -92,10 +92,12 @@ def damped_modes(system) -> DampedModes:
     (modal eigenvectors by ``.vectors()``, x = U y). Roots of a mode no damper touches are that
     mode's own two poles. Check ``converged`` and ``separation``: the iteration reports, and
     never hides, roots it did not find or pairs that nearly coincide (critical damping).
+    ``start``: where the sweeps start (``RootStart``, e.g. a nearby design's ``.start``), None
+    for the arc starts.
     """
     check_x64()
     omega, _, factor, weights, gamma = modal_data(system)
-    return modal_damped_modes(omega, factor, weights, gamma)
+    return modal_damped_modes(omega, factor, weights, gamma, start=start)
 
 
 def live_modes(system, block: int | None = None, start=None):
