@@ -99,3 +99,35 @@ def test_blocks_are_balanced_and_by_rows_is_the_same_map():
     rows = jnp.arange(40.0)
     out = by_rows(lambda r: (r**2, jnp.sin(r)[:, None]), 7, rows)
     assert np.array_equal(out[0], rows**2) and np.array_equal(out[1], jnp.sin(rows)[:, None])
+
+
+def test_batch_cond_is_lax_cond_alone_and_skips_work_no_design_needs_under_vmap():
+    """``batch_cond``: outside ``vmap`` the branch ``lax.cond`` takes; under it each design's
+    own branch's value, and the needed branch runs only where some design of the batch needs
+    it (a ``lax.cond`` batched by JAX runs both branches for every design). Truth: the branch
+    functions themselves, evaluated alone (exact), and a host callback counting the runs."""
+    from mikota_jax._solver.spectral.rows import batch_cond
+
+    runs = []
+
+    def needed(x):
+        jax.debug.callback(lambda: runs.append(1))
+        return jnp.sin(x) * 2
+
+    def cond(flag, x):
+        return batch_cond(flag, needed, jnp.cos, x)
+
+    x = jnp.array([0.3, 1.7, 2.9])
+    for flag in (True, False):
+        assert float(cond(flag, x[0])) == float(needed(x[0]) if flag else jnp.cos(x[0]))
+    batched = jax.jit(jax.vmap(cond))
+    runs.clear()
+    out = batched(jnp.array([False, False, False]), x)
+    jax.effects_barrier()
+    assert not runs
+    np.testing.assert_allclose(out, jnp.cos(x), rtol=2e-16)
+    out = batched(jnp.array([False, True, False]), x)
+    jax.effects_barrier()
+    assert runs
+    np.testing.assert_allclose(out, [jnp.cos(x[0]), 2 * jnp.sin(x[1]), jnp.cos(x[2])],
+                               rtol=2e-16)

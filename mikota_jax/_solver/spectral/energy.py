@@ -182,6 +182,9 @@ def cluster_energy(modes: DampedModes, q0, p0, horizon, a, projections=None, sup
         return both + jnp.real(inner) / 2
 
     shape = jax.eval_shape(terms)
+    # a plain cond, not ``batch_cond``: under vmap that skipped these terms where no design has
+    # a cluster (Section 5 gradients: 41.5 -> 37.7 ms per design), but XLA then kept 23.8 MB
+    # per design instead of 9.8 (the branch's residuals for the reverse pass)
     return jax.lax.cond(modes.clusters.any, terms, lambda: jnp.zeros(shape.shape, shape.dtype))
 
 

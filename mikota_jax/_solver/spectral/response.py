@@ -43,7 +43,7 @@ from .clusters import initial_rhs, solve_at
 from .modes import live_modes, live_rows, uses_rows
 from .modes import spectral_applies as system_applies
 from .roots import complex_arithmetic
-from .rows import abs2, by_rows, sum_by_rows
+from .rows import abs2, batch_cond, by_rows, sum_by_rows
 
 
 def spectral_applies(model) -> str | None:
@@ -247,7 +247,7 @@ def spectral_solve_with_roots(system, ts, x0, v0, load, *, dofs, displacement, v
             v = None if v is None else v + _real_product(tv, out)
         return x, v
 
-    x, v = jax.lax.cond(modes.clusters.any, clusters, lambda x, v: (x, v), x, v)
+    x, v = batch_cond(modes.clusters.any, clusters, lambda x, v: (x, v), x, v)
     finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(y)) for y in (x, v) if y is not None]))
     ok = modes_ok & consistent & finite
     return Trajectory(ts, x, v, dofs, None), ok, modes.start
@@ -318,7 +318,7 @@ def rows_response(system, ts, x0, v0, load, *, dofs, displacement, velocity, blo
         y1, a1, b1 = coefficients(one)
         # the second root of a slot counts for real roots only (packed at the end): a block of
         # conjugate pairs skips it
-        y2, a2, b2 = jax.lax.cond(
+        y2, a2, b2 = batch_cond(
             jnp.any(is_real), coefficients,
             lambda two: jax.tree.map(jnp.zeros_like, (y1, a1, b1)), two)
         cx, cv = _modal_tables(lam[one], a1, b1, ts, load, displacement, velocity)
@@ -344,7 +344,7 @@ def rows_response(system, ts, x0, v0, load, *, dofs, displacement, velocity, blo
         return tuple(e + sum(_real_product(t[i], out) for t, out in zip(tables, outs))
                      for i, e in enumerate(etas))
 
-    etas = jax.lax.cond(modes.clusters.any, clusters, lambda e: e, etas)
+    etas = batch_cond(modes.clusters.any, clusters, lambda e: e, etas)
     if direct:
         outputs = etas  # (N, d) each
     else:

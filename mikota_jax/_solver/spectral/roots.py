@@ -40,7 +40,16 @@ import jax.numpy as jnp
 
 from ..._custom_types import Array, Float
 from .clusters import Clusters, cluster_roots, find_clusters
-from .rows import abs2, by_rows, by_rows_where, complex_product, repulsion, row_block, small_solve
+from .rows import (
+    abs2,
+    batch_cond,
+    by_rows,
+    by_rows_where,
+    complex_product,
+    repulsion,
+    row_block,
+    small_solve,
+)
 from .starts import arc_starts, far_starts
 
 
@@ -478,8 +487,9 @@ def _reanchor(poles, active, anchor, offset, block=None, axis=None, order=None):
             new_anchor = _axis_nearest(poles, axis, lam, 1)[:, 0]
         elif order is not None:
             pick, certified = _window_nearest(poles, order, lam)
-            new_anchor = jax.lax.cond(jnp.all(certified), lambda: pick[:, 0],
-                                      lambda: jnp.where(certified, pick[:, 0], everywhere(lam)))
+            new_anchor = batch_cond(~jnp.all(certified),
+                                    lambda: jnp.where(certified, pick[:, 0], everywhere(lam)),
+                                    lambda: pick[:, 0])
         else:
             new_anchor = everywhere(lam)
         return new_anchor, offset + (poles[anchor] - poles[new_anchor])
@@ -505,8 +515,9 @@ def _nearest_anchors(poles, active, anchor, offset, block=None, axis=None, order
             return _axis_nearest(poles, axis, lam, count)
         if order is not None:
             picks, certified = _window_nearest(poles, order, lam, count)
-            return jax.lax.cond(jnp.all(certified), lambda: picks,
-                                lambda: jnp.where(certified[:, None], picks, everywhere(lam)))
+            return batch_cond(~jnp.all(certified),
+                              lambda: jnp.where(certified[:, None], picks, everywhere(lam)),
+                              lambda: picks)
         return everywhere(lam)
 
     def everywhere(lam):

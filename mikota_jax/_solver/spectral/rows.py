@@ -10,6 +10,7 @@ Aberth's repulsion and the separation check.
 
 import jax
 import jax.numpy as jnp
+from equinox.internal import unvmap_any
 
 from ..._errors import MARK
 from ..._limits import BLOCK_ABOVE, BLOCK_ENTRIES
@@ -56,19 +57,34 @@ def by_rows(fn, block, *rows):
     return jax.tree.map(lambda o: o.reshape((count * block,) + o.shape[2:])[:m], out)
 
 
+def batch_cond(pred, needed, otherwise, *operands):
+    """``lax.cond(pred, needed, otherwise, *operands)`` that stays a branch under ``vmap``.
+
+    JAX batches a ``cond`` whose predicate differs between designs into a ``select`` of both
+    branches, so every design of a batch paid for ``needed`` (the clusters' terms, a pass over
+    all poles) whether any design needed it or not. Here ``needed`` runs where some design of
+    the batch needs it (``unvmap_any``), and each design keeps its own branch's value (a
+    ``where``): outside ``vmap`` exactly ``lax.cond``; under it the same values as each design
+    alone, with the work skipped where no design needs it."""
+    def both(*ops):
+        return jax.tree.map(lambda a, b: jnp.where(pred, a, b), needed(*ops), otherwise(*ops))
+
+    return jax.lax.cond(unvmap_any(pred), both, otherwise, *operands)
+
+
 def by_rows_where(fn, block, mask, *rows):
     """``by_rows`` for the rows where ``mask`` (roots,) holds; zeros in the others. The masked
-    rows are gathered first (a stable sort), and a block without one is skipped by a
-    ``lax.cond``, so the cost follows the masked count (outside ``vmap``; under it the
-    condition is per design and every block is computed, as before)."""
+    rows are gathered first (a stable sort), and a block without one is skipped
+    (``batch_cond``: under ``vmap`` where no design of the batch has one), so the cost follows
+    the masked count."""
     if block is None:
         return _zero_where(fn(*rows), mask)
     order = jnp.argsort(~mask, stable=True)  # the masked rows first, in their order
 
     def one(live, *part):
         shape = jax.eval_shape(fn, *part)
-        return jax.lax.cond(jnp.any(live), lambda: fn(*part),
-                            lambda: jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shape))
+        return batch_cond(jnp.any(live), lambda: fn(*part),
+                          lambda: jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shape))
 
     out = by_rows(one, block, mask[order], *(a[order] for a in rows))
     inverse = jnp.argsort(order)
