@@ -151,12 +151,18 @@ def takes_spectral(model) -> bool:
     return spectral_applies(model) is None
 
 
+def exact_is_dense(model, method) -> bool:
+    """Whether an exact objective's ``method`` ("exact", "spectral", "dense") takes the dense
+    path for ``model``: asked for, or the spectral path does not apply (from the structure)."""
+    return method == "dense" or not takes_spectral(model)
+
+
 def integrated_energy_exact_with_result(model, horizon, x0, v0, method="exact"):
     """``integrated_energy`` without a load on checked inputs: (J, ``RESULTS``). ``method``:
     "exact" (spectral where it applies, from the structure alone, else dense), "spectral" or
     "dense". A failure of the spectral path is reported, never replaced by the dense one (which
     under ``jit`` would compile, and under ``vmap`` run, beside it)."""
-    if method == "dense" or not takes_spectral(model):
+    if exact_is_dense(model, method):
         return van_loan_energy_with_result(model, horizon, x0, v0)
     value, ok = spectral_energy_with_result(model, horizon, x0, v0)
     return value, RESULTS.where(ok, RESULTS.successful, RESULTS.spectral_failed)
@@ -248,7 +254,7 @@ def integrated_energy(model, horizon: float, x0: Vector | None = None,
         _check_spectral(model, method)
         # a chain above n = 4096 with dampers alone: the spectral path in O(n) memory, and no
         # dense fallback (it could not run there either: a failure is reported, not hidden)
-        large = method != "dense" and takes_spectral(model) and uses_rows(model)
+        large = not exact_is_dense(model, method) and uses_rows(model)
         if large:
             method = "spectral"
         else:
@@ -280,7 +286,7 @@ def _dense_trace_with_result(model, *, lowest):
 
 def total_average_energy_with_result(model, *, lowest, method="exact"):
     """The compiled ``total_average_energy`` on checked inputs: (trace X, ``RESULTS``)."""
-    if method == "dense" or not takes_spectral(model):
+    if exact_is_dense(model, method):
         return _dense_trace_with_result(model, lowest=lowest)
     value, ok = spectral_trace_with_result(model, lowest=lowest)
     # an undamped mode: X does not exist (inf), which is said as such

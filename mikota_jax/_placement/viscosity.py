@@ -64,9 +64,9 @@ from .._model.reduced import galerkin
 from .._model.system import SecondOrderSystem
 from .._objective.family import AverageEnergy, Energy, H2Norm, OutputEnergy, Peak, exact_method
 from .._objective.functions import (
+    exact_is_dense,
     integrated_energy_exact_with_result,
     smooth_peak,
-    takes_spectral,
     total_average_energy_with_result,
 )
 from .._objective.outputs import (
@@ -137,7 +137,7 @@ def criterion_with_roots(system, objective, start=None):
     o = objective
     if isinstance(o, (AverageEnergy, Energy)):  # by the objective's own method (Auto: the modes)
         method = exact_method(o.method, type(o).__name__)
-        if method == "dense" or not takes_spectral(system):
+        if exact_is_dense(system, method):
             if isinstance(o, AverageEnergy):
                 value, result = total_average_energy_with_result(system, lowest=o.lowest,
                                                                  method=method)
